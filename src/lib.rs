@@ -1,0 +1,8 @@
+//! ftafm: a real-time virtual instrument for Fourier-transform atomic force microscopy.
+//!
+//! Layers (each depends only on those before it): [`physics`] (pure maths of the paper),
+//! [`config`] (typed settings), [`dsp`] (real-time blocks), then the report and the daemon.
+
+pub mod config;
+pub mod dsp;
+pub mod physics;
