@@ -1,2 +1,12 @@
 //! Pure maths of the paper (Stark & Heckl 2000): beam modes, contact mechanics, the 1-DOF
 //! impact oscillator, spectra and transfer functions. No threads, no I/O.
+
+pub mod beam;
+pub mod contact;
+pub mod impact;
+pub mod spectrum;
+
+pub use beam::{Cantilever, Mode};
+pub use contact::{Elastic, HertzContact};
+pub use impact::{ImpactOscillator, ImpactSolution, SolveOptions};
+pub use spectrum::Harmonic;
