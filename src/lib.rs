@@ -5,4 +5,5 @@
 
 pub mod config;
 pub mod dsp;
+pub mod paper;
 pub mod physics;

@@ -1,1 +1,114 @@
-fn main() {}
+//! The `ftafm` command: parse the command line, load the configuration, call the library.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+use ftafm::config::{self, Settings};
+use ftafm::paper;
+
+#[derive(Parser)]
+#[command(name = "ftafm", version, about = "Real-time virtual instrument for Fourier-transform AFM")]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Compute the paper's Table 1 and Fig. 3 offline for the configured instrument.
+    Paper {
+        /// TOML file overlaid on the embedded default configuration.
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
+        /// Young's modulus of the inhomogeneity relative to the sample's (0 < F, F·E ≤ 10 TPa).
+        #[arg(long, value_name = "F", default_value_t = 0.9, allow_negative_numbers = true)]
+        inhomogeneity_factor: f64,
+        /// Print exactly one JSON object on stdout instead of tables.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Print the configured instrument: its modes and the 1-DOF tapping solution.
+    Info {
+        /// TOML file overlaid on the embedded default configuration.
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
+    },
+}
+
+/// Exit status for bad arguments or an invalid configuration (contract.md).
+const EXIT_USAGE: u8 = 2;
+
+fn load(path: Option<&PathBuf>) -> Result<Settings, ExitCode> {
+    config::load(path.map(PathBuf::as_path)).map_err(|e| {
+        eprintln!("ftafm: invalid configuration: {e}");
+        ExitCode::from(EXIT_USAGE)
+    })
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command.unwrap_or(Command::Info { config: None }) {
+        Command::Paper {
+            config,
+            inhomogeneity_factor,
+            json,
+        } => run_paper(config.as_ref(), inhomogeneity_factor, json),
+        Command::Info { config } => run_info(config.as_ref()),
+    };
+    result.unwrap_or_else(|code| code)
+}
+
+fn run_paper(config: Option<&PathBuf>, factor: f64, json: bool) -> Result<ExitCode, ExitCode> {
+    let settings = load(config)?;
+    let modulus = settings.sample.youngs_modulus * factor;
+    if !(factor.is_finite() && factor > 0.0 && modulus <= config::MAX_YOUNGS_MODULUS) {
+        eprintln!(
+            "ftafm: --inhomogeneity-factor = {factor} is out of range: allowed 0 < F and \
+             F × /sample/youngs_modulus ({:e} Pa) ≤ {:e} Pa",
+            settings.sample.youngs_modulus,
+            config::MAX_YOUNGS_MODULUS
+        );
+        return Err(ExitCode::from(EXIT_USAGE));
+    }
+    let report = paper::compute(&settings, factor).map_err(|e| {
+        eprintln!("ftafm: {e}");
+        ExitCode::FAILURE
+    })?;
+    if json {
+        let text = serde_json::to_string(&report).expect("the report has no maps with non-string keys");
+        println!("{text}");
+    } else {
+        let paper_case = paper::is_paper_case(&settings) && factor == 0.9;
+        print!("{}", paper::render_text(&report, paper_case));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_info(config: Option<&PathBuf>) -> Result<ExitCode, ExitCode> {
+    let settings = load(config)?;
+    let report = paper::compute(&settings, 1.0).map_err(|e| {
+        eprintln!("ftafm: {e}");
+        ExitCode::FAILURE
+    })?;
+    let m = &report.materials[0];
+    println!(
+        "ftafm {}: {} modes, f1 = {} kHz, k = {} N/m, sample E = {} GPa",
+        env!("CARGO_PKG_VERSION"),
+        report.modes.len(),
+        settings.cantilever.f1 / 1e3,
+        settings.cantilever.k,
+        settings.sample.youngs_modulus / 1e9
+    );
+    println!(
+        "tapping at A_free = {:.1} nm, A_set = {:.1} nm: F = {:.2} nN, tau = {:.4}, theta = {:.2} deg",
+        settings.drive.free_amplitude * 1e9,
+        settings.surface.distance * 1e9,
+        m.max_force * 1e9,
+        m.contact_time_ratio,
+        m.phase_shift_deg
+    );
+    println!("the real-time daemon (`ftafm serve`) is not built yet; `ftafm paper` prints the full report");
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,6 +1,32 @@
 //! Configuration: the embedded default (`config/default.toml`), overlays from files, and
 //! validation with errors that name the key, the value and the allowed range.
+//!
+//! - [`settings`]: the typed [`Settings`] (SI units throughout).
+//! - [`field`]: the nodes of the tree (`/sample/youngs_modulus` …): units, ranges,
+//!   descriptions, typed reads and writes.
+//! - [`registry`](mod@registry): the one list of nodes, lookup by path, the tables of the tree.
+//! - [`nodes`]: `get`/`set`/`list` by path, with per-node checks.
+//! - `relations`: checks between nodes (Nyquist, sample period, mode count).
+//! - [`load`](mod@load): the default and overlay files.
+//! - [`error`]: [`NodeError`] and [`ConfigError`].
+//!
+//! See `docs/configuration.md` for every node.
 
-mod settings;
+mod demod_table;
+pub mod error;
+pub mod field;
+pub mod load;
+pub mod nodes;
+mod quantity;
+pub mod range;
+pub mod registry;
+mod relations;
+pub mod settings;
 
+pub use error::{ConfigError, NodeError};
+pub use field::{Field, Kind, MAX_FILTER_ORDER, MAX_HARMONIC, MAX_MODES, MAX_YOUNGS_MODULUS};
+pub use load::{DEFAULT_TOML, default_settings, load, load_str, overlay_str};
+pub use nodes::{NodeInfo, NodeSpec};
+pub use range::{Bound, Range};
+pub use registry::{node, registry, table_keys};
 pub use settings::*;

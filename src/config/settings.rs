@@ -18,6 +18,9 @@ pub struct Settings {
     pub synth: SynthSettings,
     pub noise: NoiseSettings,
     /// Demodulator bank; always [`DEMODULATOR_COUNT`] entries, index = N of `/demods/N`.
+    /// (De)serialised as a table keyed by index (`[demods]` with keys `"0"` … `"31"`), so
+    /// TOML and JSON paths mirror the node tree.
+    #[serde(with = "super::demod_table")]
     pub demods: Vec<DemodSettings>,
 }
 
@@ -74,6 +77,26 @@ pub enum Engine {
     Paper,
     /// Contact force from the instantaneous tip position of all modes.
     Coupled,
+}
+
+impl Engine {
+    /// Every engine, in the order of [`Engine::NAMES`].
+    pub const ALL: [Engine; 2] = [Engine::Paper, Engine::Coupled];
+    /// The names used in config files and the protocol (`/synth/engine`).
+    pub const NAMES: &'static [&'static str] = &["paper", "coupled"];
+
+    /// The config/protocol name of this engine (`"paper"`, `"coupled"`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Engine::Paper => "paper",
+            Engine::Coupled => "coupled",
+        }
+    }
+
+    /// The engine called `name`, if there is one.
+    pub fn from_name(name: &str) -> Option<Engine> {
+        Engine::ALL.into_iter().find(|engine| engine.name() == name)
+    }
 }
 
 /// `[synth]`: the photodiode synthesiser.

@@ -1,0 +1,422 @@
+//! The settings as nodes of a tree: which nodes exist ([`Field`]), their units, the values
+//! each takes on its own ([`Kind`]), their descriptions, and typed reads and writes of
+//! [`Settings`]. The limits between nodes are in `relations`; access by path is in `nodes`.
+
+use serde_json::Value;
+
+use super::quantity::number;
+use super::range::Range;
+use super::settings::{Engine, Settings};
+
+/// Most cantilever modes simulated: entries of `/cantilever/q` plus `/cantilever/extra_modes`.
+pub const MAX_MODES: usize = 16;
+/// Highest harmonic a demodulator may be set to (before the Nyquist limit applies).
+pub const MAX_HARMONIC: u32 = 10_000;
+/// Highest low-pass filter order of a demodulator.
+pub const MAX_FILTER_ORDER: u32 = 8;
+/// Highest Young's modulus of the tip or the sample (Pa): 10 TPa, well above diamond's
+/// 1.2 TPa.
+pub const MAX_YOUNGS_MODULUS: f64 = 1e13;
+
+// Static ranges. Limits that depend on another node (the Nyquist frequency, one sample
+// period) are checked in `relations`, after a whole file or a `set` has been applied, so the
+// order in which keys are applied never matters.
+/// Frequencies in Hz: up to 100 MHz.
+const FREQUENCY: Range = Range::above_up_to(0.0, 1e8);
+/// Spring constant in N/m.
+const STIFFNESS: Range = Range::above_up_to(0.0, 1e5);
+/// Quality factors: above 0.5 so every mode is underdamped (γ = 1/(2Q) < 1).
+const QUALITY: Range = Range::above_up_to(0.5, 1e7);
+/// Tip radius in m: up to 10 µm (colloidal probes).
+const TIP_RADIUS: Range = Range::above_up_to(0.0, 1e-5);
+/// Young's modulus in Pa: up to 10 TPa (above diamond's 1.2 TPa).
+const MODULUS: Range = Range::above_up_to(0.0, MAX_YOUNGS_MODULUS);
+/// Poisson ratio: the thermodynamic limits of an isotropic solid, both excluded (ν = 0.5
+/// is incompressible, ν = −1 makes the shear modulus infinite).
+const POISSON: Range = Range::between(-1.0, 0.5);
+/// Amplitudes and distances in m: up to 1 µm.
+const LENGTH: Range = Range::above_up_to(0.0, 1e-6);
+/// Photodiode sample rate in Hz.
+const SAMPLE_RATE: Range = Range::closed(1e3, 1e9);
+/// Filter time constant in s.
+const TIME_CONSTANT: Range = Range::above_up_to(0.0, 100.0);
+/// Demodulator output rate in Hz: never above the highest sample rate (and, in
+/// `relations`, never above the configured one).
+const OUTPUT_RATE: Range = Range::above_up_to(0.0, SAMPLE_RATE.max.value);
+
+/// One node of the tree. Demodulator nodes carry their index N of `/demods/N/…`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Field {
+    /// `/cantilever/f1` (Hz).
+    CantileverF1,
+    /// `/cantilever/k` (N/m).
+    CantileverK,
+    /// `/cantilever/q` (list of Q, 1).
+    CantileverQ,
+    /// `/cantilever/extra_modes` (count).
+    CantileverExtraModes,
+    /// `/cantilever/tip_radius` (m).
+    CantileverTipRadius,
+    /// `/tip/youngs_modulus` (Pa).
+    TipYoungsModulus,
+    /// `/tip/poisson` (1).
+    TipPoisson,
+    /// `/sample/youngs_modulus` (Pa).
+    SampleYoungsModulus,
+    /// `/sample/poisson` (1).
+    SamplePoisson,
+    /// `/drive/frequency` (Hz).
+    DriveFrequency,
+    /// `/drive/free_amplitude` (m).
+    DriveFreeAmplitude,
+    /// `/surface/distance` (m).
+    SurfaceDistance,
+    /// `/synth/sample_rate` (Hz), read-only at runtime.
+    SynthSampleRate,
+    /// `/synth/engine` (text).
+    SynthEngine,
+    /// `/synth/seed` (integer).
+    SynthSeed,
+    /// `/synth/realtime` (bool).
+    SynthRealtime,
+    /// `/noise/enable` (bool).
+    NoiseEnable,
+    /// `/demods/N/enable` (bool).
+    DemodEnable(usize),
+    /// `/demods/N/harmonic` (integer).
+    DemodHarmonic(usize),
+    /// `/demods/N/order` (integer).
+    DemodOrder(usize),
+    /// `/demods/N/timeconstant` (s).
+    DemodTimeconstant(usize),
+    /// `/demods/N/rate` (Hz).
+    DemodRate(usize),
+}
+
+/// What values a node takes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Kind {
+    /// A finite number inside the range.
+    Float(Range),
+    /// An integer with `min ≤ value ≤ max`.
+    Integer {
+        /// Smallest allowed value.
+        min: u64,
+        /// Largest allowed value.
+        max: u64,
+    },
+    /// `true` or `false`.
+    Bool,
+    /// One of these strings.
+    Text(&'static [&'static str]),
+    /// A list of 1 to `max_len` finite numbers, each inside `entry`.
+    FloatList {
+        /// Range of each entry.
+        entry: Range,
+        /// Longest list allowed.
+        max_len: usize,
+    },
+}
+
+/// A node's value once checked for type, in the representation of its [`Kind`].
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) enum Typed {
+    Float(f64),
+    Integer(u64),
+    Bool(bool),
+    Text(&'static str),
+    FloatList(Vec<f64>),
+}
+
+impl Typed {
+    pub(crate) fn to_json(&self) -> Value {
+        match self {
+            Typed::Float(x) => Value::from(*x),
+            Typed::Integer(n) => Value::from(*n),
+            Typed::Bool(b) => Value::from(*b),
+            Typed::Text(t) => Value::from(*t),
+            Typed::FloatList(list) => Value::from(list.clone()),
+        }
+    }
+
+    /// The value as a message shows it.
+    pub(crate) fn show(&self) -> String {
+        match self {
+            Typed::Float(x) => number(*x),
+            Typed::Integer(n) => n.to_string(),
+            Typed::Bool(b) => b.to_string(),
+            Typed::Text(t) => format!("{t:?}"),
+            Typed::FloatList(list) => {
+                let entries: Vec<String> = list.iter().map(|x| number(*x)).collect();
+                format!("[{}]", entries.join(", "))
+            }
+        }
+    }
+}
+
+impl Field {
+    /// Nodes outside the demodulator bank, in tree order.
+    pub(crate) const SCALARS: [Field; 17] = [
+        Field::CantileverF1,
+        Field::CantileverK,
+        Field::CantileverQ,
+        Field::CantileverExtraModes,
+        Field::CantileverTipRadius,
+        Field::TipYoungsModulus,
+        Field::TipPoisson,
+        Field::SampleYoungsModulus,
+        Field::SamplePoisson,
+        Field::DriveFrequency,
+        Field::DriveFreeAmplitude,
+        Field::SurfaceDistance,
+        Field::SynthSampleRate,
+        Field::SynthEngine,
+        Field::SynthSeed,
+        Field::SynthRealtime,
+        Field::NoiseEnable,
+    ];
+
+    /// The nodes of demodulator `index`, in tree order.
+    pub(crate) fn demod(index: usize) -> [Field; 5] {
+        [
+            Field::DemodEnable(index),
+            Field::DemodHarmonic(index),
+            Field::DemodOrder(index),
+            Field::DemodTimeconstant(index),
+            Field::DemodRate(index),
+        ]
+    }
+
+    /// The node path, e.g. `/sample/youngs_modulus`, `/demods/3/harmonic`.
+    pub fn path(self) -> String {
+        let fixed = match self {
+            Field::CantileverF1 => "/cantilever/f1",
+            Field::CantileverK => "/cantilever/k",
+            Field::CantileverQ => "/cantilever/q",
+            Field::CantileverExtraModes => "/cantilever/extra_modes",
+            Field::CantileverTipRadius => "/cantilever/tip_radius",
+            Field::TipYoungsModulus => "/tip/youngs_modulus",
+            Field::TipPoisson => "/tip/poisson",
+            Field::SampleYoungsModulus => "/sample/youngs_modulus",
+            Field::SamplePoisson => "/sample/poisson",
+            Field::DriveFrequency => "/drive/frequency",
+            Field::DriveFreeAmplitude => "/drive/free_amplitude",
+            Field::SurfaceDistance => "/surface/distance",
+            Field::SynthSampleRate => "/synth/sample_rate",
+            Field::SynthEngine => "/synth/engine",
+            Field::SynthSeed => "/synth/seed",
+            Field::SynthRealtime => "/synth/realtime",
+            Field::NoiseEnable => "/noise/enable",
+            Field::DemodEnable(i) => return format!("/demods/{i}/enable"),
+            Field::DemodHarmonic(i) => return format!("/demods/{i}/harmonic"),
+            Field::DemodOrder(i) => return format!("/demods/{i}/order"),
+            Field::DemodTimeconstant(i) => return format!("/demods/{i}/timeconstant"),
+            Field::DemodRate(i) => return format!("/demods/{i}/rate"),
+        };
+        fixed.to_owned()
+    }
+
+    /// SI unit: `Hz`, `N/m`, `m`, `Pa`, `s`, `1` (dimensionless numbers and counts), or
+    /// empty for text and booleans.
+    pub fn unit(self) -> &'static str {
+        match self {
+            Field::CantileverF1
+            | Field::DriveFrequency
+            | Field::SynthSampleRate
+            | Field::DemodRate(_) => "Hz",
+            Field::CantileverK => "N/m",
+            Field::CantileverTipRadius | Field::DriveFreeAmplitude | Field::SurfaceDistance => "m",
+            Field::TipYoungsModulus | Field::SampleYoungsModulus => "Pa",
+            Field::DemodTimeconstant(_) => "s",
+            Field::CantileverQ
+            | Field::CantileverExtraModes
+            | Field::TipPoisson
+            | Field::SamplePoisson
+            | Field::SynthSeed
+            | Field::DemodHarmonic(_)
+            | Field::DemodOrder(_) => "1",
+            Field::SynthEngine
+            | Field::SynthRealtime
+            | Field::NoiseEnable
+            | Field::DemodEnable(_) => "",
+        }
+    }
+
+    /// Whether the protocol's `set` may change the node while the instrument runs. Only the
+    /// sample rate is fixed: every buffer, filter and FFT plan is sized from it.
+    pub fn writable(self) -> bool {
+        self != Field::SynthSampleRate
+    }
+
+    /// The values the node takes, without the limits that depend on other nodes.
+    pub fn kind(self) -> Kind {
+        match self {
+            Field::CantileverF1 | Field::DriveFrequency => Kind::Float(FREQUENCY),
+            Field::CantileverK => Kind::Float(STIFFNESS),
+            Field::CantileverQ => Kind::FloatList {
+                entry: QUALITY,
+                max_len: MAX_MODES,
+            },
+            Field::CantileverExtraModes => Kind::Integer {
+                min: 0,
+                max: MAX_MODES as u64 - 1,
+            },
+            Field::CantileverTipRadius => Kind::Float(TIP_RADIUS),
+            Field::TipYoungsModulus | Field::SampleYoungsModulus => Kind::Float(MODULUS),
+            Field::TipPoisson | Field::SamplePoisson => Kind::Float(POISSON),
+            Field::DriveFreeAmplitude | Field::SurfaceDistance => Kind::Float(LENGTH),
+            Field::SynthSampleRate => Kind::Float(SAMPLE_RATE),
+            Field::SynthEngine => Kind::Text(Engine::NAMES),
+            Field::SynthSeed => Kind::Integer {
+                min: 0,
+                max: u64::MAX,
+            },
+            Field::SynthRealtime | Field::NoiseEnable | Field::DemodEnable(_) => Kind::Bool,
+            Field::DemodHarmonic(_) => Kind::Integer {
+                min: 0,
+                max: MAX_HARMONIC.into(),
+            },
+            Field::DemodOrder(_) => Kind::Integer {
+                min: 1,
+                max: MAX_FILTER_ORDER.into(),
+            },
+            Field::DemodTimeconstant(_) => Kind::Float(TIME_CONSTANT),
+            Field::DemodRate(_) => Kind::Float(OUTPUT_RATE),
+        }
+    }
+
+    /// One sentence saying what the node is, with its unit.
+    pub fn description(self) -> String {
+        let fixed = match self {
+            Field::CantileverF1 => {
+                "First flexural resonance frequency f1 of the cantilever, in Hz."
+            }
+            Field::CantileverK => {
+                "Static spring constant of the cantilever at the tip (3EI/L³), in N/m."
+            }
+            Field::CantileverQ => {
+                "Quality factor of each cantilever mode from the first on (dimensionless); the list's length is the number of modes with a given Q."
+            }
+            Field::CantileverExtraModes => {
+                "Number of modes simulated beyond the q list, damped by Rayleigh damping (Eq. B.7) fitted to the last two q values."
+            }
+            Field::CantileverTipRadius => "Radius R of the tip apex, in m.",
+            Field::TipYoungsModulus => "Young's modulus of the tip material, in Pa.",
+            Field::TipPoisson => "Poisson ratio of the tip material (dimensionless).",
+            Field::SampleYoungsModulus => "Young's modulus of the sample under the tip, in Pa.",
+            Field::SamplePoisson => "Poisson ratio of the sample under the tip (dimensionless).",
+            Field::DriveFrequency => {
+                "Drive frequency Ω/2π of the base excitation, in Hz; below half the sample rate."
+            }
+            Field::DriveFreeAmplitude => {
+                "Free (non-contact) peak tip amplitude at the drive frequency, in m."
+            }
+            Field::SurfaceDistance => {
+                "Distance A_set from the tip's rest position to the sample surface, in m; the tip taps when it is below the amplitude."
+            }
+            Field::SynthSampleRate => {
+                "Photodiode sample rate of the synthesiser, in Hz; fixed at start (config file only)."
+            }
+            Field::SynthEngine => {
+                "Tip-force engine: \"paper\" (cut-cosine pulses from the 1-DOF model, the paper's method) or \"coupled\" (contact force from the instantaneous tip position of all modes)."
+            }
+            Field::SynthSeed => {
+                "Seed of every random source (integer); the same seed and settings give the same stream."
+            }
+            Field::SynthRealtime => {
+                "Pace synthesis to the wall clock (true) or run as fast as possible (false)."
+            }
+            Field::NoiseEnable => "Switches all noise sources on (true) or off (false).",
+            Field::DemodEnable(i) => {
+                return format!("Demodulator {i} produces output (true) or is idle (false).");
+            }
+            Field::DemodHarmonic(i) => {
+                return format!(
+                    "Harmonic k of the drive frequency that demodulator {i} measures (dimensionless, 0 is the mean); k × drive frequency must stay below half the sample rate while enabled."
+                );
+            }
+            Field::DemodOrder(i) => {
+                return format!(
+                    "Order of demodulator {i}'s low-pass filter, the number of cascaded first-order sections (dimensionless)."
+                );
+            }
+            Field::DemodTimeconstant(i) => {
+                return format!(
+                    "Time constant of each first-order low-pass section of demodulator {i}, in s; at least one sample period."
+                );
+            }
+            Field::DemodRate(i) => {
+                return format!("Output rate of demodulator {i}, in Hz; at most the sample rate.");
+            }
+        };
+        fixed.to_owned()
+    }
+
+    /// The node's current value; `None` only for a demodulator index the bank lacks.
+    pub(crate) fn read(self, s: &Settings) -> Option<Typed> {
+        Some(match self {
+            Field::CantileverF1 => Typed::Float(s.cantilever.f1),
+            Field::CantileverK => Typed::Float(s.cantilever.k),
+            Field::CantileverQ => Typed::FloatList(s.cantilever.q.clone()),
+            Field::CantileverExtraModes => Typed::Integer(s.cantilever.extra_modes as u64),
+            Field::CantileverTipRadius => Typed::Float(s.cantilever.tip_radius),
+            Field::TipYoungsModulus => Typed::Float(s.tip.youngs_modulus),
+            Field::TipPoisson => Typed::Float(s.tip.poisson),
+            Field::SampleYoungsModulus => Typed::Float(s.sample.youngs_modulus),
+            Field::SamplePoisson => Typed::Float(s.sample.poisson),
+            Field::DriveFrequency => Typed::Float(s.drive.frequency),
+            Field::DriveFreeAmplitude => Typed::Float(s.drive.free_amplitude),
+            Field::SurfaceDistance => Typed::Float(s.surface.distance),
+            Field::SynthSampleRate => Typed::Float(s.synth.sample_rate),
+            Field::SynthEngine => Typed::Text(s.synth.engine.name()),
+            Field::SynthSeed => Typed::Integer(s.synth.seed),
+            Field::SynthRealtime => Typed::Bool(s.synth.realtime),
+            Field::NoiseEnable => Typed::Bool(s.noise.enable),
+            Field::DemodEnable(i) => Typed::Bool(s.demods.get(i)?.enable),
+            Field::DemodHarmonic(i) => Typed::Integer(s.demods.get(i)?.harmonic.into()),
+            Field::DemodOrder(i) => Typed::Integer(s.demods.get(i)?.order.into()),
+            Field::DemodTimeconstant(i) => Typed::Float(s.demods.get(i)?.timeconstant),
+            Field::DemodRate(i) => Typed::Float(s.demods.get(i)?.rate),
+        })
+    }
+
+    /// Stores a value already checked against [`Field::kind`]. `None` if the value does not
+    /// fit the field (cannot happen after the
+    /// node's own type check) or the bank lacks the index.
+    pub(crate) fn write(self, s: &mut Settings, value: Typed) -> Option<()> {
+        match (self, value) {
+            (Field::CantileverF1, Typed::Float(x)) => s.cantilever.f1 = x,
+            (Field::CantileverK, Typed::Float(x)) => s.cantilever.k = x,
+            (Field::CantileverQ, Typed::FloatList(q)) => s.cantilever.q = q,
+            (Field::CantileverExtraModes, Typed::Integer(n)) => {
+                s.cantilever.extra_modes = usize::try_from(n).ok()?;
+            }
+            (Field::CantileverTipRadius, Typed::Float(x)) => s.cantilever.tip_radius = x,
+            (Field::TipYoungsModulus, Typed::Float(x)) => s.tip.youngs_modulus = x,
+            (Field::TipPoisson, Typed::Float(x)) => s.tip.poisson = x,
+            (Field::SampleYoungsModulus, Typed::Float(x)) => s.sample.youngs_modulus = x,
+            (Field::SamplePoisson, Typed::Float(x)) => s.sample.poisson = x,
+            (Field::DriveFrequency, Typed::Float(x)) => s.drive.frequency = x,
+            (Field::DriveFreeAmplitude, Typed::Float(x)) => s.drive.free_amplitude = x,
+            (Field::SurfaceDistance, Typed::Float(x)) => s.surface.distance = x,
+            (Field::SynthSampleRate, Typed::Float(x)) => s.synth.sample_rate = x,
+            (Field::SynthEngine, Typed::Text(name)) => s.synth.engine = Engine::from_name(name)?,
+            (Field::SynthSeed, Typed::Integer(n)) => s.synth.seed = n,
+            (Field::SynthRealtime, Typed::Bool(b)) => s.synth.realtime = b,
+            (Field::NoiseEnable, Typed::Bool(b)) => s.noise.enable = b,
+            (Field::DemodEnable(i), Typed::Bool(b)) => s.demods.get_mut(i)?.enable = b,
+            (Field::DemodHarmonic(i), Typed::Integer(n)) => {
+                s.demods.get_mut(i)?.harmonic = u32::try_from(n).ok()?;
+            }
+            (Field::DemodOrder(i), Typed::Integer(n)) => {
+                s.demods.get_mut(i)?.order = u32::try_from(n).ok()?;
+            }
+            (Field::DemodTimeconstant(i), Typed::Float(x)) => {
+                s.demods.get_mut(i)?.timeconstant = x;
+            }
+            (Field::DemodRate(i), Typed::Float(x)) => s.demods.get_mut(i)?.rate = x,
+            _ => return None,
+        }
+        Some(())
+    }
+}

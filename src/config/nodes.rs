@@ -1,0 +1,409 @@
+//! Access to [`Settings`] by node path (`/sample/youngs_modulus`): [`NodeSpec`], a node with
+//! its unit, range and description, and the checks of one value against it; [`NodeInfo`], the
+//! protocol's `list` entry; and `Settings::get`, `set`, `apply`, `nodes`. The list of nodes
+//! itself is the registry ([`registry`]); the config loader, the protocol and the docs test
+//! all read it.
+
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+use super::error::NodeError;
+use super::field::{Field, Kind, Typed};
+use super::quantity::number;
+use super::registry::{node, registry};
+use super::relations;
+use super::settings::Settings;
+
+/// A JSON value as a message shows it: numbers compact, anything long cut short.
+pub(crate) fn show_json(value: &Value) -> String {
+    let text = match value.as_f64() {
+        Some(x) if value.is_f64() => number(x),
+        _ => value.to_string(),
+    };
+    const LONGEST: usize = 80;
+    match text.char_indices().nth(LONGEST) {
+        Some((cut, _)) => format!("{}…", &text[..cut]),
+        None => text,
+    }
+}
+
+/// One row of the registry: a node and everything static about it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NodeSpec {
+    /// The node path, e.g. `/sample/youngs_modulus`.
+    pub path: String,
+    /// Which setting it is.
+    pub field: Field,
+    /// SI unit (see [`Field::unit`]).
+    pub unit: &'static str,
+    /// Whether `set` may change it at runtime (config files may always set it).
+    pub writable: bool,
+    /// Allowed values, without the limits that depend on other nodes.
+    pub kind: Kind,
+    /// One sentence with the unit.
+    pub description: String,
+}
+
+impl NodeSpec {
+    pub(crate) fn new(field: Field) -> NodeSpec {
+        NodeSpec {
+            path: field.path(),
+            field,
+            unit: field.unit(),
+            writable: field.writable(),
+            kind: field.kind(),
+            description: field.description(),
+        }
+    }
+
+    /// `" Hz"` for a unit that reads after a number, nothing for `1` and text.
+    fn unit_suffix(&self) -> String {
+        match self.unit {
+            "" | "1" => String::new(),
+            unit => format!(" {unit}"),
+        }
+    }
+
+    /// What is allowed, for "is out of range: allowed …".
+    pub fn allowed(&self) -> String {
+        match self.kind {
+            Kind::Float(range) => format!("{range}{}", self.unit_suffix()),
+            Kind::Integer { min, max } => format!("{min} ≤ value ≤ {max}"),
+            Kind::Bool => "true or false".to_owned(),
+            Kind::Text(choices) => {
+                let quoted: Vec<String> = choices.iter().map(|c| format!("{c:?}")).collect();
+                format!("one of {}", quoted.join(", "))
+            }
+            Kind::FloatList { entry, max_len } => format!(
+                "a list of 1 to {max_len} numbers, each {entry}{}",
+                self.unit_suffix()
+            ),
+        }
+    }
+
+    /// What type is expected, for "has the wrong type: expected …".
+    fn expected(&self) -> String {
+        match self.kind {
+            Kind::Float(_) => format!("a number, {}", self.allowed()),
+            Kind::Integer { .. } => format!("an integer, {}", self.allowed()),
+            Kind::Bool | Kind::Text(_) | Kind::FloatList { .. } => self.allowed(),
+        }
+    }
+
+    fn invalid(&self, message: String) -> NodeError {
+        NodeError::InvalidValue {
+            path: self.path.clone(),
+            message,
+        }
+    }
+
+    fn wrong_type(&self, value: &Value) -> NodeError {
+        self.invalid(format!(
+            "{} = {} has the wrong type: expected {}",
+            self.path,
+            show_json(value),
+            self.expected()
+        ))
+    }
+
+    fn out_of_range(&self, shown: &str) -> NodeError {
+        self.invalid(format!(
+            "{} = {shown} is out of range: allowed {}",
+            self.path,
+            self.allowed()
+        ))
+    }
+
+    /// A TOML `nan`/`inf` (JSON cannot carry them): `shown` is the value as the file wrote it.
+    pub(crate) fn non_finite(&self, shown: &str) -> NodeError {
+        self.invalid(format!(
+            "{} = {shown} is not a finite number: allowed {}",
+            self.path,
+            self.allowed()
+        ))
+    }
+
+    /// Converts a JSON value to the node's type and checks it against the node's own range.
+    /// Integers must be integral numbers (`4` or `4.0`, not `4.5` or `"4"`).
+    pub(crate) fn parse(&self, value: &Value) -> Result<Typed, NodeError> {
+        let typed = match self.kind {
+            Kind::Float(_) => Typed::Float(value.as_f64().ok_or_else(|| self.wrong_type(value))?),
+            Kind::Integer { .. } => Typed::Integer(self.parse_integer(value)?),
+            Kind::Bool => Typed::Bool(value.as_bool().ok_or_else(|| self.wrong_type(value))?),
+            Kind::Text(choices) => {
+                let text = value.as_str().ok_or_else(|| self.wrong_type(value))?;
+                let choice = choices.iter().find(|c| **c == text).ok_or_else(|| {
+                    self.invalid(format!(
+                        "{} = {} is not allowed: choose {}",
+                        self.path,
+                        show_json(value),
+                        self.allowed()
+                    ))
+                })?;
+                Typed::Text(choice)
+            }
+            Kind::FloatList { .. } => {
+                let entries = value.as_array().ok_or_else(|| self.wrong_type(value))?;
+                let numbers = entries
+                    .iter()
+                    .enumerate()
+                    .map(|(i, entry)| {
+                        entry.as_f64().ok_or_else(|| {
+                            self.invalid(format!(
+                                "{} = {}: entry {i} ({}) is not a number: expected {}",
+                                self.path,
+                                show_json(value),
+                                show_json(entry),
+                                self.allowed()
+                            ))
+                        })
+                    })
+                    .collect::<Result<Vec<f64>, NodeError>>()?;
+                Typed::FloatList(numbers)
+            }
+        };
+        self.check(&typed)?;
+        Ok(typed)
+    }
+
+    fn parse_integer(&self, value: &Value) -> Result<u64, NodeError> {
+        if let Some(n) = value.as_u64() {
+            return Ok(n);
+        }
+        let x = value.as_f64().ok_or_else(|| self.wrong_type(value))?;
+        // 2^64 as f64; every integral f64 below it converts to u64 exactly.
+        const TWO_TO_64: f64 = 18_446_744_073_709_551_616.0;
+        if !(0.0..TWO_TO_64).contains(&x) {
+            return Err(self.out_of_range(&show_json(value)));
+        }
+        if x.fract() != 0.0 {
+            return Err(self.invalid(format!(
+                "{} = {} is not an integer: allowed {}",
+                self.path,
+                show_json(value),
+                self.allowed()
+            )));
+        }
+        Ok(x as u64)
+    }
+
+    /// Checks a typed value against the node's own range (not against other nodes).
+    pub(crate) fn check(&self, value: &Typed) -> Result<(), NodeError> {
+        match (self.kind, value) {
+            (Kind::Float(range), Typed::Float(x)) => {
+                if !x.is_finite() {
+                    Err(self.non_finite(&value.show()))
+                } else if !range.contains(*x) {
+                    Err(self.out_of_range(&value.show()))
+                } else {
+                    Ok(())
+                }
+            }
+            (Kind::Integer { min, max }, Typed::Integer(n)) => {
+                if (min..=max).contains(n) {
+                    Ok(())
+                } else {
+                    Err(self.out_of_range(&value.show()))
+                }
+            }
+            (Kind::Bool, Typed::Bool(_)) => Ok(()),
+            (Kind::Text(choices), Typed::Text(text)) if choices.contains(text) => Ok(()),
+            (Kind::FloatList { entry, max_len }, Typed::FloatList(list)) => {
+                let shown = value.show();
+                if list.is_empty() {
+                    return Err(self.invalid(format!(
+                        "{} = [] is empty: allowed {}",
+                        self.path,
+                        self.allowed()
+                    )));
+                }
+                if list.len() > max_len {
+                    return Err(self.invalid(format!(
+                        "{} = {shown} has {} entries: allowed {}",
+                        self.path,
+                        list.len(),
+                        self.allowed()
+                    )));
+                }
+                for (i, x) in list.iter().enumerate() {
+                    if !entry.contains(*x) {
+                        let problem = if x.is_finite() {
+                            "is out of range"
+                        } else {
+                            "is not a finite number"
+                        };
+                        return Err(self.invalid(format!(
+                            "{} = {shown}: entry {i} ({}) {problem}: allowed {}",
+                            self.path,
+                            number(*x),
+                            self.allowed()
+                        )));
+                    }
+                }
+                Ok(())
+            }
+            _ => Err(self.invalid(format!(
+                "{} = {} has the wrong type: expected {}",
+                self.path,
+                value.show(),
+                self.expected()
+            ))),
+        }
+    }
+
+    /// The lowest and highest value `set` would accept now, as the protocol's `list` reports
+    /// them: the static range narrowed by the limits that depend on other nodes. Whether an
+    /// end itself is allowed is in the docs and in error messages; `null` for text and bool.
+    fn bounds(&self, s: &Settings) -> (Value, Value) {
+        let sample_rate = s.synth.sample_rate;
+        match self.kind {
+            Kind::Float(range) | Kind::FloatList { entry: range, .. } => {
+                let (mut low, mut high) = (range.min.value, range.max.value);
+                match self.field {
+                    Field::DriveFrequency => high = high.min(sample_rate / 2.0),
+                    Field::DemodTimeconstant(_) => low = low.max(1.0 / sample_rate),
+                    Field::DemodRate(_) => high = high.min(sample_rate),
+                    _ => {}
+                }
+                (Value::from(low), Value::from(high))
+            }
+            Kind::Integer { min, mut max } => {
+                let enabled = |i: usize| s.demods.get(i).is_some_and(|d| d.enable);
+                if matches!(self.field, Field::DemodHarmonic(i) if enabled(i)) {
+                    max = max.min(relations::highest_harmonic(s));
+                }
+                (Value::from(min), Value::from(max))
+            }
+            Kind::Bool | Kind::Text(_) => (Value::Null, Value::Null),
+        }
+    }
+}
+
+/// One entry of the protocol's `list` reply: a node with its current value.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NodeInfo {
+    /// The node path.
+    pub path: String,
+    /// Current value (number, integer, bool, string, or list of numbers).
+    pub value: Value,
+    /// SI unit; `1` for dimensionless, empty for text and bool.
+    pub unit: String,
+    /// Whether `set` may change it at runtime.
+    pub writable: bool,
+    /// Lowest value accepted now (an end that is itself excluded, like the 0 of `0 < value`,
+    /// is still reported), or `null`. For a list, the bound of each entry.
+    pub min: Value,
+    /// Highest value accepted now, or `null`. For a list, the bound of each entry.
+    pub max: Value,
+    /// One sentence with the unit.
+    pub description: String,
+}
+
+/// Whether a `set` comes over the protocol (read-only nodes refused) or from a config file.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Access {
+    Runtime,
+    ConfigFile,
+}
+
+impl Settings {
+    /// The current value of the node at `path`, as the protocol's `get` returns it.
+    pub fn get(&self, path: &str) -> Result<Value, NodeError> {
+        let unknown = || NodeError::UnknownPath {
+            path: path.to_owned(),
+        };
+        let spec = node(path).ok_or_else(unknown)?;
+        spec.field
+            .read(self)
+            .map(|v| v.to_json())
+            .ok_or_else(unknown)
+    }
+
+    /// The protocol's `set`: changes one node and returns the value as applied (e.g. `4.0`
+    /// for an integer node comes back as `4`). Read-only nodes give [`NodeError::ReadOnly`].
+    /// Transactional: the value is checked on its own, then applied to a copy that must pass
+    /// [`Settings::validate`]; on any error `self` is unchanged.
+    pub fn set(&mut self, path: &str, value: &Value) -> Result<Value, NodeError> {
+        self.assign(path, value, Access::Runtime)
+    }
+
+    /// Like [`Settings::set`], but also for nodes that are read-only at runtime (as a config
+    /// file may set them). Use it to build settings that take effect at the next start.
+    pub fn apply(&mut self, path: &str, value: &Value) -> Result<Value, NodeError> {
+        self.assign(path, value, Access::ConfigFile)
+    }
+
+    fn assign(&mut self, path: &str, value: &Value, access: Access) -> Result<Value, NodeError> {
+        let spec = node(path).ok_or_else(|| NodeError::UnknownPath {
+            path: path.to_owned(),
+        })?;
+        if access == Access::Runtime && !spec.writable {
+            return Err(NodeError::ReadOnly {
+                path: path.to_owned(),
+            });
+        }
+        let mut next = self.clone();
+        next.write_node(spec, value)?;
+        next.validate().map_err(|error| match error {
+            // A conflict found on another node: report it as this `set`'s failure, naming
+            // the value tried and the node it conflicts with.
+            NodeError::InvalidValue {
+                path: other,
+                message,
+            } if other != path => NodeError::InvalidValue {
+                path: path.to_owned(),
+                message: format!("cannot set {path} = {}: {message}", show_json(value)),
+            },
+            error => error,
+        })?;
+        let applied = next.get(path)?;
+        *self = next;
+        Ok(applied)
+    }
+
+    /// Checks `value` against the node's own type and range and stores it, without the
+    /// checks between nodes (the config loader runs those once, after the whole file).
+    pub(crate) fn write_node(&mut self, spec: &NodeSpec, value: &Value) -> Result<(), NodeError> {
+        let typed = spec.parse(value)?;
+        spec.field
+            .write(self, typed)
+            .ok_or_else(|| NodeError::UnknownPath {
+                path: spec.path.clone(),
+            })
+    }
+
+    /// Every node with its current value, in tree order: the protocol's `list`.
+    pub fn nodes(&self) -> Vec<NodeInfo> {
+        self.nodes_under("")
+    }
+
+    /// The nodes at or below `prefix`, matched by whole path segments: `/demods/1` lists
+    /// `/demods/1/…` but not `/demods/10/…`. An empty prefix or `/` lists every node.
+    pub fn nodes_under(&self, prefix: &str) -> Vec<NodeInfo> {
+        let prefix = prefix.trim_end_matches('/');
+        registry()
+            .iter()
+            .filter(|spec| {
+                prefix.is_empty()
+                    || spec.path == prefix
+                    || spec
+                        .path
+                        .strip_prefix(prefix)
+                        .is_some_and(|rest| rest.starts_with('/'))
+            })
+            .filter_map(|spec| {
+                let value = spec.field.read(self)?.to_json();
+                let (min, max) = spec.bounds(self);
+                Some(NodeInfo {
+                    path: spec.path.clone(),
+                    value,
+                    unit: spec.unit.to_owned(),
+                    writable: spec.writable,
+                    min,
+                    max,
+                    description: spec.description.clone(),
+                })
+            })
+            .collect()
+    }
+}

@@ -1,0 +1,147 @@
+//! The registry: the one list of nodes, built once, with lookup by path and the tables of
+//! the tree (what keys `[sample]` or `[demods.3]` have) for the config loader and messages.
+
+use std::collections::{BTreeMap, HashMap};
+use std::sync::OnceLock;
+
+use super::field::Field;
+use super::nodes::NodeSpec;
+use super::settings::DEMODULATOR_COUNT;
+
+struct Registry {
+    specs: Vec<NodeSpec>,
+    by_path: HashMap<String, usize>,
+    /// Every table path ("" is the top level) and its keys, in tree order.
+    tables: BTreeMap<String, Vec<String>>,
+}
+
+fn registry_data() -> &'static Registry {
+    static REGISTRY: OnceLock<Registry> = OnceLock::new();
+    REGISTRY.get_or_init(|| {
+        let specs: Vec<NodeSpec> = Field::SCALARS
+            .into_iter()
+            .chain((0..DEMODULATOR_COUNT).flat_map(Field::demod))
+            .map(NodeSpec::new)
+            .collect();
+        let by_path = specs
+            .iter()
+            .enumerate()
+            .map(|(i, spec)| (spec.path.clone(), i))
+            .collect();
+        let mut tables: BTreeMap<String, Vec<String>> = BTreeMap::new();
+        for spec in &specs {
+            let mut table = String::new();
+            for key in spec.path.split('/').skip(1) {
+                let keys = tables.entry(table.clone()).or_default();
+                if !keys.iter().any(|k| k == key) {
+                    keys.push(key.to_owned());
+                }
+                table = format!("{table}/{key}");
+            }
+        }
+        Registry {
+            specs,
+            by_path,
+            tables,
+        }
+    })
+}
+
+/// Every node, in tree order: the scalar nodes, then `/demods/0/…` … `/demods/31/…`.
+pub fn registry() -> &'static [NodeSpec] {
+    &registry_data().specs
+}
+
+/// The node at `path`, if there is one.
+pub fn node(path: &str) -> Option<&'static NodeSpec> {
+    let registry = registry_data();
+    registry.by_path.get(path).map(|&i| &registry.specs[i])
+}
+
+/// The keys of the table at `path` (`""` is the top level, `/sample`, `/demods/3`), or
+/// `None` if `path` is no table of the tree.
+pub fn table_keys(path: &str) -> Option<&'static [String]> {
+    registry_data().tables.get(path).map(Vec::as_slice)
+}
+
+/// A table path as TOML writes its header: `/demods/3` → `[demods.3]`.
+pub(crate) fn toml_table_name(path: &str) -> String {
+    if path.is_empty() {
+        "the top level".to_owned()
+    } else {
+        format!("[{}]", path.trim_start_matches('/').replace('/', "."))
+    }
+}
+
+/// Keys for a message; a run of indices reads `0 … 31`.
+pub(crate) fn key_list(keys: &[String]) -> String {
+    let indices: Option<Vec<usize>> = keys.iter().map(|k| k.parse().ok()).collect();
+    match indices {
+        Some(run) if run.len() > 2 && run.windows(2).all(|w| w[1] == w[0] + 1) => {
+            format!("{} … {}", run[0], run[run.len() - 1])
+        }
+        _ => keys.join(", "),
+    }
+}
+
+/// The message of [`NodeError::UnknownPath`]: says what the nearest existing table holds.
+pub(crate) fn unknown_path_message(path: &str) -> String {
+    if let Some(keys) = table_keys(path).filter(|_| !path.is_empty()) {
+        return format!(
+            "unknown node {path}: that is a table; its keys: {}",
+            key_list(keys)
+        );
+    }
+    let mut table = path;
+    loop {
+        table = table.rsplit_once('/').map_or("", |(parent, _)| parent);
+        if let Some(keys) = table_keys(table) {
+            let name = if table.is_empty() {
+                "the top level"
+            } else {
+                table
+            };
+            return format!("unknown node {path}; keys of {name}: {}", key_list(keys));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::field::Field;
+
+    #[test]
+    fn registry_lists_each_path_once() {
+        assert_eq!(
+            registry().len(),
+            Field::SCALARS.len() + 5 * DEMODULATOR_COUNT
+        );
+        assert_eq!(registry_data().by_path.len(), registry().len());
+        assert_eq!(node("/demods/31/rate").unwrap().field, Field::DemodRate(31));
+        assert!(node("/demods/32/rate").is_none());
+    }
+
+    #[test]
+    fn tables_mirror_the_paths() {
+        let top = table_keys("").unwrap();
+        assert_eq!(top[0], "cantilever");
+        assert_eq!(top.last().unwrap(), "demods");
+        assert_eq!(
+            table_keys("/sample").unwrap(),
+            ["youngs_modulus", "poisson"]
+        );
+        assert_eq!(key_list(table_keys("/demods").unwrap()), "0 … 31");
+        assert!(table_keys("/sample/poisson").is_none());
+    }
+
+    #[test]
+    fn unknown_paths_point_at_their_table() {
+        let message = unknown_path_message("/sample/youngs_moduls");
+        assert!(message.contains("youngs_modulus, poisson"), "{message}");
+        let message = unknown_path_message("/nothing/here");
+        assert!(message.contains("the top level"), "{message}");
+        let message = unknown_path_message("/sample");
+        assert!(message.contains("table"), "{message}");
+    }
+}

@@ -1,0 +1,193 @@
+//! Whole-settings validation: every node inside its own range, and the limits that tie nodes
+//! together (the Nyquist frequency, one sample period, the number of modes). These run after
+//! a whole config file or a whole `set`, never per key, so the order of keys never matters.
+//! Every message names both nodes.
+
+use super::error::NodeError;
+use super::field::{MAX_HARMONIC, MAX_MODES};
+use super::quantity::quantity;
+use super::registry::registry;
+use super::settings::{DEMODULATOR_COUNT, Settings};
+
+impl Settings {
+    /// Checks everything `set` and the config loader guarantee: exactly
+    /// [`DEMODULATOR_COUNT`] demodulators, every node inside its range, and the relations
+    /// between nodes. Returns the first problem found.
+    pub fn validate(&self) -> Result<(), NodeError> {
+        if self.demods.len() != DEMODULATOR_COUNT {
+            return Err(NodeError::InvalidValue {
+                path: "/demods".to_owned(),
+                message: format!(
+                    "/demods has {} demodulators: exactly {DEMODULATOR_COUNT} (0 … {}) are required",
+                    self.demods.len(),
+                    DEMODULATOR_COUNT - 1
+                ),
+            });
+        }
+        for spec in registry() {
+            let value = spec
+                .field
+                .read(self)
+                .ok_or_else(|| NodeError::UnknownPath {
+                    path: spec.path.clone(),
+                })?;
+            spec.check(&value)?;
+        }
+        check_modes(self)?;
+        check_drive(self)?;
+        check_demods(self)
+    }
+}
+
+fn invalid(path: impl Into<String>, message: String) -> NodeError {
+    NodeError::InvalidValue {
+        path: path.into(),
+        message,
+    }
+}
+
+/// Nyquist frequency in Hz.
+fn nyquist(s: &Settings) -> f64 {
+    s.synth.sample_rate / 2.0
+}
+
+/// The highest harmonic an enabled demodulator may use: the largest k with
+/// k × `/drive/frequency` < `/synth/sample_rate` / 2, at most [`MAX_HARMONIC`].
+pub(crate) fn highest_harmonic(s: &Settings) -> u64 {
+    let (drive, limit) = (s.drive.frequency, nyquist(s));
+    let max = u64::from(MAX_HARMONIC);
+    if !drive.is_finite() || drive <= 0.0 {
+        return max;
+    }
+    // Start from the closed form, then step so the answer agrees exactly with the test
+    // `k as f64 * drive < limit` that `check_demods` applies.
+    let mut k = ((limit / drive).ceil() - 1.0).clamp(0.0, max as f64) as u64;
+    while k > 0 && k as f64 * drive >= limit {
+        k -= 1;
+    }
+    while k < max && (k + 1) as f64 * drive < limit {
+        k += 1;
+    }
+    k
+}
+
+/// The mode count: `q` entries plus Rayleigh-damped extras, and enough `q` entries to fit
+/// the Rayleigh form (B.7, two coefficients) when there are extras.
+fn check_modes(s: &Settings) -> Result<(), NodeError> {
+    let given = s.cantilever.q.len();
+    let extra = s.cantilever.extra_modes;
+    if given + extra > MAX_MODES {
+        return Err(invalid(
+            "/cantilever/extra_modes",
+            format!(
+                "/cantilever/extra_modes = {extra} with {given} entries in /cantilever/q makes \
+                 {} modes: allowed at most {MAX_MODES} (entries of /cantilever/q + \
+                 /cantilever/extra_modes ≤ {MAX_MODES})",
+                given + extra
+            ),
+        ));
+    }
+    if extra > 0 && given < 2 {
+        return Err(invalid(
+            "/cantilever/extra_modes",
+            format!(
+                "/cantilever/extra_modes = {extra} needs at least 2 entries in /cantilever/q \
+                 to fit the Rayleigh damping (B.7) of the extra modes, but /cantilever/q has \
+                 {given}"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+fn check_drive(s: &Settings) -> Result<(), NodeError> {
+    let drive = s.drive.frequency;
+    if drive >= nyquist(s) {
+        return Err(invalid(
+            "/drive/frequency",
+            format!(
+                "/drive/frequency = {} must be below the Nyquist frequency \
+                 /synth/sample_rate / 2 = {}",
+                quantity(drive, "Hz"),
+                quantity(nyquist(s), "Hz")
+            ),
+        ));
+    }
+    Ok(())
+}
+
+fn check_demods(s: &Settings) -> Result<(), NodeError> {
+    let sample_rate = s.synth.sample_rate;
+    let period = 1.0 / sample_rate;
+    for (index, demod) in s.demods.iter().enumerate() {
+        let frequency = f64::from(demod.harmonic) * s.drive.frequency;
+        // A disabled demodulator may keep a harmonic the current drive puts out of reach, so
+        // the drive can be raised first and the bank adjusted after.
+        if demod.enable && frequency >= nyquist(s) {
+            return Err(invalid(
+                format!("/demods/{index}/harmonic"),
+                format!(
+                    "/demods/{index}/harmonic = {}: harmonic × /drive/frequency = {} must be \
+                     below the Nyquist frequency /synth/sample_rate / 2 = {} (allowed up to \
+                     harmonic {} while /demods/{index}/enable = true)",
+                    demod.harmonic,
+                    quantity(frequency, "Hz"),
+                    quantity(nyquist(s), "Hz"),
+                    highest_harmonic(s)
+                ),
+            ));
+        }
+        if demod.timeconstant < period {
+            return Err(invalid(
+                format!("/demods/{index}/timeconstant"),
+                format!(
+                    "/demods/{index}/timeconstant = {} must be at least one sample period, \
+                     1 / /synth/sample_rate = {}",
+                    quantity(demod.timeconstant, "s"),
+                    quantity(period, "s")
+                ),
+            ));
+        }
+        if demod.rate > sample_rate {
+            return Err(invalid(
+                format!("/demods/{index}/rate"),
+                format!(
+                    "/demods/{index}/rate = {} must not exceed /synth/sample_rate = {}",
+                    quantity(demod.rate, "Hz"),
+                    quantity(sample_rate, "Hz")
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::default_settings;
+
+    #[test]
+    fn highest_harmonic_agrees_with_the_check() {
+        let mut s = default_settings();
+        // 10 MHz sampling, 100 kHz drive: 50 × 100 kHz is exactly Nyquist, so 49.
+        assert_eq!(highest_harmonic(&s), 49);
+        s.drive.frequency = 3e6;
+        assert_eq!(highest_harmonic(&s), 1);
+        s.drive.frequency = 1.0;
+        assert_eq!(highest_harmonic(&s), u64::from(MAX_HARMONIC));
+    }
+
+    #[test]
+    fn nyquist_message_names_both_keys() {
+        let mut s = default_settings();
+        s.demods[3].harmonic = 60;
+        let message = s.validate().unwrap_err().to_string();
+        assert_eq!(
+            message,
+            "/demods/3/harmonic = 60: harmonic × /drive/frequency = 6 MHz must be below the \
+             Nyquist frequency /synth/sample_rate / 2 = 5 MHz (allowed up to harmonic 49 \
+             while /demods/3/enable = true)"
+        );
+    }
+}

@@ -1,0 +1,185 @@
+//! The `ftafm` binary as a user runs it: exit codes, messages on stderr, `paper --json`.
+
+use std::io::Write;
+use std::process::{Command, Output};
+
+fn ftafm(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ftafm"))
+        .args(args)
+        .output()
+        .expect("the binary runs")
+}
+
+fn config_file(contents: &str) -> tempfile_path::TempToml {
+    tempfile_path::TempToml::new(contents)
+}
+
+/// A TOML file in the target directory, removed when dropped.
+mod tempfile_path {
+    use super::*;
+    use std::path::PathBuf;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    pub struct TempToml(pub PathBuf);
+
+    impl TempToml {
+        pub fn new(contents: &str) -> Self {
+            static COUNTER: AtomicUsize = AtomicUsize::new(0);
+            let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+            let path = std::env::temp_dir().join(format!("ftafm-cli-{}-{n}.toml", std::process::id()));
+            std::fs::File::create(&path)
+                .and_then(|mut f| f.write_all(contents.as_bytes()))
+                .expect("temp file");
+            Self(path)
+        }
+
+        pub fn path(&self) -> &str {
+            self.0.to_str().expect("utf-8 temp path")
+        }
+    }
+
+    impl Drop for TempToml {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_file(&self.0);
+        }
+    }
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+#[test]
+fn paper_json_is_one_object_with_the_contract_schema_and_the_papers_numbers() {
+    let out = ftafm(&["paper", "--json"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert_eq!(text.trim().lines().count(), 1, "exactly one line of JSON");
+    let v: serde_json::Value = serde_json::from_str(text.trim()).unwrap();
+    let modes = v["modes"].as_array().unwrap();
+    assert_eq!(modes.len(), 5);
+    for key in ["n", "lambda", "frequency", "q", "tip_slope", "stiffness"] {
+        assert!(modes[0][key].is_number(), "modes[0].{key}");
+    }
+    assert!((modes[0]["tip_slope"].as_f64().unwrap() + 2.7530).abs() < 1e-4);
+    assert!((modes[0]["stiffness"].as_f64().unwrap() - 82.416).abs() < 1e-2);
+    let materials = v["materials"].as_array().unwrap();
+    assert_eq!(materials[0]["name"], "sample");
+    assert_eq!(materials[1]["name"], "inhomogeneity");
+    let expected = [(129e9, 66.1e-9, 8.6e9, 0.0518, -47.19), (116.1e9, 65.1e-9, 8.2e9, 0.0526, -47.23)];
+    for (m, (e, f, p, tau, theta)) in materials.iter().zip(expected) {
+        let get = |k: &str| m[k].as_f64().unwrap_or_else(|| panic!("{k} missing"));
+        assert!((get("youngs_modulus") / e - 1.0).abs() < 1e-12);
+        assert_eq!(get("poisson"), 0.28);
+        assert!((get("max_force") / f - 1.0).abs() < 0.01);
+        assert!((get("max_pressure") / p - 1.0).abs() < 0.01);
+        assert!((get("contact_time_ratio") / tau - 1.0).abs() < 0.01);
+        assert!((get("phase_shift_deg") - theta).abs() < 0.3);
+        assert!((3.5e-10..4.0e-10).contains(&get("max_indentation")));
+        let spectrum = m["spectrum"].as_array().unwrap();
+        assert!(spectrum.len() >= 31, "harmonics 0..=30 at least");
+        for (k, h) in spectrum.iter().enumerate() {
+            assert_eq!(h["harmonic"].as_u64(), Some(k as u64));
+            assert!(h["amplitude"].as_f64().unwrap() >= 0.0);
+        }
+    }
+    let h6 = materials[0]["spectrum"][6]["amplitude"].as_f64().unwrap();
+    assert!((0.185e-9..0.195e-9).contains(&h6), "H6 {h6}");
+    let contrast = v["contrast"].as_array().unwrap();
+    let c17 = contrast[17]["relative"].as_f64().unwrap();
+    assert_eq!(contrast[17]["harmonic"], 17);
+    assert!((-0.035..-0.025).contains(&c17), "c17 {c17}");
+}
+
+#[test]
+fn paper_text_shows_the_printed_values_beside_ours() {
+    let out = ftafm(&["paper"]);
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("[66.1]") && text.contains("[-47.19]") && text.contains("[0.0518]"), "{text}");
+    assert!(text.contains("Fig. 3"));
+}
+
+#[test]
+fn inhomogeneity_factor_changes_the_second_material_and_is_validated() {
+    let out = ftafm(&["paper", "--json", "--inhomogeneity-factor", "0.5"]);
+    assert!(out.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["materials"][1]["youngs_modulus"].as_f64(), Some(64.5e9));
+    for bad in ["-1", "0", "nan", "inf", "1e9"] {
+        let out = ftafm(&["paper", "--inhomogeneity-factor", bad]);
+        assert_eq!(out.status.code(), Some(2), "factor {bad}");
+        assert!(stderr(&out).contains("--inhomogeneity-factor"), "factor {bad}: {}", stderr(&out));
+    }
+    let out = ftafm(&["paper", "--inhomogeneity-factor", "soft"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("--inhomogeneity-factor"));
+}
+
+#[test]
+fn a_partial_config_overlays_the_default() {
+    let file = config_file("[sample]\nyoungs_modulus = 50e9\n");
+    let out = ftafm(&["paper", "--json", "--config", file.path()]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["materials"][0]["youngs_modulus"].as_f64(), Some(50e9));
+    // Untouched nodes keep their defaults: still the paper's cantilever.
+    assert_eq!(v["modes"].as_array().unwrap().len(), 5);
+    // A softer sample: smaller peak force than silicon's 66 nN.
+    assert!(v["materials"][0]["max_force"].as_f64().unwrap() < 60e-9);
+    let text = ftafm(&["paper", "--config", file.path()]);
+    assert!(!String::from_utf8(text.stdout).unwrap().contains("[66.1]"), "printed values only for the paper's case");
+}
+
+#[test]
+fn bad_configs_exit_2_and_name_the_key() {
+    let cases: &[(&str, &[&str])] = &[
+        ("[sample]\nyoungs_moduls = 1e9\n", &["/sample/youngs_moduls", "youngs_modulus"]),
+        ("[samples]\nyoungs_modulus = 1e9\n", &["samples"]),
+        ("[sample]\nyoungs_modulus = -1e9\n", &["/sample/youngs_modulus", "-1"]),
+        ("[sample]\nyoungs_modulus = 0\n", &["/sample/youngs_modulus"]),
+        ("[sample]\nyoungs_modulus = \"hard\"\n", &["/sample/youngs_modulus"]),
+        ("[sample]\npoisson = 0.5\n", &["/sample/poisson", "0.5"]),
+        ("[tip]\npoisson = -1.0\n", &["/tip/poisson"]),
+        ("[cantilever]\nq = []\n", &["/cantilever/q"]),
+        ("[cantilever]\nk = nan\n", &["/cantilever/k", "NaN"]),
+        ("[drive]\nfree_amplitude = inf\n", &["/drive/free_amplitude"]),
+        ("[demods.3]\norder = 9\n", &["/demods/3/order", "8"]),
+        ("[synth]\nengine = \"magic\"\n", &["/synth/engine", "paper"]),
+        ("[sample\nyoungs_modulus = 1e9\n", &["line"]),
+    ];
+    for (toml, needles) in cases {
+        let file = config_file(toml);
+        for sub in [&["paper"][..], &["info"][..]] {
+            let mut args = sub.to_vec();
+            args.extend(["--config", file.path()]);
+            let out = ftafm(&args);
+            assert_eq!(out.status.code(), Some(2), "{toml:?}: {}", stderr(&out));
+            let err = stderr(&out);
+            for needle in *needles {
+                assert!(err.to_lowercase().contains(&needle.to_lowercase()), "{toml:?}: {err:?} lacks {needle:?}");
+            }
+            assert!(out.stdout.is_empty(), "nothing on stdout for a bad config");
+        }
+    }
+}
+
+#[test]
+fn missing_config_file_and_bad_flags_exit_2() {
+    let out = ftafm(&["paper", "--config", "/nonexistent/ftafm.toml"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("/nonexistent/ftafm.toml"));
+    let out = ftafm(&["paper", "--jsn"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("--jsn"));
+    let out = ftafm(&["frobnicate"]);
+    assert_eq!(out.status.code(), Some(2));
+}
+
+#[test]
+fn plain_ftafm_runs_on_the_embedded_default() {
+    let out = ftafm(&[]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("5 modes") && text.contains("F = 65.9"), "{text}");
+}

@@ -1,0 +1,791 @@
+//! The configuration layer as a library: the embedded default, partial overlays, errors that
+//! name the key, the node registry with `get`/`set`, and that the docs list every node.
+
+use std::collections::BTreeSet;
+
+use ftafm::config::{
+    ConfigError, DEFAULT_TOML, Engine, NodeError, Settings, default_settings, load, load_str,
+    registry,
+};
+use proptest::prelude::*;
+use serde_json::{Value, json};
+
+/// The message of the error a config text gives.
+fn error_of(overlay: &str) -> String {
+    match load_str(overlay, "test.toml") {
+        Ok(_) => panic!("accepted:\n{overlay}"),
+        Err(e) => e.to_string(),
+    }
+}
+
+/// Asserts `message` contains every one of `parts`.
+fn assert_mentions(message: &str, parts: &[&str]) {
+    for part in parts {
+        assert!(message.contains(part), "{message:?} lacks {part:?}");
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The embedded default
+
+#[test]
+fn default_is_the_papers_silicon_case() {
+    let s = default_settings();
+    s.validate().unwrap();
+    assert_eq!(s.cantilever.f1, 100e3);
+    assert_eq!(s.cantilever.k, 20.0);
+    assert_eq!(s.cantilever.q, [100.0, 417.0, 340.0, 200.0, 26.0]);
+    assert_eq!(s.cantilever.extra_modes, 0);
+    assert_eq!(s.cantilever.tip_radius, 10e-9);
+    for material in [s.tip, s.sample] {
+        assert_eq!(material.youngs_modulus, 129e9);
+        assert_eq!(material.poisson, 0.28);
+    }
+    assert_eq!(s.drive.frequency, 100e3);
+    assert_eq!(s.drive.free_amplitude, 30e-9);
+    assert_eq!(s.surface.distance, 20e-9);
+    assert_eq!(s.synth.sample_rate, 10e6);
+    assert_eq!(s.synth.engine, Engine::Paper);
+    assert_eq!(s.synth.seed, 1);
+    assert!(s.synth.realtime);
+    assert!(s.noise.enable);
+    assert_eq!(s.demods.len(), 32);
+    for (n, demod) in s.demods.iter().enumerate() {
+        assert!(demod.enable);
+        assert_eq!(demod.harmonic as usize, n + 1);
+        assert_eq!(demod.order, 4);
+        assert_eq!(demod.timeconstant, 5e-4);
+        assert_eq!(demod.rate, 1000.0);
+    }
+}
+
+#[test]
+fn no_file_means_the_default() {
+    assert_eq!(load(None).unwrap(), default_settings());
+    assert_eq!(load_str("", "empty.toml").unwrap(), default_settings());
+    assert_eq!(
+        load_str(DEFAULT_TOML, "default.toml").unwrap(),
+        default_settings()
+    );
+}
+
+#[test]
+fn settings_serialise_to_toml_that_loads_back() {
+    // The demodulator bank is written as the index-keyed table the files use.
+    let text = toml::to_string(&default_settings()).unwrap();
+    assert!(text.contains("[demods.31]"), "{text}");
+    assert_eq!(
+        load_str(&text, "roundtrip.toml").unwrap(),
+        default_settings()
+    );
+    let json = serde_json::to_value(default_settings()).unwrap();
+    assert_eq!(json["demods"]["3"]["harmonic"], json!(4));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Overlays
+
+#[test]
+fn partial_overlay_changes_only_what_it_names() {
+    let s = load_str(
+        "[sample]\nyoungs_modulus = 116.1e9\n\n[demods.3]\nharmonic = 7\n",
+        "inhomogeneity.toml",
+    )
+    .unwrap();
+    let mut expected = default_settings();
+    expected.sample.youngs_modulus = 116.1e9;
+    expected.demods[3].harmonic = 7;
+    assert_eq!(s, expected);
+}
+
+#[test]
+fn inline_demod_tables_change_only_their_keys() {
+    let s = load_str("[demods]\n5 = { order = 2, enable = false }\n", "t.toml").unwrap();
+    let mut expected = default_settings();
+    expected.demods[5].order = 2;
+    expected.demods[5].enable = false;
+    assert_eq!(s, expected);
+}
+
+#[test]
+fn arrays_are_replaced_whole() {
+    let s = load_str("[cantilever]\nq = [50, 60.5]\nextra_modes = 3\n", "t.toml").unwrap();
+    assert_eq!(s.cantilever.q, [50.0, 60.5]);
+    assert_eq!(s.cantilever.extra_modes, 3);
+}
+
+#[test]
+fn cross_checks_run_after_the_whole_file() {
+    // The harmonic alone is above Nyquist at 10 MHz; with the faster sampling it is fine,
+    // whichever table comes first.
+    let both = "[demods.3]\nharmonic = 400\n\n[synth]\nsample_rate = 100e6\n";
+    let s = load_str(both, "fast.toml").unwrap();
+    assert_eq!(s.demods[3].harmonic, 400);
+    assert_eq!(s.synth.sample_rate, 100e6);
+    let message = error_of("[demods.3]\nharmonic = 400\n");
+    assert_mentions(
+        &message,
+        &[
+            "test.toml",
+            "/demods/3/harmonic = 400",
+            "/drive/frequency",
+            "/synth/sample_rate",
+        ],
+    );
+}
+
+#[test]
+fn integral_floats_are_integers() {
+    let s = load_str("[demods.0]\norder = 4.0\n", "t.toml").unwrap();
+    assert_eq!(s.demods[0].order, 4);
+    assert_mentions(
+        &error_of("[demods.0]\norder = 4.5\n"),
+        &["/demods/0/order = 4.5", "not an integer", "1 ≤ value ≤ 8"],
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Every error class names the key
+
+#[test]
+fn unknown_key_lists_the_keys_of_its_table() {
+    let message = error_of("[sample]\nyoungs_moduls = 1e9\n");
+    assert_eq!(
+        message,
+        "unknown key /sample/youngs_moduls in test.toml; keys of [sample]: youngs_modulus, poisson"
+    );
+}
+
+#[test]
+fn unknown_table_lists_the_top_level() {
+    let message = error_of("[smaple]\npoisson = 0.3\n");
+    assert_mentions(&message, &["/smaple", "test.toml", "cantilever", "demods"]);
+    let message = error_of("[demods.32]\nenable = false\n");
+    assert_mentions(&message, &["/demods/32", "[demods]", "0 … 31"]);
+    let message = error_of("[demods.3]\nphase = 1.0\n");
+    assert_mentions(&message, &["/demods/3/phase", "[demods.3]", "harmonic"]);
+}
+
+#[test]
+fn a_value_where_a_table_belongs() {
+    let message = error_of("sample = 3\n");
+    assert_mentions(&message, &["/sample", "table", "youngs_modulus"]);
+}
+
+#[test]
+fn a_table_where_a_value_belongs() {
+    let message = error_of("[sample.poisson]\nx = 1\n");
+    assert_mentions(&message, &["/sample/poisson", "wrong type"]);
+}
+
+#[test]
+fn wrong_type_names_key_value_and_expectation() {
+    let message = error_of("[sample]\nyoungs_modulus = \"hard\"\n");
+    assert_eq!(
+        message,
+        "test.toml: /sample/youngs_modulus = \"hard\" has the wrong type: expected a number, \
+         0 < value ≤ 1e13 Pa"
+    );
+    assert_mentions(
+        &error_of("[noise]\nenable = 1\n"),
+        &["/noise/enable = 1", "true or false"],
+    );
+    assert_mentions(
+        &error_of("[demods.1]\nharmonic = \"2\"\n"),
+        &["/demods/1/harmonic", "\"2\"", "an integer"],
+    );
+    assert_mentions(
+        &error_of("[synth]\nengine = \"fast\"\n"),
+        &["/synth/engine = \"fast\"", "\"paper\", \"coupled\""],
+    );
+}
+
+#[test]
+fn moduli_must_be_positive() {
+    for value in ["-129e9", "0.0", "0"] {
+        let message = error_of(&format!("[sample]\nyoungs_modulus = {value}\n"));
+        assert_mentions(
+            &message,
+            &[
+                "/sample/youngs_modulus = ",
+                "out of range",
+                "0 < value ≤ 1e13 Pa",
+            ],
+        );
+    }
+    assert_mentions(
+        &error_of("[tip]\nyoungs_modulus = -1.0\n"),
+        &["/tip/youngs_modulus = -1 is out of range"],
+    );
+}
+
+#[test]
+fn poisson_ratio_is_inside_the_open_interval() {
+    for value in ["0.5", "-1.0", "0.7"] {
+        let message = error_of(&format!("[sample]\npoisson = {value}\n"));
+        let shown = value.trim_end_matches(".0");
+        assert_eq!(
+            message,
+            format!(
+                "test.toml: /sample/poisson = {shown} is out of range: allowed -1 < value < 0.5"
+            )
+        );
+    }
+    let s = load_str(
+        "[sample]\npoisson = 0.49\n[tip]\npoisson = -0.99\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!((s.sample.poisson, s.tip.poisson), (0.49, -0.99));
+}
+
+#[test]
+fn quality_factors() {
+    assert_mentions(
+        &error_of("[cantilever]\nq = []\n"),
+        &["/cantilever/q = []", "empty"],
+    );
+    assert_mentions(
+        &error_of("[cantilever]\nq = [100, 0.4]\n"),
+        &[
+            "/cantilever/q",
+            "entry 1 (0.4)",
+            "out of range",
+            "0.5 < value ≤ 1e7",
+        ],
+    );
+    assert_mentions(
+        &error_of("[cantilever]\nq = [100, \"x\"]\n"),
+        &["/cantilever/q", "entry 1", "not a number"],
+    );
+    assert_mentions(
+        &error_of("[cantilever]\nq = 100\n"),
+        &["/cantilever/q = 100", "wrong type", "a list"],
+    );
+    let seventeen = vec!["100"; 17].join(", ");
+    assert_mentions(
+        &error_of(&format!("[cantilever]\nq = [{seventeen}]\n")),
+        &["/cantilever/q", "17 entries"],
+    );
+    assert_mentions(
+        &error_of("[cantilever]\nextra_modes = 12\n"),
+        &[
+            "/cantilever/extra_modes = 12",
+            "/cantilever/q",
+            "17 modes",
+            "16",
+        ],
+    );
+    assert_mentions(
+        &error_of("[cantilever]\nq = [100]\nextra_modes = 2\n"),
+        &["/cantilever/extra_modes = 2", "/cantilever/q", "at least 2"],
+    );
+}
+
+#[test]
+fn nan_and_infinity_are_refused() {
+    assert_eq!(
+        error_of("[sample]\npoisson = nan\n"),
+        "test.toml: /sample/poisson = nan is not a finite number: allowed -1 < value < 0.5"
+    );
+    for value in ["inf", "-inf", "+inf"] {
+        let message = error_of(&format!("[drive]\nfrequency = {value}\n"));
+        assert_mentions(
+            &message,
+            &["/drive/frequency = ", "not a finite number", "Hz"],
+        );
+    }
+    assert_mentions(
+        &error_of("[cantilever]\nq = [100, nan]\n"),
+        &["/cantilever/q = [100, nan]", "not a finite number"],
+    );
+}
+
+#[test]
+fn demod_order_above_eight() {
+    assert_eq!(
+        error_of("[demods.2]\norder = 9\n"),
+        "test.toml: /demods/2/order = 9 is out of range: allowed 1 ≤ value ≤ 8"
+    );
+    assert_mentions(
+        &error_of("[demods.2]\norder = 0\n"),
+        &["/demods/2/order = 0"],
+    );
+}
+
+#[test]
+fn harmonic_above_nyquist() {
+    assert_eq!(
+        error_of("[demods.3]\nharmonic = 60\n"),
+        "test.toml: /demods/3/harmonic = 60: harmonic × /drive/frequency = 6 MHz must be below \
+         the Nyquist frequency /synth/sample_rate / 2 = 5 MHz (allowed up to harmonic 49 while \
+         /demods/3/enable = true)"
+    );
+    // A disabled demodulator may keep it.
+    let s = load_str("[demods.3]\nharmonic = 60\nenable = false\n", "t.toml").unwrap();
+    assert_eq!(s.demods[3].harmonic, 60);
+}
+
+#[test]
+fn other_relations_name_both_keys() {
+    assert_mentions(
+        &error_of("[drive]\nfrequency = 6e6\n"),
+        &["/drive/frequency = 6 MHz", "/synth/sample_rate / 2 = 5 MHz"],
+    );
+    assert_mentions(
+        &error_of("[demods.4]\ntimeconstant = 5e-8\n"),
+        &[
+            "/demods/4/timeconstant = 50 ns",
+            "1 / /synth/sample_rate = 100 ns",
+        ],
+    );
+    assert_mentions(
+        &error_of("[demods.4]\nrate = 2e7\n"),
+        &["/demods/4/rate = 20 MHz", "/synth/sample_rate = 10 MHz"],
+    );
+    assert_mentions(
+        &error_of("[synth]\nsample_rate = 100.0\n"),
+        &["/synth/sample_rate = 100", "1000 ≤ value ≤ 1e9 Hz"],
+    );
+    assert_mentions(
+        &error_of("[synth]\nseed = -1\n"),
+        &["/synth/seed = -1", "out of range"],
+    );
+}
+
+#[test]
+fn syntax_errors_carry_file_line_and_column() {
+    let message = error_of("[sample]\npoisson = = 0.3\n");
+    assert_mentions(&message, &["test.toml", "line 2", "column"]);
+    let message = error_of("[sample\n");
+    assert_mentions(&message, &["test.toml", "line 1"]);
+}
+
+#[test]
+fn unreadable_file_names_the_file_and_the_os_error() {
+    let path = std::path::Path::new("/nonexistent/ftafm/site.toml");
+    let error = load(Some(path)).unwrap_err();
+    assert!(matches!(error, ConfigError::Read { .. }));
+    let expected_os = std::io::Error::from(std::io::ErrorKind::NotFound).to_string();
+    let message = error.to_string();
+    assert_mentions(&message, &["/nonexistent/ftafm/site.toml"]);
+    assert!(
+        message.contains(&expected_os) || message.contains("No such file"),
+        "{message}"
+    );
+}
+
+#[test]
+fn files_load_from_disk() {
+    let dir = std::env::temp_dir().join(format!("ftafm-config-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("soft.toml");
+    std::fs::write(&path, "[sample]\nyoungs_modulus = 1e9\n").unwrap();
+    assert_eq!(load(Some(&path)).unwrap().sample.youngs_modulus, 1e9);
+    std::fs::write(&path, "[sample]\npoisson = 0.7\n").unwrap();
+    let message = load(Some(&path)).unwrap_err().to_string();
+    assert_mentions(&message, &["soft.toml", "/sample/poisson = 0.7"]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn config_errors_expose_the_key() {
+    let key = |overlay: &str| {
+        load_str(overlay, "t.toml")
+            .unwrap_err()
+            .path()
+            .map(str::to_owned)
+    };
+    assert_eq!(key("[sample]\nfoo = 1\n").as_deref(), Some("/sample/foo"));
+    assert_eq!(
+        key("[sample]\npoisson = 0.7\n").as_deref(),
+        Some("/sample/poisson")
+    );
+    assert_eq!(key("[x\n"), None);
+}
+
+// ---------------------------------------------------------------------------------------------
+// get / set
+
+#[test]
+fn read_only_nodes_refuse_set_but_config_may_apply() {
+    let mut s = default_settings();
+    let error = s.set("/synth/sample_rate", &json!(20e6)).unwrap_err();
+    assert_eq!(
+        error,
+        NodeError::ReadOnly {
+            path: "/synth/sample_rate".into()
+        }
+    );
+    assert_eq!(error.code(), "read_only");
+    assert_eq!(s, default_settings());
+    assert_eq!(
+        s.apply("/synth/sample_rate", &json!(20e6)).unwrap(),
+        json!(20e6)
+    );
+    assert_eq!(s.synth.sample_rate, 20e6);
+}
+
+#[test]
+fn unknown_paths() {
+    let mut s = default_settings();
+    for path in [
+        "/sample/youngs_moduls",
+        "/demods/32/rate",
+        "/sample",
+        "",
+        "/",
+        "nope",
+    ] {
+        let error = s.get(path).unwrap_err();
+        assert!(matches!(error, NodeError::UnknownPath { .. }), "{path}");
+        assert_eq!(error.code(), "unknown_path");
+        assert_mentions(&error.to_string(), &[path]);
+        assert!(matches!(
+            s.set(path, &json!(1)),
+            Err(NodeError::UnknownPath { .. })
+        ));
+    }
+    assert_mentions(
+        &s.get("/sample/youngs_moduls").unwrap_err().to_string(),
+        &["youngs_modulus, poisson"],
+    );
+}
+
+#[test]
+fn set_returns_the_value_as_applied() {
+    let mut s = default_settings();
+    assert_eq!(s.set("/demods/0/order", &json!(2.0)).unwrap(), json!(2));
+    assert_eq!(
+        s.set("/cantilever/f1", &json!(150000)).unwrap(),
+        json!(150000.0)
+    );
+    assert_eq!(
+        s.set("/synth/engine", &json!("coupled")).unwrap(),
+        json!("coupled")
+    );
+    assert_eq!(s.synth.engine, Engine::Coupled);
+    assert_eq!(
+        s.set("/synth/seed", &json!(u64::MAX)).unwrap(),
+        json!(u64::MAX)
+    );
+    assert_eq!(
+        s.set("/cantilever/q", &json!([10, 20])).unwrap(),
+        json!([10.0, 20.0])
+    );
+    assert_eq!(s.get("/demods/0/order").unwrap(), json!(2));
+}
+
+#[test]
+fn failed_set_changes_nothing() {
+    let mut s = default_settings();
+    s.set("/sample/youngs_modulus", &json!(116.1e9)).unwrap();
+    let before = s.clone();
+    let attempts = [
+        ("/sample/poisson", json!(0.7)),
+        ("/sample/poisson", json!("0.3")),
+        ("/sample/youngs_modulus", json!(-1.0)),
+        ("/cantilever/q", json!([])),
+        ("/cantilever/q", json!([100, 0.4])),
+        ("/cantilever/extra_modes", json!(12)),
+        ("/demods/3/order", json!(9)),
+        ("/demods/3/harmonic", json!(60)),
+        ("/demods/3/harmonic", json!(-1)),
+        ("/drive/frequency", json!(6e6)),
+        ("/drive/frequency", json!(200e3)),
+        ("/synth/engine", json!("fast")),
+        ("/noise/enable", json!(null)),
+        ("/synth/sample_rate", json!(20e6)),
+    ];
+    for (path, value) in attempts {
+        let error = s.set(path, &value).unwrap_err();
+        assert_eq!(error.path(), path);
+        assert_eq!(s, before, "set {path} = {value} changed the settings");
+    }
+}
+
+#[test]
+fn a_set_that_conflicts_names_the_other_node() {
+    // At 200 kHz, harmonics 25 and up (demodulators 24 … 31) would sit at or above the
+    // 5 MHz Nyquist frequency; the first of them is named.
+    let mut s = default_settings();
+    let error = s.set("/drive/frequency", &json!(200e3)).unwrap_err();
+    assert_eq!(error.code(), "invalid_value");
+    assert_eq!(error.path(), "/drive/frequency");
+    assert_mentions(
+        &error.to_string(),
+        &[
+            "cannot set /drive/frequency = 2e5",
+            "/demods/24/harmonic = 25",
+            "Nyquist",
+        ],
+    );
+    // With the upper half of the bank off, the same drive is fine.
+    for n in 16..32 {
+        s.set(&format!("/demods/{n}/enable"), &json!(false))
+            .unwrap();
+    }
+    s.set("/drive/frequency", &json!(200e3)).unwrap();
+    // And a disabled demodulator cannot be enabled above Nyquist.
+    let error = s.set("/demods/31/enable", &json!(true)).unwrap_err();
+    assert_mentions(
+        &error.to_string(),
+        &["/demods/31/enable = true", "/demods/31/harmonic"],
+    );
+}
+
+#[test]
+fn every_node_round_trips_through_set() {
+    let mut s = default_settings();
+    let before = s.clone();
+    for info in s.nodes() {
+        assert_eq!(s.get(&info.path).unwrap(), info.value);
+        let result = s.set(&info.path, &info.value);
+        if info.writable {
+            assert_eq!(result.unwrap(), info.value, "{}", info.path);
+        } else {
+            assert!(matches!(result, Err(NodeError::ReadOnly { .. })));
+            assert_eq!(s.apply(&info.path, &info.value).unwrap(), info.value);
+        }
+        assert_eq!(s, before, "{}", info.path);
+    }
+}
+
+#[test]
+fn list_entries_have_the_protocol_fields() {
+    let nodes = default_settings().nodes();
+    assert_eq!(nodes.len(), registry().len());
+    assert_eq!(nodes.len(), 17 + 32 * 5);
+    let entry = serde_json::to_value(&nodes[0]).unwrap();
+    let keys: BTreeSet<&str> = entry
+        .as_object()
+        .unwrap()
+        .keys()
+        .map(String::as_str)
+        .collect();
+    assert_eq!(
+        keys,
+        BTreeSet::from([
+            "path",
+            "value",
+            "unit",
+            "writable",
+            "min",
+            "max",
+            "description"
+        ])
+    );
+    let poisson = nodes.iter().find(|n| n.path == "/sample/poisson").unwrap();
+    assert_eq!((&poisson.min, &poisson.max), (&json!(-1.0), &json!(0.5)));
+    assert_eq!(poisson.unit, "1");
+    let rate = nodes
+        .iter()
+        .find(|n| n.path == "/synth/sample_rate")
+        .unwrap();
+    assert!(!rate.writable);
+    let engine = nodes.iter().find(|n| n.path == "/synth/engine").unwrap();
+    assert_eq!((&engine.unit[..], &engine.min), ("", &Value::Null));
+    // Limits that depend on other nodes are reported as they stand now.
+    let drive = nodes.iter().find(|n| n.path == "/drive/frequency").unwrap();
+    assert_eq!(drive.max, json!(5e6));
+    let harmonic = nodes
+        .iter()
+        .find(|n| n.path == "/demods/0/harmonic")
+        .unwrap();
+    assert_eq!(harmonic.max, json!(49));
+    for info in &nodes {
+        assert!(info.description.ends_with('.'), "{}", info.path);
+    }
+}
+
+#[test]
+fn nodes_under_matches_whole_segments() {
+    let s = default_settings();
+    let paths: Vec<String> = s
+        .nodes_under("/demods/1")
+        .into_iter()
+        .map(|n| n.path)
+        .collect();
+    assert_eq!(
+        paths,
+        [
+            "/demods/1/enable",
+            "/demods/1/harmonic",
+            "/demods/1/order",
+            "/demods/1/timeconstant",
+            "/demods/1/rate"
+        ]
+    );
+    assert_eq!(s.nodes_under("/sample/").len(), 2);
+    assert_eq!(s.nodes_under("/sample/poisson").len(), 1);
+    assert_eq!(s.nodes_under("/").len(), s.nodes().len());
+    assert!(s.nodes_under("/samp").is_empty());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Docs and defaults stay in step with the registry
+
+/// `/demods/17/rate` → `/demods/N/rate`: the docs describe the bank once.
+fn generic_path(path: &str) -> String {
+    let segments: Vec<&str> = path
+        .split('/')
+        .enumerate()
+        .map(|(i, segment)| {
+            let is_index = segment.bytes().all(|b| b.is_ascii_digit());
+            if i == 2 && path.starts_with("/demods/") && is_index {
+                "N"
+            } else {
+                segment
+            }
+        })
+        .collect();
+    segments.join("/")
+}
+
+#[test]
+fn docs_describe_every_node() {
+    let docs = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/docs/configuration.md"
+    ))
+    .unwrap();
+    assert!(docs.contains("`/demods/N/…` for N = 0 … 31"));
+    let documented: BTreeSet<String> = registry().iter().map(|s| generic_path(&s.path)).collect();
+    for spec in registry() {
+        let path = generic_path(&spec.path);
+        let row = docs
+            .lines()
+            .find(|line| line.starts_with(&format!("| `{path}` |")))
+            .unwrap_or_else(|| panic!("docs/configuration.md has no table row for {path}"));
+        let unit = if spec.unit.is_empty() {
+            "—"
+        } else {
+            spec.unit
+        };
+        assert!(
+            row.contains(&format!("| {unit} |")),
+            "unit of {path}: {row}"
+        );
+        let runtime = if spec.writable { "| yes |" } else { "| no |" };
+        assert!(row.contains(runtime), "writability of {path}: {row}");
+    }
+    // And no row for a node that does not exist.
+    for line in docs.lines().filter(|l| l.starts_with("| `/")) {
+        let path = line.split('`').nth(1).unwrap();
+        assert!(
+            documented.contains(path),
+            "docs list {path}, which is no node"
+        );
+    }
+}
+
+#[test]
+fn docs_example_overlay_loads_and_its_error_is_as_documented() {
+    let docs = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/docs/configuration.md"
+    ))
+    .unwrap();
+    let example = docs
+        .split("```toml\n")
+        .find(|block| block.starts_with("# soft.toml"))
+        .and_then(|block| block.split("```").next())
+        .expect("docs/configuration.md has the soft.toml example");
+    let s = load_str(example, "soft.toml").unwrap();
+    let mut expected = default_settings();
+    expected.sample.youngs_modulus = 3e9;
+    expected.sample.poisson = 0.35;
+    expected.synth.sample_rate = 50e6;
+    expected.demods[3].harmonic = 60;
+    expected.demods[3].timeconstant = 1e-3;
+    assert_eq!(s, expected);
+    let without_synth = example
+        .replace("[synth]", "")
+        .replace("sample_rate = 50e6", "");
+    let message = load_str(&without_synth, "soft.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        docs.contains(&format!("`{message}`")),
+        "docs lack {message:?}"
+    );
+}
+
+#[test]
+fn every_default_is_inside_its_range() {
+    let s = default_settings();
+    s.validate().unwrap();
+    let number = |v: &Value| v.as_f64().unwrap();
+    for info in s.nodes() {
+        let values: Vec<f64> = match &info.value {
+            Value::Number(_) => vec![number(&info.value)],
+            Value::Array(items) => items.iter().map(number).collect(),
+            _ => continue,
+        };
+        for x in values {
+            assert!(x >= number(&info.min), "{} = {x} < {}", info.path, info.min);
+            assert!(x <= number(&info.max), "{} = {x} > {}", info.path, info.max);
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Arbitrary input never breaks the settings
+
+fn any_json() -> impl Strategy<Value = Value> {
+    let leaf = prop_oneof![
+        Just(Value::Null),
+        any::<bool>().prop_map(Value::from),
+        any::<i64>().prop_map(Value::from),
+        any::<u64>().prop_map(Value::from),
+        any::<f64>().prop_map(Value::from),
+        (-1e3..1e3f64).prop_map(Value::from),
+        // Values near the limits and plausible settings, so that many sets succeed.
+        prop::sample::select(vec![
+            -1.0, 0.0, 0.28, 0.5, 0.6, 1.0, 2.0, 4.0, 8.0, 9.0, 49.0, 50.0, 100.0, 1e-9, 1e-7,
+            20e-9, 1e-6, 1e-5, 1e-3, 1e3, 1e5, 2e5, 5e6, 1e7, 1e8, 1e9, 1e13, 129e9,
+        ])
+        .prop_map(Value::from),
+        prop::sample::select(vec!["paper", "coupled", "", "fast"]).prop_map(Value::from),
+        "\\PC{0,8}".prop_map(Value::from),
+    ];
+    leaf.prop_recursive(2, 24, 8, |inner| {
+        prop_oneof![
+            prop::collection::vec(inner.clone(), 0..6).prop_map(Value::Array),
+            prop::collection::vec((-10.0..1e4f64).prop_map(Value::from), 0..20)
+                .prop_map(Value::Array),
+            prop::collection::btree_map("[a-z]{1,4}", inner, 0..3)
+                .prop_map(|m| Value::Object(m.into_iter().collect())),
+        ]
+    })
+}
+
+fn any_path() -> impl Strategy<Value = String> {
+    let known: Vec<String> = registry().iter().map(|s| s.path.clone()).collect();
+    prop_oneof![
+        9 => prop::sample::select(known),
+        1 => prop::sample::select(vec!["", "/", "/sample", "/demods/32/rate", "/demods/-1/rate"])
+            .prop_map(String::from),
+    ]
+}
+
+proptest! {
+    #[test]
+    fn arbitrary_sets_never_panic_or_invalidate(
+        ops in prop::collection::vec((any_path(), any_json(), any::<bool>()), 1..48)
+    ) {
+        let mut s: Settings = default_settings();
+        for (path, value, at_runtime) in &ops {
+            let before = s.clone();
+            let result = if *at_runtime { s.set(path, value) } else { s.apply(path, value) };
+            match result {
+                Ok(applied) => prop_assert_eq!(s.get(path).unwrap(), applied),
+                Err(error) => {
+                    prop_assert_eq!(&s, &before);
+                    prop_assert!(!error.to_string().is_empty());
+                }
+            }
+            prop_assert!(s.validate().is_ok(), "{:?}", s.validate());
+        }
+    }
+}
