@@ -5,8 +5,14 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use ftafm::physics::{Elastic, HertzContact, ImpactOscillator};
 
 fn paper_case(modulus: f64) -> ImpactOscillator {
-    let si = Elastic { youngs_modulus: 129e9, poisson: 0.28 };
-    let sample = Elastic { youngs_modulus: modulus, poisson: 0.28 };
+    let si = Elastic {
+        youngs_modulus: 129e9,
+        poisson: 0.28,
+    };
+    let sample = Elastic {
+        youngs_modulus: modulus,
+        poisson: 0.28,
+    };
     ImpactOscillator {
         k: 20.0,
         f1: 100e3,
@@ -20,7 +26,11 @@ fn paper_case(modulus: f64) -> ImpactOscillator {
 
 fn solve(c: &mut Criterion) {
     let mut group = c.benchmark_group("impact_solve");
-    for (name, modulus) in [("silicon_129GPa", 129e9), ("inhomogeneity_116GPa", 116.1e9), ("polymer_2GPa", 2e9)] {
+    for (name, modulus) in [
+        ("silicon_129GPa", 129e9),
+        ("inhomogeneity_116GPa", 116.1e9),
+        ("polymer_2GPa", 2e9),
+    ] {
         let osc = paper_case(modulus);
         group.bench_function(name, |b| b.iter(|| osc.solve().expect("converges")));
     }

@@ -9,7 +9,11 @@ use ftafm::config::{self, Settings};
 use ftafm::paper;
 
 #[derive(Parser)]
-#[command(name = "ftafm", version, about = "Real-time virtual instrument for Fourier-transform AFM")]
+#[command(
+    name = "ftafm",
+    version,
+    about = "Real-time virtual instrument for Fourier-transform AFM"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
@@ -23,7 +27,12 @@ enum Command {
         #[arg(long, value_name = "FILE")]
         config: Option<PathBuf>,
         /// Young's modulus of the inhomogeneity relative to the sample's (0 < F, F·E ≤ 10 TPa).
-        #[arg(long, value_name = "F", default_value_t = 0.9, allow_negative_numbers = true)]
+        #[arg(
+            long,
+            value_name = "F",
+            default_value_t = 0.9,
+            allow_negative_numbers = true
+        )]
         inhomogeneity_factor: f64,
         /// Print exactly one JSON object on stdout instead of tables.
         #[arg(long)]
@@ -77,7 +86,8 @@ fn run_paper(config: Option<&PathBuf>, factor: f64, json: bool) -> Result<ExitCo
         ExitCode::FAILURE
     })?;
     if json {
-        let text = serde_json::to_string(&report).expect("the report has no maps with non-string keys");
+        let text =
+            serde_json::to_string(&report).expect("the report has no maps with non-string keys");
         println!("{text}");
     } else {
         let paper_case = paper::is_paper_case(&settings) && factor == 0.9;
@@ -109,6 +119,8 @@ fn run_info(config: Option<&PathBuf>) -> Result<ExitCode, ExitCode> {
         m.contact_time_ratio,
         m.phase_shift_deg
     );
-    println!("the real-time daemon (`ftafm serve`) is not built yet; `ftafm paper` prints the full report");
+    println!(
+        "the real-time daemon (`ftafm serve`) is not built yet; `ftafm paper` prints the full report"
+    );
     Ok(ExitCode::SUCCESS)
 }

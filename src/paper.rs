@@ -9,7 +9,9 @@ use crate::config::{Material, Settings};
 use crate::physics::beam::BeamError;
 use crate::physics::impact::ImpactError;
 use crate::physics::spectrum::{cut_cosine_train, photodiode_spectrum, relative_contrast};
-use crate::physics::{Cantilever, Elastic, Harmonic, HertzContact, ImpactOscillator, ImpactSolution};
+use crate::physics::{
+    Cantilever, Elastic, Harmonic, HertzContact, ImpactOscillator, ImpactSolution,
+};
 
 /// Highest harmonic reported in the spectra.
 pub const MAX_HARMONIC: usize = 32;
@@ -102,7 +104,11 @@ pub fn cantilever(settings: &Settings) -> Result<Cantilever, BeamError> {
 }
 
 /// The 1-DOF problem for the settings with `sample` under the tip.
-pub fn impact_oscillator(settings: &Settings, cantilever: &Cantilever, sample: Material) -> ImpactOscillator {
+pub fn impact_oscillator(
+    settings: &Settings,
+    cantilever: &Cantilever,
+    sample: Material,
+) -> ImpactOscillator {
     let elastic = |m: Material| Elastic {
         youngs_modulus: m.youngs_modulus,
         poisson: m.poisson,
@@ -114,7 +120,11 @@ pub fn impact_oscillator(settings: &Settings, cantilever: &Cantilever, sample: M
         drive_frequency: settings.drive.frequency,
         free_amplitude: settings.drive.free_amplitude,
         surface_distance: settings.surface.distance,
-        contact: HertzContact::new(elastic(settings.tip), elastic(sample), settings.cantilever.tip_radius),
+        contact: HertzContact::new(
+            elastic(settings.tip),
+            elastic(sample),
+            settings.cantilever.tip_radius,
+        ),
     }
 }
 
@@ -125,9 +135,10 @@ fn material_row(
     cantilever: &Cantilever,
 ) -> Result<(MaterialRow, ImpactSolution), PaperError> {
     let oscillator = impact_oscillator(settings, cantilever, material);
-    let solution = oscillator
-        .solve()
-        .map_err(|source| PaperError::Impact { material: name, source })?;
+    let solution = oscillator.solve().map_err(|source| PaperError::Impact {
+        material: name,
+        source,
+    })?;
     let force = cut_cosine_train(
         solution.max_force,
         solution.contact_time_ratio,
@@ -196,8 +207,20 @@ struct Printed {
 }
 
 const PRINTED: [Printed; 2] = [
-    Printed { d_nm: 0.56, f_nn: 66.1, p_gpa: 8.6, theta: -47.19, tau: 0.0518 },
-    Printed { d_nm: 0.57, f_nn: 65.1, p_gpa: 8.2, theta: -47.23, tau: 0.0526 },
+    Printed {
+        d_nm: 0.56,
+        f_nn: 66.1,
+        p_gpa: 8.6,
+        theta: -47.19,
+        tau: 0.0518,
+    },
+    Printed {
+        d_nm: 0.57,
+        f_nn: 65.1,
+        p_gpa: 8.2,
+        theta: -47.23,
+        tau: 0.0526,
+    },
 ];
 
 /// Readable tables, with the paper's printed values beside ours where they apply
@@ -206,7 +229,10 @@ pub fn render_text(report: &PaperReport, paper_case: bool) -> String {
     let mut out = String::new();
     let w = &mut out;
     let _ = writeln!(w, "Cantilever modes (Appendix A/B)");
-    let _ = writeln!(w, "  n   lambda_n       f_n (kHz)    Q      L*phi'(L)   K_n (N/m)");
+    let _ = writeln!(
+        w,
+        "  n   lambda_n       f_n (kHz)    Q      L*phi'(L)   K_n (N/m)"
+    );
     for m in &report.modes {
         let _ = writeln!(
             w,
@@ -220,7 +246,10 @@ pub fn render_text(report: &PaperReport, paper_case: bool) -> String {
         );
     }
     let _ = writeln!(w);
-    let _ = writeln!(w, "Table 1 (1-DOF Hertz model; paper's printed values in brackets)");
+    let _ = writeln!(
+        w,
+        "Table 1 (1-DOF Hertz model; paper's printed values in brackets)"
+    );
     let _ = writeln!(
         w,
         "  {:<14} {:>8} {:>16} {:>16} {:>14} {:>18} {:>18}",
@@ -237,11 +266,26 @@ pub fn render_text(report: &PaperReport, paper_case: bool) -> String {
             "  {:<14} {:>8.1} {:>16} {:>16} {:>14} {:>18} {:>18}",
             m.name,
             m.youngs_modulus / 1e9,
-            cell(format!("{:.3}", m.max_indentation * 1e9), printed.map(|p| format!("{:.2}", p.d_nm))),
-            cell(format!("{:.2}", m.max_force * 1e9), printed.map(|p| format!("{:.1}", p.f_nn))),
-            cell(format!("{:.2}", m.max_pressure / 1e9), printed.map(|p| format!("{:.1}", p.p_gpa))),
-            cell(format!("{:.3}", m.phase_shift_deg), printed.map(|p| format!("{:.2}", p.theta))),
-            cell(format!("{:.5}", m.contact_time_ratio), printed.map(|p| format!("{:.4}", p.tau))),
+            cell(
+                format!("{:.3}", m.max_indentation * 1e9),
+                printed.map(|p| format!("{:.2}", p.d_nm))
+            ),
+            cell(
+                format!("{:.2}", m.max_force * 1e9),
+                printed.map(|p| format!("{:.1}", p.f_nn))
+            ),
+            cell(
+                format!("{:.2}", m.max_pressure / 1e9),
+                printed.map(|p| format!("{:.1}", p.p_gpa))
+            ),
+            cell(
+                format!("{:.3}", m.phase_shift_deg),
+                printed.map(|p| format!("{:.2}", p.theta))
+            ),
+            cell(
+                format!("{:.5}", m.contact_time_ratio),
+                printed.map(|p| format!("{:.4}", p.tau))
+            ),
         );
     }
     if paper_case {
@@ -253,8 +297,15 @@ pub fn render_text(report: &PaperReport, paper_case: bool) -> String {
         );
     }
     let _ = writeln!(w);
-    let _ = writeln!(w, "Fig. 3: photodiode spectrum of the tap force (peak amplitudes, nm)");
-    let _ = writeln!(w, "  {:>3} {:>14} {:>14} {:>12}", "k", "sample", "inhomogeneity", "c_rel (%)");
+    let _ = writeln!(
+        w,
+        "Fig. 3: photodiode spectrum of the tap force (peak amplitudes, nm)"
+    );
+    let _ = writeln!(
+        w,
+        "  {:>3} {:>14} {:>14} {:>12}",
+        "k", "sample", "inhomogeneity", "c_rel (%)"
+    );
     let (a, b) = (&report.materials[0].spectrum, &report.materials[1].spectrum);
     for ((ha, hb), c) in a.iter().zip(b).zip(&report.contrast) {
         let _ = writeln!(

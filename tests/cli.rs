@@ -26,7 +26,8 @@ mod tempfile_path {
         pub fn new(contents: &str) -> Self {
             static COUNTER: AtomicUsize = AtomicUsize::new(0);
             let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-            let path = std::env::temp_dir().join(format!("ftafm-cli-{}-{n}.toml", std::process::id()));
+            let path =
+                std::env::temp_dir().join(format!("ftafm-cli-{}-{n}.toml", std::process::id()));
             std::fs::File::create(&path)
                 .and_then(|mut f| f.write_all(contents.as_bytes()))
                 .expect("temp file");
@@ -66,7 +67,10 @@ fn paper_json_is_one_object_with_the_contract_schema_and_the_papers_numbers() {
     let materials = v["materials"].as_array().unwrap();
     assert_eq!(materials[0]["name"], "sample");
     assert_eq!(materials[1]["name"], "inhomogeneity");
-    let expected = [(129e9, 66.1e-9, 8.6e9, 0.0518, -47.19), (116.1e9, 65.1e-9, 8.2e9, 0.0526, -47.23)];
+    let expected = [
+        (129e9, 66.1e-9, 8.6e9, 0.0518, -47.19),
+        (116.1e9, 65.1e-9, 8.2e9, 0.0526, -47.23),
+    ];
     for (m, (e, f, p, tau, theta)) in materials.iter().zip(expected) {
         let get = |k: &str| m[k].as_f64().unwrap_or_else(|| panic!("{k} missing"));
         assert!((get("youngs_modulus") / e - 1.0).abs() < 1e-12);
@@ -96,7 +100,10 @@ fn paper_text_shows_the_printed_values_beside_ours() {
     let out = ftafm(&["paper"]);
     assert!(out.status.success());
     let text = String::from_utf8(out.stdout).unwrap();
-    assert!(text.contains("[66.1]") && text.contains("[-47.19]") && text.contains("[0.0518]"), "{text}");
+    assert!(
+        text.contains("[66.1]") && text.contains("[-47.19]") && text.contains("[0.0518]"),
+        "{text}"
+    );
     assert!(text.contains("Fig. 3"));
 }
 
@@ -109,7 +116,11 @@ fn inhomogeneity_factor_changes_the_second_material_and_is_validated() {
     for bad in ["-1", "0", "nan", "inf", "1e9"] {
         let out = ftafm(&["paper", "--inhomogeneity-factor", bad]);
         assert_eq!(out.status.code(), Some(2), "factor {bad}");
-        assert!(stderr(&out).contains("--inhomogeneity-factor"), "factor {bad}: {}", stderr(&out));
+        assert!(
+            stderr(&out).contains("--inhomogeneity-factor"),
+            "factor {bad}: {}",
+            stderr(&out)
+        );
     }
     let out = ftafm(&["paper", "--inhomogeneity-factor", "soft"]);
     assert_eq!(out.status.code(), Some(2));
@@ -128,22 +139,40 @@ fn a_partial_config_overlays_the_default() {
     // A softer sample: smaller peak force than silicon's 66 nN.
     assert!(v["materials"][0]["max_force"].as_f64().unwrap() < 60e-9);
     let text = ftafm(&["paper", "--config", file.path()]);
-    assert!(!String::from_utf8(text.stdout).unwrap().contains("[66.1]"), "printed values only for the paper's case");
+    assert!(
+        !String::from_utf8(text.stdout).unwrap().contains("[66.1]"),
+        "printed values only for the paper's case"
+    );
 }
 
 #[test]
 fn bad_configs_exit_2_and_name_the_key() {
     let cases: &[(&str, &[&str])] = &[
-        ("[sample]\nyoungs_moduls = 1e9\n", &["/sample/youngs_moduls", "youngs_modulus"]),
+        (
+            "[sample]\nyoungs_moduls = 1e9\n",
+            &["/sample/youngs_moduls", "youngs_modulus"],
+        ),
         ("[samples]\nyoungs_modulus = 1e9\n", &["samples"]),
-        ("[sample]\nyoungs_modulus = -1e9\n", &["/sample/youngs_modulus", "-1"]),
-        ("[sample]\nyoungs_modulus = 0\n", &["/sample/youngs_modulus"]),
-        ("[sample]\nyoungs_modulus = \"hard\"\n", &["/sample/youngs_modulus"]),
+        (
+            "[sample]\nyoungs_modulus = -1e9\n",
+            &["/sample/youngs_modulus", "-1"],
+        ),
+        (
+            "[sample]\nyoungs_modulus = 0\n",
+            &["/sample/youngs_modulus"],
+        ),
+        (
+            "[sample]\nyoungs_modulus = \"hard\"\n",
+            &["/sample/youngs_modulus"],
+        ),
         ("[sample]\npoisson = 0.5\n", &["/sample/poisson", "0.5"]),
         ("[tip]\npoisson = -1.0\n", &["/tip/poisson"]),
         ("[cantilever]\nq = []\n", &["/cantilever/q"]),
         ("[cantilever]\nk = nan\n", &["/cantilever/k", "NaN"]),
-        ("[drive]\nfree_amplitude = inf\n", &["/drive/free_amplitude"]),
+        (
+            "[drive]\nfree_amplitude = inf\n",
+            &["/drive/free_amplitude"],
+        ),
         ("[demods.3]\norder = 9\n", &["/demods/3/order", "8"]),
         ("[synth]\nengine = \"magic\"\n", &["/synth/engine", "paper"]),
         ("[sample\nyoungs_modulus = 1e9\n", &["line"]),
@@ -157,7 +186,10 @@ fn bad_configs_exit_2_and_name_the_key() {
             assert_eq!(out.status.code(), Some(2), "{toml:?}: {}", stderr(&out));
             let err = stderr(&out);
             for needle in *needles {
-                assert!(err.to_lowercase().contains(&needle.to_lowercase()), "{toml:?}: {err:?} lacks {needle:?}");
+                assert!(
+                    err.to_lowercase().contains(&needle.to_lowercase()),
+                    "{toml:?}: {err:?} lacks {needle:?}"
+                );
             }
             assert!(out.stdout.is_empty(), "nothing on stdout for a bad config");
         }
@@ -181,5 +213,8 @@ fn plain_ftafm_runs_on_the_embedded_default() {
     let out = ftafm(&[]);
     assert!(out.status.success(), "{}", stderr(&out));
     let text = String::from_utf8(out.stdout).unwrap();
-    assert!(text.contains("5 modes") && text.contains("F = 65.9"), "{text}");
+    assert!(
+        text.contains("5 modes") && text.contains("F = 65.9"),
+        "{text}"
+    );
 }

@@ -3,7 +3,7 @@
 
 use std::f64::consts::PI;
 
-use ftafm::physics::beam::{Cantilever, MAX_MODES, eigenvalue, shape};
+use ftafm::physics::beam::{Cantilever, MAX_MODES, eigenvalue, participation, shape};
 use ftafm::physics::spectrum::{photodiode_transfer, tip_transfer};
 
 fn paper_cantilever(extra: usize) -> Cantilever {
@@ -12,10 +12,20 @@ fn paper_cantilever(extra: usize) -> Cantilever {
 
 #[test]
 fn eigenvalues_match_the_tabulated_roots_to_1e9() {
-    let table = [1.875104069, 4.694091133, 7.854757438, 10.995540735, 14.137168391];
+    let table = [
+        1.875104069,
+        4.694091133,
+        7.854757438,
+        10.995540735,
+        14.137168391,
+    ];
     for (i, &lambda) in table.iter().enumerate() {
         let got = eigenvalue(i + 1);
-        assert!(((got - lambda) / lambda).abs() < 1e-9, "mode {}: {got} vs {lambda}", i + 1);
+        assert!(
+            ((got - lambda) / lambda).abs() < 1e-9,
+            "mode {}: {got} vs {lambda}",
+            i + 1
+        );
     }
 }
 
@@ -53,7 +63,10 @@ fn shapes_are_orthonormal_by_quadrature() {
             let (ln, lm) = (eigenvalue(n), eigenvalue(m));
             let integral = simpson(|x| shape(ln, x).0 * shape(lm, x).0, 20_000);
             let expected = if n == m { 1.0 } else { 0.0 };
-            assert!((integral - expected).abs() < 1e-9, "<phi{n}, phi{m}> = {integral}");
+            assert!(
+                (integral - expected).abs() < 1e-9,
+                "<phi{n}, phi{m}> = {integral}"
+            );
         }
     }
 }
@@ -63,7 +76,10 @@ fn shapes_satisfy_the_clamped_free_boundary_conditions() {
     for n in 1..=MAX_MODES {
         let l = eigenvalue(n);
         let (v0, s0) = shape(l, 0.0);
-        assert!(v0.abs() < 1e-12 && s0.abs() < 1e-10, "mode {n} at the clamp: {v0} {s0}");
+        assert!(
+            v0.abs() < 1e-12 && s0.abs() < 1e-10,
+            "mode {n} at the clamp: {v0} {s0}"
+        );
         let (tip, _) = shape(l, 1.0);
         let expected = 2.0 * if n % 2 == 0 { 1.0 } else { -1.0 };
         assert!((tip - expected).abs() < 1e-9, "phi_{n}(L) = {tip}");
@@ -80,7 +96,11 @@ fn tip_slopes_match_physics_md_and_finite_differences() {
         // Independent of the analytic derivative: a central difference of the shape.
         let h = 1e-5;
         let fd = (shape(l, 1.0 + h).0 - shape(l, 1.0 - h).0) / (2.0 * h);
-        assert!((fd - slope).abs() < 1e-6 * slope.abs().max(1.0), "mode {}: fd {fd}", i + 1);
+        assert!(
+            (fd - slope).abs() < 1e-6 * slope.abs().max(1.0),
+            "mode {}: fd {fd}",
+            i + 1
+        );
     }
 }
 
@@ -90,8 +110,16 @@ fn frequencies_stiffnesses_and_light_lever_factors() {
     let ratios = [1.0, 6.2669, 17.5475, 34.3861, 56.8426];
     let factors = [0.9177, 3.1872, 5.2324, 7.3306, 9.4248];
     for (m, (&ratio, &factor)) in c.modes.iter().zip(ratios.iter().zip(&factors)) {
-        assert!((m.frequency / 100e3 - ratio).abs() < 1e-4, "mode {} ratio", m.n);
-        assert!((m.light_lever_factor().abs() - factor).abs() < 1e-4, "mode {} factor", m.n);
+        assert!(
+            (m.frequency / 100e3 - ratio).abs() < 1e-4,
+            "mode {} ratio",
+            m.n
+        );
+        assert!(
+            (m.light_lever_factor().abs() - factor).abs() < 1e-4,
+            "mode {} factor",
+            m.n
+        );
         assert!((m.stiffness - 20.0 * m.lambda.powi(4) / 3.0).abs() < 1e-9 * m.stiffness);
         assert!((m.gamma - 0.5 / m.q).abs() < 1e-15);
     }
@@ -113,9 +141,20 @@ fn static_tip_load_identities() {
     let asymptotic = |n: usize| (n as f64 - 0.5) * PI;
     let tip_tail: f64 = (17..200_000).map(|n| 12.0 / asymptotic(n).powi(4)).sum();
     let lever_tail: f64 = (17..200_000).map(|n| 8.0 / asymptotic(n).powi(3)).sum();
-    assert!(tip_tail > 1e-6 && lever_tail > 1e-4, "the tails are not negligible");
-    assert!((tip.re * 20.0 - (1.0 - tip_tail)).abs() < 1e-9, "tip {}", tip.re * 20.0);
-    assert!((lever.re * 20.0 - (1.0 - lever_tail)).abs() < 1e-8, "lever {}", lever.re * 20.0);
+    assert!(
+        tip_tail > 1e-6 && lever_tail > 1e-4,
+        "the tails are not negligible"
+    );
+    assert!(
+        (tip.re * 20.0 - (1.0 - tip_tail)).abs() < 1e-9,
+        "tip {}",
+        tip.re * 20.0
+    );
+    assert!(
+        (lever.re * 20.0 - (1.0 - lever_tail)).abs() < 1e-8,
+        "lever {}",
+        lever.re * 20.0
+    );
 }
 
 #[test]
@@ -132,9 +171,18 @@ fn light_lever_transfer_zeros_sit_near_the_tabulated_ratios() {
             }
             r += 1e-4;
         }
-        assert!((best.1 / expected - 1.0).abs() < 0.01, "zero near {expected}: {}", best.1);
+        assert!(
+            (best.1 / expected - 1.0).abs() < 0.01,
+            "zero near {expected}: {}",
+            best.1
+        );
         // A zero: far below the static response 1/k.
-        assert!(best.0 * 20.0 < 1e-3, "depth at {}: {}", best.1, best.0 * 20.0);
+        assert!(
+            best.0 * 20.0 < 1e-3,
+            "depth at {}: {}",
+            best.1,
+            best.0 * 20.0
+        );
     }
 }
 
@@ -158,4 +206,26 @@ fn rayleigh_extension_damps_higher_modes_linearly_in_frequency() {
     }
     assert!(Cantilever::new(100e3, 20.0, &[], 2).is_err());
     assert!(Cantilever::new(100e3, 20.0, &[100.0; 10], 7).is_err());
+}
+
+#[test]
+fn participation_factors_match_quadrature() {
+    // ∫φn dξ: what a uniform inertial load (base excitation) puts into mode n. For the
+    // clamped–free beam mode 1 takes 0.783 (with φ1(L) = −2, the integral is negative).
+    assert!((participation(eigenvalue(1)) + 0.7830).abs() < 1e-4);
+    for n in 1..=MAX_MODES {
+        let l = eigenvalue(n);
+        let quadrature = simpson(|x| shape(l, x).0, 20_000);
+        assert!(
+            (participation(l) - quadrature).abs() < 1e-10,
+            "mode {n}: {} vs {quadrature}",
+            participation(l)
+        );
+    }
+    // Σ (∫φn)² = ∫1² = 1 (completeness: the shapes expand the constant 1 on [0, 1]). The
+    // terms fall like 1/λn², so the tail after N modes is O(1/N): 4000 modes leave < 1e-3.
+    let sum: f64 = (1..=4000)
+        .map(|n| participation(eigenvalue(n)).powi(2))
+        .sum();
+    assert!(sum < 1.0 && 1.0 - sum < 1e-3, "{sum}");
 }

@@ -3,7 +3,8 @@
 use std::f64::consts::PI;
 
 use ftafm::physics::spectrum::{
-    cut_cosine_coefficient, cut_cosine_train, photodiode_spectrum, photodiode_transfer, relative_contrast,
+    cut_cosine_coefficient, cut_cosine_train, photodiode_spectrum, photodiode_transfer,
+    relative_contrast,
 };
 use ftafm::physics::{Cantilever, Elastic, Harmonic, HertzContact, ImpactOscillator};
 use rustfft::FftPlanner;
@@ -18,7 +19,11 @@ fn fft_of_cut_cosine(force: f64, tau: f64, centre: f64) -> Vec<Complex64> {
             // Distance in phase from the pulse centre, wrapped to (−π, π].
             let d = (s - centre + PI).rem_euclid(2.0 * PI) - PI;
             let half_width = PI * tau;
-            let v = if d.abs() < half_width { force * (d / (2.0 * tau)).cos() } else { 0.0 };
+            let v = if d.abs() < half_width {
+                force * (d / (2.0 * tau)).cos()
+            } else {
+                0.0
+            };
             Complex64::new(v, 0.0)
         })
         .collect();
@@ -56,9 +61,15 @@ fn cut_cosine_has_a_finite_limit_where_2_tau_k_is_one() {
 
 fn paper_spectra() -> (Vec<Harmonic>, Vec<Harmonic>) {
     let beam = Cantilever::new(100e3, 20.0, &[100.0, 417.0, 340.0, 200.0, 26.0], 0).unwrap();
-    let si = Elastic { youngs_modulus: 129e9, poisson: 0.28 };
+    let si = Elastic {
+        youngs_modulus: 129e9,
+        poisson: 0.28,
+    };
     let spectrum = |modulus: f64| {
-        let sample = Elastic { youngs_modulus: modulus, poisson: 0.28 };
+        let sample = Elastic {
+            youngs_modulus: modulus,
+            poisson: 0.28,
+        };
         let osc = ImpactOscillator {
             k: 20.0,
             f1: 100e3,
@@ -81,17 +92,30 @@ fn figure_3_amplitudes_and_contrast() {
     let c = relative_contrast(&si, &inh);
     let nm = |h: &Harmonic| h.amplitude * 1e9;
     // "the theoretical signal amplitude is equivalent to a static deflection of 0.19 nm"
-    assert!((0.185..0.195).contains(&nm(&si[6])), "H6 = {} nm", nm(&si[6]));
+    assert!(
+        (0.185..0.195).contains(&nm(&si[6])),
+        "H6 = {} nm",
+        nm(&si[6])
+    );
     // "c_rel ... is 0.3 %": silicon gives the larger signal, so c_rel is negative.
     assert!((0.0025..0.0035).contains(&-c[6]), "c6 = {}", c[6]);
     // "harmonics 17 and 18 ... about 0.025 nm ... c_rel = 3 %"
     for k in [17, 18] {
-        assert!((0.022..0.028).contains(&nm(&si[k])), "H{k} = {} nm", nm(&si[k]));
+        assert!(
+            (0.022..0.028).contains(&nm(&si[k])),
+            "H{k} = {} nm",
+            nm(&si[k])
+        );
         assert!((0.025..0.035).contains(&-c[k]), "c{k} = {}", c[k]);
     }
     // "the relative contrast increases with increasing frequency"
     for k in 1..20 {
-        assert!(c[k + 1].abs() > c[k].abs(), "|c| not growing at {k}: {} {}", c[k], c[k + 1]);
+        assert!(
+            c[k + 1].abs() > c[k].abs(),
+            "|c| not growing at {k}: {} {}",
+            c[k],
+            c[k + 1]
+        );
     }
     // Mode 2 enhances H6 and the light-lever zero near 2.81 f1 suppresses H3.
     assert!(si[6].amplitude > 4.0 * si[5].amplitude && si[6].amplitude > 3.0 * si[7].amplitude);
@@ -102,9 +126,17 @@ fn figure_3_amplitudes_and_contrast() {
 fn spectrum_mean_and_fundamental_follow_from_the_transfer_function() {
     let (si, _) = paper_spectra();
     // Harmonic 0: the mean force over the static light-lever response, just under c0/k.
-    assert!((1.0e-10..1.2e-10).contains(&si[0].amplitude), "H0 {}", si[0].amplitude);
+    assert!(
+        (1.0e-10..1.2e-10).contains(&si[0].amplitude),
+        "H0 {}",
+        si[0].amplitude
+    );
     // Harmonic 1: mode 1 at resonance amplifies by Q = 100; ≈ 19 nm (contract.md example).
-    assert!((18.5e-9..20e-9).contains(&si[1].amplitude), "H1 {}", si[1].amplitude);
+    assert!(
+        (18.5e-9..20e-9).contains(&si[1].amplitude),
+        "H1 {}",
+        si[1].amplitude
+    );
 }
 
 #[test]
@@ -114,9 +146,13 @@ fn photodiode_transfer_single_mode_by_hand() {
     let m = &beam.modes[0];
     for beta in [0.0, 0.5, 1.0, 2.0, 6.0] {
         let t = photodiode_transfer(&beam, beta * m.omega);
-        let expected = (2.0 / 3.0) * (-2.7530) * (-2.0) / (20.0 * 1.875_104_069_f64.powi(4) / 3.0)
+        let expected = (2.0 / 3.0) * (-2.7530) * (-2.0)
+            / (20.0 * 1.875_104_069_f64.powi(4) / 3.0)
             / Complex64::new(1.0 - beta * beta, 2.0 * 0.005 * beta);
         // physics.md gives L·φ1′(L) to 4 decimals: 2e-5 relative.
-        assert!((t - expected).norm() / expected.norm() < 3e-5, "beta {beta}: {t} vs {expected}");
+        assert!(
+            (t - expected).norm() / expected.norm() < 3e-5,
+            "beta {beta}: {t} vs {expected}"
+        );
     }
 }

@@ -66,6 +66,22 @@ pub fn shape(lambda: f64, xi: f64) -> (f64, f64) {
     (value, slope)
 }
 
+/// Participation ∫₀¹ φ(ξ) dξ of the mode with eigenvalue `lambda`: the share of a uniform
+/// inertial load (base acceleration) that drives it. Closed form for Eq. (A.7):
+/// (sin λ + σ(cos λ − 1) − sinh λ + σ(cosh λ − 1))/λ, written without cancellation.
+pub fn participation(lambda: f64) -> f64 {
+    // ∫ cos − cosh − σ(sin − sinh) = [sin λ − sinh λ + σ(cos λ − 1) + σ(cosh λ − 1)]/λ; with
+    // σ·cosh λ − sinh λ = ((σ − 1)e^λ + (σ + 1)e^{−λ})/2 evaluated through 1 − σ.
+    let l = lambda;
+    let (s, c) = l.sin_cos();
+    let em = (-l).exp();
+    let denom_scaled = s * em + 0.5 * (1.0 - em * em);
+    let one_minus_sigma_scaled = (s - c - em) / denom_scaled;
+    let sigma = 1.0 - one_minus_sigma_scaled * em;
+    let hyperbolic = 0.5 * (-one_minus_sigma_scaled + (sigma + 1.0) * em); // σ cosh λ − sinh λ
+    (s + sigma * (c - 1.0) + hyperbolic - sigma) / l
+}
+
 /// One flexural mode of the cantilever, all quantities SI.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Mode {
@@ -87,6 +103,8 @@ pub struct Mode {
     pub tip_slope: f64,
     /// Generalised stiffness Kn = k·λn⁴/3 (N/m).
     pub stiffness: f64,
+    /// ∫₀¹ φn dξ (1): how strongly base motion drives the mode.
+    pub participation: f64,
 }
 
 impl Mode {
@@ -179,6 +197,7 @@ impl Cantilever {
                 tip_value,
                 tip_slope,
                 stiffness: k * lambda.powi(4) / 3.0,
+                participation: participation(lambda),
             });
         }
         Ok(Self { k, f1, modes })

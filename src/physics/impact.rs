@@ -62,7 +62,9 @@ impl Default for SolveOptions {
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum ImpactError {
     /// Newton's method on the period map did not converge, even after a long transient.
-    #[error("the periodic orbit did not converge (residual {residual:.3e} after {iterations} iterations)")]
+    #[error(
+        "the periodic orbit did not converge (residual {residual:.3e} after {iterations} iterations)"
+    )]
     NoConvergence { residual: f64, iterations: usize },
     /// The parameters are not physical (non-positive or non-finite).
     #[error("invalid 1-DOF parameters: {0}")]
@@ -269,7 +271,12 @@ impl Scaled {
 }
 
 #[inline]
-fn rk4_step<const N: usize>(f: &impl Fn(f64, &[f64; N]) -> [f64; N], s: f64, y: &[f64; N], h: f64) -> [f64; N] {
+fn rk4_step<const N: usize>(
+    f: &impl Fn(f64, &[f64; N]) -> [f64; N],
+    s: f64,
+    y: &[f64; N],
+    h: f64,
+) -> [f64; N] {
     let add = |a: &[f64; N], b: &[f64; N], c: f64| -> [f64; N] {
         let mut o = *a;
         for i in 0..N {
@@ -407,11 +414,20 @@ impl ImpactOscillator {
         let position: Vec<f64> = xs.iter().map(|x| x * a0).collect();
         let velocity: Vec<f64> = vs.iter().map(|v| v * a0 * omega).collect();
         let surface = -self.surface_distance;
-        let force: Vec<f64> = position.iter().map(|&z| self.contact.force(surface - z)).collect();
-        let hermite = Hermite { xs: &xs, vs: &vs, h };
+        let force: Vec<f64> = position
+            .iter()
+            .map(|&z| self.contact.force(surface - z))
+            .collect();
+        let hermite = Hermite {
+            xs: &xs,
+            vs: &vs,
+            h,
+        };
 
         // Lower turning point: the sign change of v from − to + around the smallest x.
-        let jmin = (0..steps).min_by(|&a, &b| xs[a].total_cmp(&xs[b])).unwrap_or(0);
+        let jmin = (0..steps)
+            .min_by(|&a, &b| xs[a].total_cmp(&xs[b]))
+            .unwrap_or(0);
         let (s_min, x_min) = hermite.minimum_near(jmin);
         let max_indentation = (surface / a0 - x_min).max(0.0) * a0;
         let max_force = self.contact.force(max_indentation);
@@ -460,7 +476,11 @@ impl ImpactOscillator {
 fn relative_change(a: &ImpactSolution, b: &ImpactSolution) -> f64 {
     let rel = |p: f64, q: f64| {
         let scale = p.abs().max(q.abs());
-        if scale == 0.0 { 0.0 } else { (p - q).abs() / scale }
+        if scale == 0.0 {
+            0.0
+        } else {
+            (p - q).abs() / scale
+        }
     };
     rel(a.max_force, b.max_force)
         .max(rel(a.contact_time_ratio, b.contact_time_ratio))
@@ -498,7 +518,9 @@ impl Hermite<'_> {
         let (x0, x1) = (self.xs[j % n], self.xs[(j + 1) % n]);
         let (v0, v1) = (self.vs[j % n] * self.h, self.vs[(j + 1) % n] * self.h);
         let t2 = t * t;
-        (6.0 * t2 - 6.0 * t) * x0 + (3.0 * t2 - 4.0 * t + 1.0) * v0 + (-6.0 * t2 + 6.0 * t) * x1
+        (6.0 * t2 - 6.0 * t) * x0
+            + (3.0 * t2 - 4.0 * t + 1.0) * v0
+            + (-6.0 * t2 + 6.0 * t) * x1
             + (3.0 * t2 - 2.0 * t) * v1
     }
 
@@ -507,7 +529,11 @@ impl Hermite<'_> {
         let n = self.n();
         let prev = (j + n - 1) % n;
         // The minimum lies in [prev, j] if v(j) > 0, else in [j, j + 1].
-        let (interval, base) = if self.vs[j] > 0.0 { (prev, j as f64 - 1.0) } else { (j, j as f64) };
+        let (interval, base) = if self.vs[j] > 0.0 {
+            (prev, j as f64 - 1.0)
+        } else {
+            (j, j as f64)
+        };
         let t = bisect(|t| self.dx(interval, t), 0.0, 1.0);
         ((base + t) * self.h, self.x(interval, t))
     }
