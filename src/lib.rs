@@ -5,5 +5,8 @@
 
 pub mod config;
 pub mod dsp;
+pub mod model;
 pub mod paper;
 pub mod physics;
+pub mod pipeline;
+pub mod synth;

@@ -6,12 +6,11 @@ use std::fmt::Write as _;
 use serde::Serialize;
 
 use crate::config::{Material, Settings};
+use crate::model::{cantilever, impact_oscillator};
 use crate::physics::beam::BeamError;
 use crate::physics::impact::ImpactError;
 use crate::physics::spectrum::{cut_cosine_train, photodiode_spectrum, relative_contrast};
-use crate::physics::{
-    Cantilever, Elastic, Harmonic, HertzContact, ImpactOscillator, ImpactSolution,
-};
+use crate::physics::{Cantilever, Harmonic, ImpactSolution};
 
 /// Highest harmonic reported in the spectra.
 pub const MAX_HARMONIC: usize = 32;
@@ -95,37 +94,6 @@ pub struct PaperReport {
     pub materials: Vec<MaterialRow>,
     /// Contrast per harmonic.
     pub contrast: Vec<ContrastRow>,
-}
-
-/// The cantilever the settings describe.
-pub fn cantilever(settings: &Settings) -> Result<Cantilever, BeamError> {
-    let c = &settings.cantilever;
-    Cantilever::new(c.f1, c.k, &c.q, c.extra_modes)
-}
-
-/// The 1-DOF problem for the settings with `sample` under the tip.
-pub fn impact_oscillator(
-    settings: &Settings,
-    cantilever: &Cantilever,
-    sample: Material,
-) -> ImpactOscillator {
-    let elastic = |m: Material| Elastic {
-        youngs_modulus: m.youngs_modulus,
-        poisson: m.poisson,
-    };
-    ImpactOscillator {
-        k: settings.cantilever.k,
-        f1: settings.cantilever.f1,
-        q: cantilever.fundamental().q,
-        drive_frequency: settings.drive.frequency,
-        free_amplitude: settings.drive.free_amplitude,
-        surface_distance: settings.surface.distance,
-        contact: HertzContact::new(
-            elastic(settings.tip),
-            elastic(sample),
-            settings.cantilever.tip_radius,
-        ),
-    }
 }
 
 fn material_row(

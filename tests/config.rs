@@ -4,8 +4,8 @@
 use std::collections::BTreeSet;
 
 use ftafm::config::{
-    ConfigError, DEFAULT_TOML, Engine, NodeError, Settings, default_settings, load, load_str,
-    registry,
+    ConfigError, DEFAULT_TOML, Engine, NodeError, Settings, SpectrumWindow, default_settings, load,
+    load_str, registry,
 };
 use proptest::prelude::*;
 use serde_json::{Value, json};
@@ -49,6 +49,14 @@ fn default_is_the_papers_silicon_case() {
     assert_eq!(s.synth.seed, 1);
     assert!(s.synth.realtime);
     assert!(s.noise.enable);
+    assert_eq!(s.noise.temperature, 300.0);
+    assert_eq!(s.noise.detector_density, 1e-13);
+    assert_eq!(s.noise.adc_bits, 16);
+    assert_eq!(s.noise.adc_range, 100e-9);
+    assert!(s.spectrum.enable);
+    assert_eq!(s.spectrum.size, 32768);
+    assert_eq!(s.spectrum.window, SpectrumWindow::BlackmanHarris);
+    assert_eq!(s.spectrum.rate, 10.0);
     assert_eq!(s.demods.len(), 32);
     for (n, demod) in s.demods.iter().enumerate() {
         assert!(demod.enable);
@@ -354,6 +362,129 @@ fn other_relations_name_both_keys() {
 }
 
 #[test]
+fn noise_ranges_name_the_key() {
+    assert_eq!(
+        error_of("[noise]\ntemperature = -1\n"),
+        "test.toml: /noise/temperature = -1 is out of range: allowed 0 ≤ value ≤ 10000 K"
+    );
+    assert_eq!(
+        error_of("[noise]\ndetector_density = nan\n"),
+        "test.toml: /noise/detector_density = nan is not a finite number: allowed \
+         0 ≤ value ≤ 1e-9 m/√Hz"
+    );
+    assert_mentions(
+        &error_of("[noise]\ndetector_density = 2e-9\n"),
+        &["/noise/detector_density = 2e-9", "out of range"],
+    );
+    assert_eq!(
+        error_of("[noise]\nadc_bits = 33\n"),
+        "test.toml: /noise/adc_bits = 33 is out of range: allowed 0 ≤ value ≤ 32"
+    );
+    assert_eq!(
+        error_of("[noise]\nadc_range = 0\n"),
+        "test.toml: /noise/adc_range = 0 is out of range: allowed 0 < value ≤ 1e-5 m"
+    );
+    // Zero switches each source off, and is allowed.
+    let s = load_str(
+        "[noise]\ntemperature = 0\ndetector_density = 0\nadc_bits = 0\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!(
+        (
+            s.noise.temperature,
+            s.noise.detector_density,
+            s.noise.adc_bits
+        ),
+        (0.0, 0.0, 0)
+    );
+}
+
+#[test]
+fn spectrum_size_is_a_power_of_two_in_range() {
+    assert_eq!(
+        error_of("[spectrum]\nsize = 1000\n"),
+        "test.toml: /spectrum/size = 1000 is not a power of two: allowed a power of two from \
+         256 to 1048576"
+    );
+    for size in ["128", "2097152"] {
+        assert_eq!(
+            error_of(&format!("[spectrum]\nsize = {size}\n")),
+            format!(
+                "test.toml: /spectrum/size = {size} is out of range: allowed a power of two \
+                 from 256 to 1048576"
+            )
+        );
+    }
+    assert_mentions(
+        &error_of("[spectrum]\nsize = 4096.5\n"),
+        &["/spectrum/size = 4096.5", "not an integer"],
+    );
+    for size in [256, 4096, 1 << 20] {
+        let s = load_str(&format!("[spectrum]\nsize = {size}\n"), "t.toml").unwrap();
+        assert_eq!(s.spectrum.size, size);
+    }
+}
+
+#[test]
+fn spectrum_window_and_rate() {
+    assert_eq!(
+        error_of("[spectrum]\nwindow = \"kaiser\"\n"),
+        "test.toml: /spectrum/window = \"kaiser\" is not allowed: choose one of \
+         \"rectangular\", \"hann\", \"blackman_harris\", \"flat_top\""
+    );
+    for window in SpectrumWindow::ALL {
+        let text = format!("[spectrum]\nwindow = \"{}\"\n", window.name());
+        assert_eq!(load_str(&text, "t.toml").unwrap().spectrum.window, window);
+        assert_eq!(SpectrumWindow::from_name(window.name()), Some(window));
+    }
+    assert_eq!(
+        error_of("[spectrum]\nrate = 0\n"),
+        "test.toml: /spectrum/rate = 0 is out of range: allowed 0 < value ≤ 1000 Hz"
+    );
+    // Frames may overlap: 1000 spectra per second of 2^20 samples (0.1 s each at 10 MHz).
+    let s = load_str("[spectrum]\nrate = 1000\nsize = 1048576\n", "t.toml").unwrap();
+    assert!(s.spectrum.rate > s.synth.sample_rate / f64::from(s.spectrum.size));
+}
+
+const COUPLED_REFUSED: &str = "/synth/engine = \"coupled\" is not available yet (the coupled \
+                               engine is a later piece of work); allowed: \"paper\"";
+
+#[test]
+fn the_coupled_engine_is_refused_by_set_apply_and_file() {
+    let mut s = default_settings();
+    for runtime in [true, false] {
+        let result = if runtime {
+            s.set("/synth/engine", &json!("coupled"))
+        } else {
+            s.apply("/synth/engine", &json!("coupled"))
+        };
+        let error = result.unwrap_err();
+        assert_eq!(error.code(), "invalid_value");
+        assert_eq!(error.path(), "/synth/engine");
+        assert_eq!(error.to_string(), COUPLED_REFUSED);
+        assert_eq!(s, default_settings());
+    }
+    let error = load_str("[synth]\nengine = \"coupled\"\n", "test.toml").unwrap_err();
+    assert_eq!(error.path(), Some("/synth/engine"));
+    assert_eq!(error.to_string(), format!("test.toml: {COUPLED_REFUSED}"));
+    // The name stays known, so the message can be specific.
+    assert_eq!(Engine::from_name("coupled"), Some(Engine::Coupled));
+}
+
+#[test]
+fn the_coupled_engine_is_refused_from_a_file_on_disk() {
+    let dir = std::env::temp_dir().join(format!("ftafm-coupled-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("coupled.toml");
+    std::fs::write(&path, "[synth]\nengine = \"coupled\"\n").unwrap();
+    let message = load(Some(&path)).unwrap_err().to_string();
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert!(message.ends_with(COUPLED_REFUSED), "{message}");
+    assert!(message.contains("coupled.toml"), "{message}");
+}
+
+#[test]
 fn syntax_errors_carry_file_line_and_column() {
     let message = error_of("[sample]\npoisson = = 0.3\n");
     assert_mentions(&message, &["test.toml", "line 2", "column"]);
@@ -461,10 +592,21 @@ fn set_returns_the_value_as_applied() {
         json!(150000.0)
     );
     assert_eq!(
-        s.set("/synth/engine", &json!("coupled")).unwrap(),
-        json!("coupled")
+        s.set("/synth/engine", &json!("paper")).unwrap(),
+        json!("paper")
     );
-    assert_eq!(s.synth.engine, Engine::Coupled);
+    assert_eq!(s.synth.engine, Engine::Paper);
+    assert_eq!(
+        s.set("/spectrum/window", &json!("flat_top")).unwrap(),
+        json!("flat_top")
+    );
+    assert_eq!(s.spectrum.window, SpectrumWindow::FlatTop);
+    assert_eq!(
+        s.set("/spectrum/size", &json!(1024.0)).unwrap(),
+        json!(1024)
+    );
+    assert_eq!(s.set("/noise/adc_bits", &json!(0)).unwrap(), json!(0));
+    assert_eq!(s.set("/noise/temperature", &json!(0)).unwrap(), json!(0.0));
     assert_eq!(
         s.set("/synth/seed", &json!(u64::MAX)).unwrap(),
         json!(u64::MAX)
@@ -495,6 +637,14 @@ fn failed_set_changes_nothing() {
         ("/drive/frequency", json!(200e3)),
         ("/synth/engine", json!("fast")),
         ("/noise/enable", json!(null)),
+        ("/noise/temperature", json!(-1.0)),
+        ("/noise/detector_density", json!(2e-9)),
+        ("/noise/adc_bits", json!(33)),
+        ("/noise/adc_range", json!(0.0)),
+        ("/spectrum/size", json!(1000)),
+        ("/spectrum/window", json!("kaiser")),
+        ("/spectrum/rate", json!(0.0)),
+        ("/synth/engine", json!("coupled")),
         ("/synth/sample_rate", json!(20e6)),
     ];
     for (path, value) in attempts {
@@ -555,7 +705,7 @@ fn every_node_round_trips_through_set() {
 fn list_entries_have_the_protocol_fields() {
     let nodes = default_settings().nodes();
     assert_eq!(nodes.len(), registry().len());
-    assert_eq!(nodes.len(), 17 + 32 * 5);
+    assert_eq!(nodes.len(), 25 + 32 * 5);
     let entry = serde_json::to_value(&nodes[0]).unwrap();
     let keys: BTreeSet<&str> = entry
         .as_object()
@@ -585,6 +735,17 @@ fn list_entries_have_the_protocol_fields() {
     assert!(!rate.writable);
     let engine = nodes.iter().find(|n| n.path == "/synth/engine").unwrap();
     assert_eq!((&engine.unit[..], &engine.min), ("", &Value::Null));
+    let size = nodes.iter().find(|n| n.path == "/spectrum/size").unwrap();
+    assert_eq!((&size.min, &size.max), (&json!(256), &json!(1048576)));
+    assert_eq!(size.unit, "samples");
+    let density = nodes
+        .iter()
+        .find(|n| n.path == "/noise/detector_density")
+        .unwrap();
+    assert_eq!(density.unit, "m/√Hz");
+    assert!(density.writable);
+    let spectrum_rate = nodes.iter().find(|n| n.path == "/spectrum/rate").unwrap();
+    assert_eq!(spectrum_rate.max, json!(1000.0));
     // Limits that depend on other nodes are reported as they stand now.
     let drive = nodes.iter().find(|n| n.path == "/drive/frequency").unwrap();
     assert_eq!(drive.max, json!(5e6));
@@ -617,6 +778,8 @@ fn nodes_under_matches_whole_segments() {
         ]
     );
     assert_eq!(s.nodes_under("/sample/").len(), 2);
+    assert_eq!(s.nodes_under("/noise").len(), 5);
+    assert_eq!(s.nodes_under("/spectrum").len(), 4);
     assert_eq!(s.nodes_under("/sample/poisson").len(), 1);
     assert_eq!(s.nodes_under("/").len(), s.nodes().len());
     assert!(s.nodes_under("/samp").is_empty());
@@ -743,10 +906,22 @@ fn any_json() -> impl Strategy<Value = Value> {
         // Values near the limits and plausible settings, so that many sets succeed.
         prop::sample::select(vec![
             -1.0, 0.0, 0.28, 0.5, 0.6, 1.0, 2.0, 4.0, 8.0, 9.0, 49.0, 50.0, 100.0, 1e-9, 1e-7,
-            20e-9, 1e-6, 1e-5, 1e-3, 1e3, 1e5, 2e5, 5e6, 1e7, 1e8, 1e9, 1e13, 129e9,
+            20e-9, 1e-6, 1e-5, 1e-3, 1e3, 1e5, 2e5, 5e6, 1e7, 1e8, 1e9, 1e13, 129e9, 1e-13, 300.0,
+            1e4, 16.0, 32.0, 33.0, 128.0, 256.0, 1000.0, 1024.0, 32768.0, 1048576.0, 2097152.0,
         ])
         .prop_map(Value::from),
-        prop::sample::select(vec!["paper", "coupled", "", "fast"]).prop_map(Value::from),
+        prop::sample::select(vec![
+            "paper",
+            "coupled",
+            "",
+            "fast",
+            "rectangular",
+            "hann",
+            "blackman_harris",
+            "flat_top",
+            "kaiser",
+        ])
+        .prop_map(Value::from),
         "\\PC{0,8}".prop_map(Value::from),
     ];
     leaf.prop_recursive(2, 24, 8, |inner| {

@@ -6,7 +6,7 @@ use serde_json::Value;
 
 use super::quantity::number;
 use super::range::Range;
-use super::settings::{Engine, Settings};
+use super::settings::{Engine, Settings, SpectrumWindow};
 
 /// Most cantilever modes simulated: entries of `/cantilever/q` plus `/cantilever/extra_modes`.
 pub const MAX_MODES: usize = 16;
@@ -17,6 +17,12 @@ pub const MAX_FILTER_ORDER: u32 = 8;
 /// Highest Young's modulus of the tip or the sample (Pa): 10 TPa, well above diamond's
 /// 1.2 TPa.
 pub const MAX_YOUNGS_MODULUS: f64 = 1e13;
+/// Highest ADC resolution, in bits (`/noise/adc_bits`; 0 means no quantisation).
+pub const MAX_ADC_BITS: u32 = 32;
+/// Shortest FFT of the spectrum, in samples (`/spectrum/size`, a power of two).
+pub const MIN_SPECTRUM_SIZE: u32 = 256;
+/// Longest FFT of the spectrum, in samples (`/spectrum/size`, a power of two): 2^20.
+pub const MAX_SPECTRUM_SIZE: u32 = 1 << 20;
 
 // Static ranges. Limits that depend on another node (the Nyquist frequency, one sample
 // period) are checked in `relations`, after a whole file or a `set` has been applied, so the
@@ -43,6 +49,14 @@ const TIME_CONSTANT: Range = Range::above_up_to(0.0, 100.0);
 /// Demodulator output rate in Hz: never above the highest sample rate (and, in
 /// `relations`, never above the configured one).
 const OUTPUT_RATE: Range = Range::above_up_to(0.0, SAMPLE_RATE.max.value);
+/// Temperature of the thermal noise in K; 0 turns it off.
+const TEMPERATURE: Range = Range::closed(0.0, 1e4);
+/// Detector noise density in m/√Hz: up to 1 nm/√Hz; 0 turns it off.
+const DETECTOR_DENSITY: Range = Range::closed(0.0, 1e-9);
+/// ADC full scale in m: up to ±10 µm.
+const ADC_RANGE: Range = Range::above_up_to(0.0, 1e-5);
+/// Spectra per second in Hz (and, in `relations`, never above the sample rate).
+const SPECTRUM_RATE: Range = Range::above_up_to(0.0, 1e3);
 
 /// One node of the tree. Demodulator nodes carry their index N of `/demods/N/…`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -81,6 +95,22 @@ pub enum Field {
     SynthRealtime,
     /// `/noise/enable` (bool).
     NoiseEnable,
+    /// `/noise/temperature` (K).
+    NoiseTemperature,
+    /// `/noise/detector_density` (m/√Hz).
+    NoiseDetectorDensity,
+    /// `/noise/adc_bits` (bit).
+    NoiseAdcBits,
+    /// `/noise/adc_range` (m).
+    NoiseAdcRange,
+    /// `/spectrum/enable` (bool).
+    SpectrumEnable,
+    /// `/spectrum/size` (samples, a power of two).
+    SpectrumSize,
+    /// `/spectrum/window` (text).
+    SpectrumWindow,
+    /// `/spectrum/rate` (Hz).
+    SpectrumRate,
     /// `/demods/N/enable` (bool).
     DemodEnable(usize),
     /// `/demods/N/harmonic` (integer).
@@ -107,6 +137,13 @@ pub enum Kind {
     },
     /// `true` or `false`.
     Bool,
+    /// A power of two with `min ≤ value ≤ max` (both powers of two).
+    PowerOfTwo {
+        /// Smallest allowed value.
+        min: u64,
+        /// Largest allowed value.
+        max: u64,
+    },
     /// One of these strings.
     Text(&'static [&'static str]),
     /// A list of 1 to `max_len` finite numbers, each inside `entry`.
@@ -156,7 +193,7 @@ impl Typed {
 
 impl Field {
     /// Nodes outside the demodulator bank, in tree order.
-    pub(crate) const SCALARS: [Field; 17] = [
+    pub(crate) const SCALARS: [Field; 25] = [
         Field::CantileverF1,
         Field::CantileverK,
         Field::CantileverQ,
@@ -174,6 +211,14 @@ impl Field {
         Field::SynthSeed,
         Field::SynthRealtime,
         Field::NoiseEnable,
+        Field::NoiseTemperature,
+        Field::NoiseDetectorDensity,
+        Field::NoiseAdcBits,
+        Field::NoiseAdcRange,
+        Field::SpectrumEnable,
+        Field::SpectrumSize,
+        Field::SpectrumWindow,
+        Field::SpectrumRate,
     ];
 
     /// The nodes of demodulator `index`, in tree order.
@@ -207,6 +252,14 @@ impl Field {
             Field::SynthSeed => "/synth/seed",
             Field::SynthRealtime => "/synth/realtime",
             Field::NoiseEnable => "/noise/enable",
+            Field::NoiseTemperature => "/noise/temperature",
+            Field::NoiseDetectorDensity => "/noise/detector_density",
+            Field::NoiseAdcBits => "/noise/adc_bits",
+            Field::NoiseAdcRange => "/noise/adc_range",
+            Field::SpectrumEnable => "/spectrum/enable",
+            Field::SpectrumSize => "/spectrum/size",
+            Field::SpectrumWindow => "/spectrum/window",
+            Field::SpectrumRate => "/spectrum/rate",
             Field::DemodEnable(i) => return format!("/demods/{i}/enable"),
             Field::DemodHarmonic(i) => return format!("/demods/{i}/harmonic"),
             Field::DemodOrder(i) => return format!("/demods/{i}/order"),
@@ -216,16 +269,25 @@ impl Field {
         fixed.to_owned()
     }
 
-    /// SI unit: `Hz`, `N/m`, `m`, `Pa`, `s`, `1` (dimensionless numbers and counts), or
-    /// empty for text and booleans.
+    /// SI unit: `Hz`, `N/m`, `m`, `Pa`, `s`, `K`, `m/√Hz`, `1` (dimensionless numbers and
+    /// counts), `bit` (ADC resolution), `samples` (FFT length), or empty for text and
+    /// booleans.
     pub fn unit(self) -> &'static str {
         match self {
             Field::CantileverF1
             | Field::DriveFrequency
             | Field::SynthSampleRate
+            | Field::SpectrumRate
             | Field::DemodRate(_) => "Hz",
             Field::CantileverK => "N/m",
-            Field::CantileverTipRadius | Field::DriveFreeAmplitude | Field::SurfaceDistance => "m",
+            Field::CantileverTipRadius
+            | Field::DriveFreeAmplitude
+            | Field::SurfaceDistance
+            | Field::NoiseAdcRange => "m",
+            Field::NoiseTemperature => "K",
+            Field::NoiseDetectorDensity => "m/√Hz",
+            Field::NoiseAdcBits => "bit",
+            Field::SpectrumSize => "samples",
             Field::TipYoungsModulus | Field::SampleYoungsModulus => "Pa",
             Field::DemodTimeconstant(_) => "s",
             Field::CantileverQ
@@ -238,6 +300,8 @@ impl Field {
             Field::SynthEngine
             | Field::SynthRealtime
             | Field::NoiseEnable
+            | Field::SpectrumEnable
+            | Field::SpectrumWindow
             | Field::DemodEnable(_) => "",
         }
     }
@@ -271,7 +335,23 @@ impl Field {
                 min: 0,
                 max: u64::MAX,
             },
-            Field::SynthRealtime | Field::NoiseEnable | Field::DemodEnable(_) => Kind::Bool,
+            Field::SynthRealtime
+            | Field::NoiseEnable
+            | Field::SpectrumEnable
+            | Field::DemodEnable(_) => Kind::Bool,
+            Field::NoiseTemperature => Kind::Float(TEMPERATURE),
+            Field::NoiseDetectorDensity => Kind::Float(DETECTOR_DENSITY),
+            Field::NoiseAdcBits => Kind::Integer {
+                min: 0,
+                max: MAX_ADC_BITS.into(),
+            },
+            Field::NoiseAdcRange => Kind::Float(ADC_RANGE),
+            Field::SpectrumSize => Kind::PowerOfTwo {
+                min: MIN_SPECTRUM_SIZE.into(),
+                max: MAX_SPECTRUM_SIZE.into(),
+            },
+            Field::SpectrumWindow => Kind::Text(SpectrumWindow::NAMES),
+            Field::SpectrumRate => Kind::Float(SPECTRUM_RATE),
             Field::DemodHarmonic(_) => Kind::Integer {
                 min: 0,
                 max: MAX_HARMONIC.into(),
@@ -318,7 +398,7 @@ impl Field {
                 "Photodiode sample rate of the synthesiser, in Hz; fixed at start (config file only)."
             }
             Field::SynthEngine => {
-                "Tip-force engine: \"paper\" (cut-cosine pulses from the 1-DOF model, the paper's method) or \"coupled\" (contact force from the instantaneous tip position of all modes)."
+                "Tip-force engine: \"paper\" (cut-cosine pulses from the 1-DOF model, the paper's method); \"coupled\" (contact force from the instantaneous tip position of all modes) is not available yet."
             }
             Field::SynthSeed => {
                 "Seed of every random source (integer); the same seed and settings give the same stream."
@@ -327,6 +407,30 @@ impl Field {
                 "Pace synthesis to the wall clock (true) or run as fast as possible (false)."
             }
             Field::NoiseEnable => "Switches all noise sources on (true) or off (false).",
+            Field::NoiseTemperature => {
+                "Temperature of the cantilever's thermal (Brownian) noise, in K, applied to every mode by fluctuation–dissipation; 0 turns thermal noise off."
+            }
+            Field::NoiseDetectorDensity => {
+                "One-sided density of the white detector noise added to the deflection signal, in m/√Hz; 0 turns it off."
+            }
+            Field::NoiseAdcBits => {
+                "Resolution of the ADC that digitises the deflection signal, in bits; 0 means no quantisation."
+            }
+            Field::NoiseAdcRange => {
+                "Full scale of the ADC input, ±adc_range, in (nominal) m; samples beyond it clip and are counted."
+            }
+            Field::SpectrumEnable => {
+                "Computes and sends the spectrum of the deflection signal (true) or not (false)."
+            }
+            Field::SpectrumSize => {
+                "FFT length of the spectrum, in samples: a power of two from 256 to 1048576."
+            }
+            Field::SpectrumWindow => {
+                "Window applied to each spectrum frame: \"rectangular\", \"hann\", \"blackman_harris\" or \"flat_top\"."
+            }
+            Field::SpectrumRate => {
+                "Spectra computed per second, in Hz; frames may overlap, at most the sample rate."
+            }
             Field::DemodEnable(i) => {
                 return format!("Demodulator {i} produces output (true) or is idle (false).");
             }
@@ -372,6 +476,14 @@ impl Field {
             Field::SynthSeed => Typed::Integer(s.synth.seed),
             Field::SynthRealtime => Typed::Bool(s.synth.realtime),
             Field::NoiseEnable => Typed::Bool(s.noise.enable),
+            Field::NoiseTemperature => Typed::Float(s.noise.temperature),
+            Field::NoiseDetectorDensity => Typed::Float(s.noise.detector_density),
+            Field::NoiseAdcBits => Typed::Integer(s.noise.adc_bits.into()),
+            Field::NoiseAdcRange => Typed::Float(s.noise.adc_range),
+            Field::SpectrumEnable => Typed::Bool(s.spectrum.enable),
+            Field::SpectrumSize => Typed::Integer(s.spectrum.size.into()),
+            Field::SpectrumWindow => Typed::Text(s.spectrum.window.name()),
+            Field::SpectrumRate => Typed::Float(s.spectrum.rate),
             Field::DemodEnable(i) => Typed::Bool(s.demods.get(i)?.enable),
             Field::DemodHarmonic(i) => Typed::Integer(s.demods.get(i)?.harmonic.into()),
             Field::DemodOrder(i) => Typed::Integer(s.demods.get(i)?.order.into()),
@@ -404,6 +516,20 @@ impl Field {
             (Field::SynthSeed, Typed::Integer(n)) => s.synth.seed = n,
             (Field::SynthRealtime, Typed::Bool(b)) => s.synth.realtime = b,
             (Field::NoiseEnable, Typed::Bool(b)) => s.noise.enable = b,
+            (Field::NoiseTemperature, Typed::Float(x)) => s.noise.temperature = x,
+            (Field::NoiseDetectorDensity, Typed::Float(x)) => s.noise.detector_density = x,
+            (Field::NoiseAdcBits, Typed::Integer(n)) => {
+                s.noise.adc_bits = u32::try_from(n).ok()?;
+            }
+            (Field::NoiseAdcRange, Typed::Float(x)) => s.noise.adc_range = x,
+            (Field::SpectrumEnable, Typed::Bool(b)) => s.spectrum.enable = b,
+            (Field::SpectrumSize, Typed::Integer(n)) => {
+                s.spectrum.size = u32::try_from(n).ok()?;
+            }
+            (Field::SpectrumWindow, Typed::Text(name)) => {
+                s.spectrum.window = SpectrumWindow::from_name(name)?;
+            }
+            (Field::SpectrumRate, Typed::Float(x)) => s.spectrum.rate = x,
             (Field::DemodEnable(i), Typed::Bool(b)) => s.demods.get_mut(i)?.enable = b,
             (Field::DemodHarmonic(i), Typed::Integer(n)) => {
                 s.demods.get_mut(i)?.harmonic = u32::try_from(n).ok()?;

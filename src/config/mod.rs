@@ -6,7 +6,8 @@
 //!   descriptions, typed reads and writes.
 //! - [`registry`](mod@registry): the one list of nodes, lookup by path, the tables of the tree.
 //! - [`nodes`]: `get`/`set`/`list` by path, with per-node checks.
-//! - `relations`: checks between nodes (Nyquist, sample period, mode count).
+//! - `relations`: checks between nodes (Nyquist, sample period, mode count) and the engines
+//!   not available yet.
 //! - [`load`](mod@load): the default and overlay files.
 //! - [`error`]: [`NodeError`] and [`ConfigError`].
 //!
@@ -24,7 +25,10 @@ mod relations;
 pub mod settings;
 
 pub use error::{ConfigError, NodeError};
-pub use field::{Field, Kind, MAX_FILTER_ORDER, MAX_HARMONIC, MAX_MODES, MAX_YOUNGS_MODULUS};
+pub use field::{
+    Field, Kind, MAX_ADC_BITS, MAX_FILTER_ORDER, MAX_HARMONIC, MAX_MODES, MAX_SPECTRUM_SIZE,
+    MAX_YOUNGS_MODULUS, MIN_SPECTRUM_SIZE,
+};
 pub use load::{DEFAULT_TOML, default_settings, load, load_str, overlay_str};
 pub use nodes::{NodeInfo, NodeSpec};
 pub use range::{Bound, Range};

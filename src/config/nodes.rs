@@ -69,6 +69,7 @@ impl NodeSpec {
         match self.kind {
             Kind::Float(range) => format!("{range}{}", self.unit_suffix()),
             Kind::Integer { min, max } => format!("{min} ≤ value ≤ {max}"),
+            Kind::PowerOfTwo { min, max } => format!("a power of two from {min} to {max}"),
             Kind::Bool => "true or false".to_owned(),
             Kind::Text(choices) => {
                 let quoted: Vec<String> = choices.iter().map(|c| format!("{c:?}")).collect();
@@ -85,7 +86,9 @@ impl NodeSpec {
     fn expected(&self) -> String {
         match self.kind {
             Kind::Float(_) => format!("a number, {}", self.allowed()),
-            Kind::Integer { .. } => format!("an integer, {}", self.allowed()),
+            Kind::Integer { .. } | Kind::PowerOfTwo { .. } => {
+                format!("an integer, {}", self.allowed())
+            }
             Kind::Bool | Kind::Text(_) | Kind::FloatList { .. } => self.allowed(),
         }
     }
@@ -128,7 +131,9 @@ impl NodeSpec {
     pub(crate) fn parse(&self, value: &Value) -> Result<Typed, NodeError> {
         let typed = match self.kind {
             Kind::Float(_) => Typed::Float(value.as_f64().ok_or_else(|| self.wrong_type(value))?),
-            Kind::Integer { .. } => Typed::Integer(self.parse_integer(value)?),
+            Kind::Integer { .. } | Kind::PowerOfTwo { .. } => {
+                Typed::Integer(self.parse_integer(value)?)
+            }
             Kind::Bool => Typed::Bool(value.as_bool().ok_or_else(|| self.wrong_type(value))?),
             Kind::Text(choices) => {
                 let text = value.as_str().ok_or_else(|| self.wrong_type(value))?;
@@ -206,6 +211,19 @@ impl NodeSpec {
                     Err(self.out_of_range(&value.show()))
                 }
             }
+            (Kind::PowerOfTwo { min, max }, Typed::Integer(n)) => {
+                if !(min..=max).contains(n) {
+                    Err(self.out_of_range(&value.show()))
+                } else if !n.is_power_of_two() {
+                    Err(self.invalid(format!(
+                        "{} = {n} is not a power of two: allowed {}",
+                        self.path,
+                        self.allowed()
+                    )))
+                } else {
+                    Ok(())
+                }
+            }
             (Kind::Bool, Typed::Bool(_)) => Ok(()),
             (Kind::Text(choices), Typed::Text(text)) if choices.contains(text) => Ok(()),
             (Kind::FloatList { entry, max_len }, Typed::FloatList(list)) => {
@@ -262,7 +280,7 @@ impl NodeSpec {
                 match self.field {
                     Field::DriveFrequency => high = high.min(sample_rate / 2.0),
                     Field::DemodTimeconstant(_) => low = low.max(1.0 / sample_rate),
-                    Field::DemodRate(_) => high = high.min(sample_rate),
+                    Field::DemodRate(_) | Field::SpectrumRate => high = high.min(sample_rate),
                     _ => {}
                 }
                 (Value::from(low), Value::from(high))
@@ -274,6 +292,7 @@ impl NodeSpec {
                 }
                 (Value::from(min), Value::from(max))
             }
+            Kind::PowerOfTwo { min, max } => (Value::from(min), Value::from(max)),
             Kind::Bool | Kind::Text(_) => (Value::Null, Value::Null),
         }
     }

@@ -1,13 +1,18 @@
-//! Whole-settings validation: every node inside its own range, and the limits that tie nodes
-//! together (the Nyquist frequency, one sample period, the number of modes). These run after
-//! a whole config file or a whole `set`, never per key, so the order of keys never matters.
-//! Every message names both nodes.
+//! Whole-settings validation: every node inside its own range, the limits that tie nodes
+//! together (the Nyquist frequency, one sample period, the number of modes), and the values a
+//! node knows but the instrument cannot run yet (the `"coupled"` engine). These run after a
+//! whole config file or a whole `set`, never per key, so the order of keys never matters.
+//! Every message about a relation names both nodes.
 
 use super::error::NodeError;
 use super::field::{MAX_HARMONIC, MAX_MODES};
 use super::quantity::quantity;
 use super::registry::registry;
-use super::settings::{DEMODULATOR_COUNT, Settings};
+use super::settings::{DEMODULATOR_COUNT, Engine, Settings};
+
+/// The engines implemented so far. The others are known names (so a file that asks for one is
+/// told it is not available, rather than that it does not exist), but are refused.
+const AVAILABLE_ENGINES: [Engine; 1] = [Engine::Paper];
 
 impl Settings {
     /// Checks everything `set` and the config loader guarantee: exactly
@@ -33,8 +38,10 @@ impl Settings {
                 })?;
             spec.check(&value)?;
         }
+        check_engine(self)?;
         check_modes(self)?;
         check_drive(self)?;
+        check_spectrum(self)?;
         check_demods(self)
     }
 }
@@ -69,6 +76,28 @@ pub(crate) fn highest_harmonic(s: &Settings) -> u64 {
         k += 1;
     }
     k
+}
+
+/// Only the engines implemented so far may be chosen.
+fn check_engine(s: &Settings) -> Result<(), NodeError> {
+    let engine = s.synth.engine;
+    if AVAILABLE_ENGINES.contains(&engine) {
+        return Ok(());
+    }
+    let allowed: Vec<String> = AVAILABLE_ENGINES
+        .iter()
+        .map(|e| format!("{:?}", e.name()))
+        .collect();
+    Err(invalid(
+        "/synth/engine",
+        format!(
+            "/synth/engine = {:?} is not available yet (the {} engine is a later piece of \
+             work); allowed: {}",
+            engine.name(),
+            engine.name(),
+            allowed.join(", ")
+        ),
+    ))
 }
 
 /// The mode count: `q` entries plus Rayleigh-damped extras, and enough `q` entries to fit
@@ -110,6 +139,22 @@ fn check_drive(s: &Settings) -> Result<(), NodeError> {
                  /synth/sample_rate / 2 = {}",
                 quantity(drive, "Hz"),
                 quantity(nyquist(s), "Hz")
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Spectrum frames may overlap, so the only limit on their rate is one per sample.
+fn check_spectrum(s: &Settings) -> Result<(), NodeError> {
+    let (rate, sample_rate) = (s.spectrum.rate, s.synth.sample_rate);
+    if rate > sample_rate {
+        return Err(invalid(
+            "/spectrum/rate",
+            format!(
+                "/spectrum/rate = {} must not exceed /synth/sample_rate = {}",
+                quantity(rate, "Hz"),
+                quantity(sample_rate, "Hz")
             ),
         ));
     }
@@ -176,6 +221,35 @@ mod tests {
         assert_eq!(highest_harmonic(&s), 1);
         s.drive.frequency = 1.0;
         assert_eq!(highest_harmonic(&s), u64::from(MAX_HARMONIC));
+    }
+
+    #[test]
+    fn the_coupled_engine_is_refused_by_name() {
+        let mut s = default_settings();
+        s.synth.engine = Engine::Coupled;
+        let error = s.validate().unwrap_err();
+        assert_eq!(error.path(), "/synth/engine");
+        assert_eq!(
+            error.to_string(),
+            "/synth/engine = \"coupled\" is not available yet (the coupled engine is a later \
+             piece of work); allowed: \"paper\""
+        );
+    }
+
+    #[test]
+    fn spectrum_rate_is_at_most_the_sample_rate() {
+        // The static ranges (rate ≤ 1 kHz, sample rate ≥ 1 kHz) keep this from failing in
+        // `validate`; the relation itself still holds its ground.
+        let mut s = default_settings();
+        s.spectrum.rate = 1e3;
+        s.synth.sample_rate = 1e3;
+        assert!(check_spectrum(&s).is_ok());
+        s.synth.sample_rate = 500.0;
+        let message = check_spectrum(&s).unwrap_err().to_string();
+        assert_eq!(
+            message,
+            "/spectrum/rate = 1 kHz must not exceed /synth/sample_rate = 500 Hz"
+        );
     }
 
     #[test]

@@ -17,6 +17,7 @@ pub struct Settings {
     pub surface: SurfaceSettings,
     pub synth: SynthSettings,
     pub noise: NoiseSettings,
+    pub spectrum: SpectrumSettings,
     /// Demodulator bank; always [`DEMODULATOR_COUNT`] entries, index = N of `/demods/N`.
     /// (De)serialised as a table keyed by index (`[demods]` with keys `"0"` … `"31"`), so
     /// TOML and JSON paths mirror the node tree.
@@ -75,7 +76,8 @@ pub struct SurfaceSettings {
 pub enum Engine {
     /// Cut-cosine pulse train with F, τ and phase from the 1-DOF model (the paper's method).
     Paper,
-    /// Contact force from the instantaneous tip position of all modes.
+    /// Contact force from the instantaneous tip position of all modes. Not implemented yet:
+    /// the name is known, but [`Settings::validate`] refuses it.
     Coupled,
 }
 
@@ -119,6 +121,73 @@ pub struct SynthSettings {
 pub struct NoiseSettings {
     /// All noise sources on or off.
     pub enable: bool,
+    /// Temperature of the cantilever's thermal (Brownian) noise, every mode by
+    /// fluctuation–dissipation (K); 0 turns thermal noise off.
+    pub temperature: f64,
+    /// One-sided density of the white detector noise (m/√Hz); 0 turns it off.
+    pub detector_density: f64,
+    /// Resolution of the ADC (bit); 0 means no quantisation.
+    pub adc_bits: u32,
+    /// Full scale of the ADC input, ±`adc_range` (nominal m); samples beyond it clip.
+    pub adc_range: f64,
+}
+
+/// Window applied to each frame of the spectrum (`/spectrum/window`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SpectrumWindow {
+    /// No window (all ones).
+    Rectangular,
+    /// Hann (raised cosine).
+    Hann,
+    /// Four-term Blackman–Harris: −92 dB side lobes.
+    BlackmanHarris,
+    /// Flat top: amplitudes read correctly between bins.
+    FlatTop,
+}
+
+impl SpectrumWindow {
+    /// Every window, in the order of [`SpectrumWindow::NAMES`].
+    pub const ALL: [SpectrumWindow; 4] = [
+        SpectrumWindow::Rectangular,
+        SpectrumWindow::Hann,
+        SpectrumWindow::BlackmanHarris,
+        SpectrumWindow::FlatTop,
+    ];
+    /// The names used in config files and the protocol (`/spectrum/window`).
+    pub const NAMES: &'static [&'static str] =
+        &["rectangular", "hann", "blackman_harris", "flat_top"];
+
+    /// The config/protocol name of this window (`"hann"`, `"blackman_harris"`, …).
+    pub fn name(self) -> &'static str {
+        match self {
+            SpectrumWindow::Rectangular => "rectangular",
+            SpectrumWindow::Hann => "hann",
+            SpectrumWindow::BlackmanHarris => "blackman_harris",
+            SpectrumWindow::FlatTop => "flat_top",
+        }
+    }
+
+    /// The window called `name`, if there is one.
+    pub fn from_name(name: &str) -> Option<SpectrumWindow> {
+        SpectrumWindow::ALL
+            .into_iter()
+            .find(|window| window.name() == name)
+    }
+}
+
+/// `[spectrum]`: the sliding FFT of the photodiode signal.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpectrumSettings {
+    /// Spectra are computed and sent.
+    pub enable: bool,
+    /// FFT length (samples): a power of two from 256 to 1048576.
+    pub size: u32,
+    /// Window applied to each frame.
+    pub window: SpectrumWindow,
+    /// Spectra per second (Hz); frames may overlap, so only `rate ≤ sample_rate` is required.
+    pub rate: f64,
 }
 
 /// `[demods.N]`: one lock-in demodulator.

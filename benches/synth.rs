@@ -1,0 +1,23 @@
+//! Photodiode synthesis throughput (goal: ≥ 50 MS/s on one core, 5 modes, noise on).
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use ftafm::config::default_settings;
+use ftafm::synth::{SynthPlan, SynthState};
+
+fn synth(c: &mut Criterion) {
+    let mut group = c.benchmark_group("synth");
+    const BLOCK: usize = 4096;
+    group.throughput(Throughput::Elements(BLOCK as u64));
+    for (name, noise) in [("5_modes_noise_on", true), ("5_modes_noise_off", false)] {
+        let mut settings = default_settings();
+        settings.noise.enable = noise;
+        let plan = SynthPlan::new(&settings).expect("default plan");
+        let mut state = SynthState::steady(&plan, 1);
+        let mut block = vec![0.0; BLOCK];
+        group.bench_function(name, |b| b.iter(|| plan.process(&mut state, &mut block)));
+    }
+    group.finish();
+}
+
+criterion_group!(benches, synth);
+criterion_main!(benches);

@@ -1,0 +1,813 @@
+//! Multi-harmonic lock-in: a bank of demodulators at harmonics of one drive.
+//!
+//! Signal path of demodulator i at harmonic k (all demodulators share steps 1–2):
+//!
+//! 1. Mixing with `2·e^{−ikθ[m]}` (θ the drive phase of sample m from the integer
+//!    [`PhaseAccumulator`]) and the CIC [`Predecimator`] (D = 16, N = 4), fused: the CIC
+//!    output at a window centre m_c is
+//!    `2·e^{−ikθ[m_c]} Σ_u h_u [cos(kωu)·(s[m_c−u] + s[m_c+u]) + i·sin(kωu)·(s[m_c−u] − s[m_c+u])]`,
+//!    ω the phase step per sample. Mixing thus costs nothing at the input rate; the
+//!    symmetric taps halve the multiply–adds (one real coefficient per tap, re or im), and
+//!    the sums and differences are shared by every demodulator. Tables of `h_u cos(kωu)`
+//!    and `h_u sin(kωu)` come from the exact integer phase `u·k·word`.
+//! 2. `e^{−ikθ[m_c]}` per demodulator: a phasor rotated by `e^{−ikωD}` per decimated
+//!    sample, recomputed exactly from the integer phase every 256 decimated samples, so its
+//!    rounding error stays below 10⁻¹³ and cannot accumulate.
+//! 3. Droop compensator `[−a, 1+2a, −a]` at f_s/D (see [`Predecimator`]).
+//! 4. The demodulator's [`LowPass`] at f_s/D, then decimation to its output rate.
+//!
+//! Layout is structure-of-arrays over demodulators ("lanes", in blocks of 16) so the loops
+//! over lanes vectorise; on x86-64 with AVX2 and FMA a kernel compiled for them is chosen at
+//! construction.
+
+use super::lowpass::MAX_ORDER;
+use super::phase::{PhaseAccumulator, harmonic_phase, phase_to_radians};
+use super::predecimator::Predecimator;
+use super::simd::F64s;
+use super::{DspError, LowPass};
+
+/// Number of demodulators a bank holds at most.
+pub const MAX_DEMODULATORS: usize = 32;
+/// Decimation factor D of the shared pre-decimator (input samples per decimated sample).
+pub const PREDECIMATION: usize = 16;
+/// Order N of the CIC pre-decimator (cascaded boxcars).
+pub const PREDECIMATION_ORDER: usize = 4;
+
+const PREDECIMATOR: Predecimator = Predecimator {
+    factor: PREDECIMATION,
+    order: PREDECIMATION_ORDER,
+};
+/// Half-length c of the pre-decimator FIR (its group delay in input samples).
+const HALF: usize = PREDECIMATOR.half_len();
+/// Lanes per block: demodulators are processed 16 at a time, each block's state one struct.
+const BLOCK: usize = 16;
+/// Input samples copied into the history buffer per pass.
+const CHUNK: usize = 4096;
+/// Decimated samples between exact recomputations of the rotating reference phasors.
+const REANCHOR_INTERVAL: u32 = 256;
+
+/// Settings of one demodulator of a [`LockInBank`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Demodulator {
+    /// Whether the demodulator runs and produces output.
+    pub enable: bool,
+    /// Harmonic k of the drive (1); 0 demodulates the mean. Above the Nyquist frequency
+    /// (k·f_drive > f_s/2) it demodulates the alias, as sampling dictates.
+    pub harmonic: u32,
+    /// Low-pass order: identical first-order sections in cascade (1–8).
+    pub order: u32,
+    /// Time constant τ of each low-pass section (s).
+    pub time_constant: f64,
+    /// Requested output rate (Hz). The bank realises f_s/(D·M) for the integer M closest
+    /// to f_s/(D·rate), at most f_s/D; [`LockInBank::output_rate`] reports it.
+    pub output_rate: f64,
+}
+
+impl Demodulator {
+    /// An enabled demodulator at `harmonic` with `order` sections of `time_constant` (s),
+    /// producing `output_rate` (Hz).
+    pub const fn new(harmonic: u32, order: u32, time_constant: f64, output_rate: f64) -> Self {
+        Self {
+            enable: true,
+            harmonic,
+            order,
+            time_constant,
+            output_rate,
+        }
+    }
+}
+
+/// One output of one demodulator.
+///
+/// A signal `A·cos(k·θ + φ)`, θ the drive phase of the bank's [`PhaseAccumulator`], reads
+/// `x + i·y = A·e^{iφ}`: `x` and `y` are in the unit of the input (m for the photodiode),
+/// [`r`](Self::r) is the peak amplitude A and [`phase`](Self::phase) is φ in radians. For
+/// k = 0 the mean μ reads `x = μ`, `y = 0`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LockInSample {
+    /// Index of the demodulator in the bank.
+    pub demod: usize,
+    /// Its harmonic k.
+    pub harmonic: u32,
+    /// Index of the newest input sample that went into this output (counted from the
+    /// bank's first sample). The low-pass adds its own delay (n·τ at DC); the
+    /// pre-decimator and compensator a fixed [`LockInBank::group_delay`].
+    pub sample_index: u64,
+    /// In-phase part X = A cos φ (input unit).
+    pub x: f64,
+    /// Quadrature part Y = A sin φ (input unit).
+    pub y: f64,
+}
+
+impl LockInSample {
+    /// Peak amplitude R = |X + iY| (input unit).
+    pub fn r(&self) -> f64 {
+        self.x.hypot(self.y)
+    }
+
+    /// Phase φ = arg(X + iY) against k times the drive phase (rad, in (−π, π]).
+    pub fn phase(&self) -> f64 {
+        self.y.atan2(self.x)
+    }
+}
+
+/// Sixteen lanes of one quantity.
+type Lanes = [f64; BLOCK];
+
+/// Constants of one block of lanes.
+#[derive(Clone, Debug)]
+struct BlockConstants {
+    /// `e^{−ikωD}`: the reference phasor's rotation per decimated sample.
+    step_re: Lanes,
+    step_im: Lanes,
+    /// α per low-pass section; 1 (pass-through) above a lane's order.
+    alpha: [Lanes; MAX_ORDER as usize],
+}
+
+/// State of one block of lanes. One struct per block, so that the compiler sees one
+/// object and no aliasing between its arrays.
+#[derive(Clone, Debug)]
+struct BlockState {
+    /// `e^{−ikθ[m_c]}` for the next decimated sample.
+    rot_re: Lanes,
+    rot_im: Lanes,
+    /// The two previous pre-decimator outputs, for the droop compensator.
+    prev1_re: Lanes,
+    prev1_im: Lanes,
+    prev2_re: Lanes,
+    prev2_im: Lanes,
+    /// Low-pass section outputs.
+    lowpass_re: [Lanes; MAX_ORDER as usize],
+    lowpass_im: [Lanes; MAX_ORDER as usize],
+}
+
+impl Default for BlockState {
+    fn default() -> Self {
+        Self {
+            rot_re: [1.0; BLOCK],
+            rot_im: [0.0; BLOCK],
+            prev1_re: [0.0; BLOCK],
+            prev1_im: [0.0; BLOCK],
+            prev2_re: [0.0; BLOCK],
+            prev2_im: [0.0; BLOCK],
+            lowpass_re: [[0.0; BLOCK]; MAX_ORDER as usize],
+            lowpass_im: [[0.0; BLOCK]; MAX_ORDER as usize],
+        }
+    }
+}
+
+/// What the settings and the drive frequency determine, per lane (lane = position among
+/// the enabled demodulators; lanes past `count` are spare and compute zeros).
+#[derive(Debug)]
+struct Plan {
+    /// Enabled demodulators (lanes in use).
+    count: usize,
+    /// Demodulator index of each lane in use.
+    demod: Vec<usize>,
+    /// Harmonic of each lane (0 for spare lanes).
+    harmonic: Vec<u32>,
+    /// Mixer gain: 2 for k ≥ 1 (one-sided peak amplitude), 1 for the mean; 0 when spare.
+    gain: Vec<f64>,
+    /// Decimated samples per output, per lane in use.
+    period: Vec<u32>,
+    /// Low-pass sections run (the highest order in the bank).
+    sections: usize,
+    /// Pre-decimator taps h_{c+u}, u = 0…c.
+    taps: Vec<f64>,
+    /// `[block][u]` → `[g·h_u·cos(kωu), g·h_u·sin(kωu)]` over the block's lanes.
+    coef: Vec<[Lanes; 2]>,
+    blocks: Vec<BlockConstants>,
+}
+
+/// Everything that changes while processing.
+#[derive(Debug)]
+struct State {
+    /// Drive phase of sample `samples`, the next one to arrive.
+    drive: PhaseAccumulator,
+    /// Input samples consumed.
+    samples: u64,
+    /// The last 2c input samples, then room for a chunk.
+    history: Vec<f64>,
+    /// Input samples until the next decimated output (1…D).
+    until_output: usize,
+    /// Decimated samples until the phasors are recomputed exactly.
+    reanchor_in: u32,
+    /// Shared sums (u = 0…c) and differences of samples symmetric about the centre.
+    sums: Vec<f64>,
+    diffs: Vec<f64>,
+    blocks: Vec<BlockState>,
+    /// Low-pass output of each lane at the last decimated sample.
+    out_re: Vec<f64>,
+    out_im: Vec<f64>,
+    /// Decimated samples until each lane's next output, as of the last output.
+    countdown: Vec<u32>,
+    /// Decimated samples since the last output of any lane.
+    since_output: u32,
+    /// The smallest countdown: when the next output of any lane is due.
+    next_output: u32,
+}
+
+/// A bank of up to [`MAX_DEMODULATORS`] lock-in demodulators at harmonics of one drive.
+///
+/// Built off the real-time thread ([`new`](Self::new) allocates every table and buffer);
+/// [`process`](Self::process) neither allocates, locks nor blocks.
+///
+/// Phase reference: the bank's drive phase θ is a [`PhaseAccumulator`] that starts at phase
+/// word 0 on the first sample given to [`process`](Self::process) (index 0) unless set with
+/// [`set_drive_phase`](Self::set_drive_phase), and advances by the frequency word each
+/// sample. Demodulator k reads `A·e^{iφ}` for a signal `A·cos(k·θ + φ)`: phase 0 is a
+/// cosine whose peak coincides with phase word 0 of k·θ.
+///
+/// ```
+/// use ftafm::dsp::{Demodulator, LockInBank};
+///
+/// let (fs, drive) = (10e6, 100.0123e3);
+/// // Harmonics 1 and 3: 4th-order low-pass of 100 µs, outputs at 1 kHz.
+/// let demods = [Demodulator::new(1, 4, 100e-6, 1e3), Demodulator::new(3, 4, 100e-6, 1e3)];
+/// let mut bank = LockInBank::new(fs, drive, &demods)?;
+///
+/// let signal: Vec<f64> = (0..50_000)
+///     .map(|m| {
+///         let theta = std::f64::consts::TAU * drive * m as f64 / fs;
+///         20e-9 * (theta + 0.5).cos() + 0.1e-9 * (3.0 * theta - 1.0).cos()
+///     })
+///     .collect();
+/// let mut third = None;
+/// bank.process(&signal, |s| if s.harmonic == 3 { third = Some(s) });
+/// let third = third.unwrap();
+/// assert!((third.r() - 0.1e-9).abs() < 1e-15);
+/// assert!((third.phase() + 1.0).abs() < 1e-6);
+/// # Ok::<(), ftafm::dsp::DspError>(())
+/// ```
+#[derive(Debug)]
+pub struct LockInBank {
+    sample_rate: f64,
+    demods: Vec<Demodulator>,
+    compensation: f64,
+    plan: Plan,
+    state: State,
+    fma: bool,
+}
+
+impl LockInBank {
+    /// A bank for input at `sample_rate` (Hz) and a drive at `drive_frequency` (Hz), with
+    /// `demodulators[i]` becoming demodulator i (at most [`MAX_DEMODULATORS`]; disabled
+    /// ones are neither validated nor run). Drive phase 0 at sample 0.
+    pub fn new(
+        sample_rate: f64,
+        drive_frequency: f64,
+        demodulators: &[Demodulator],
+    ) -> Result<Self, DspError> {
+        let drive = PhaseAccumulator::new(drive_frequency, sample_rate)?;
+        if demodulators.len() > MAX_DEMODULATORS {
+            return Err(DspError::TooManyDemodulators(demodulators.len()));
+        }
+        let decimated_rate = sample_rate / PREDECIMATION as f64;
+        let mut filters = Vec::new();
+        for (index, d) in demodulators.iter().enumerate() {
+            if !d.enable {
+                continue;
+            }
+            let wrap = |source| DspError::Demodulator {
+                index,
+                source: Box::new(source),
+            };
+            let filter = LowPass::new(d.order, d.time_constant, decimated_rate).map_err(wrap)?;
+            if !(d.output_rate.is_finite() && d.output_rate > 0.0) {
+                return Err(wrap(DspError::OutputRate(d.output_rate)));
+            }
+            filters.push((index, *d, filter));
+        }
+
+        let count = filters.len();
+        let nblocks = count.div_ceil(BLOCK);
+        let width = nblocks * BLOCK;
+        let sections = filters
+            .iter()
+            .map(|f| f.2.order() as usize)
+            .max()
+            .unwrap_or(0);
+        let idle = BlockConstants {
+            step_re: [1.0; BLOCK],
+            step_im: [0.0; BLOCK],
+            alpha: [[1.0; BLOCK]; MAX_ORDER as usize],
+        };
+        let mut plan = Plan {
+            count,
+            demod: filters.iter().map(|f| f.0).collect(),
+            harmonic: vec![0; width],
+            gain: vec![0.0; width],
+            period: vec![0; count],
+            sections,
+            taps: PREDECIMATOR.taps()[HALF..].to_vec(),
+            coef: vec![[[0.0; BLOCK]; 2]; nblocks * (HALF + 1)],
+            blocks: vec![idle; nblocks],
+        };
+        for (lane, (_, d, filter)) in filters.iter().enumerate() {
+            plan.harmonic[lane] = d.harmonic;
+            plan.gain[lane] = if d.harmonic == 0 { 1.0 } else { 2.0 };
+            let period = (decimated_rate / d.output_rate).round();
+            plan.period[lane] = period.clamp(1.0, u32::MAX as f64) as u32;
+            for alpha in &mut plan.blocks[lane / BLOCK].alpha[..filter.order() as usize] {
+                alpha[lane % BLOCK] = filter.alpha();
+            }
+        }
+        plan.tune(drive.frequency_word());
+
+        let state = State {
+            drive,
+            samples: 0,
+            history: vec![0.0; 2 * HALF + CHUNK],
+            until_output: PREDECIMATION,
+            reanchor_in: 0,
+            sums: vec![0.0; HALF + 1],
+            diffs: vec![0.0; HALF + 1],
+            blocks: vec![BlockState::default(); nblocks],
+            out_re: vec![0.0; width],
+            out_im: vec![0.0; width],
+            countdown: plan.period.clone(),
+            since_output: 0,
+            next_output: plan.period.iter().copied().min().unwrap_or(u32::MAX),
+        };
+        Ok(Self {
+            sample_rate,
+            demods: demodulators.to_vec(),
+            compensation: PREDECIMATOR.droop_compensation(),
+            plan,
+            state,
+            fma: fma_available(),
+        })
+    }
+
+    /// Use the portable kernel even where the AVX2/FMA one could run (for comparisons;
+    /// results agree to rounding).
+    pub fn with_portable_kernel(mut self) -> Self {
+        self.fma = false;
+        self
+    }
+
+    /// Name of the kernel in use: `"avx2+fma"`, or the portable one, `"sse2"` on x86-64
+    /// and `"scalar"` elsewhere.
+    pub fn kernel(&self) -> &'static str {
+        if self.fma {
+            "avx2+fma"
+        } else if cfg!(target_arch = "x86_64") {
+            "sse2"
+        } else {
+            "scalar"
+        }
+    }
+
+    /// Input sample rate f_s (Hz).
+    pub const fn sample_rate(&self) -> f64 {
+        self.sample_rate
+    }
+
+    /// Rate the low-pass filters run at, f_s/D (Hz): the highest possible output rate.
+    pub fn decimated_rate(&self) -> f64 {
+        self.sample_rate / PREDECIMATION as f64
+    }
+
+    /// Fixed delay of the pre-decimator and its droop compensator, c + D = 46 (input
+    /// samples): an input sample reaches the low-pass this much later.
+    pub const fn group_delay(&self) -> usize {
+        HALF + PREDECIMATION
+    }
+
+    /// The demodulator settings, as given.
+    pub fn demodulators(&self) -> &[Demodulator] {
+        &self.demods
+    }
+
+    /// Realised output rate of demodulator `index` (Hz), `None` if absent or disabled.
+    pub fn output_rate(&self, index: usize) -> Option<f64> {
+        let lane = self.plan.demod.iter().position(|&d| d == index)?;
+        Some(self.decimated_rate() / self.plan.period[lane] as f64)
+    }
+
+    /// The low-pass filter of demodulator `index` (at the decimated rate), `None` if absent
+    /// or disabled.
+    pub fn low_pass(&self, index: usize) -> Option<LowPass> {
+        let d = self.demods.get(index).filter(|d| d.enable)?;
+        LowPass::new(d.order, d.time_constant, self.decimated_rate()).ok()
+    }
+
+    /// The drive phase accumulator; its phase is that of the next input sample.
+    pub const fn drive(&self) -> &PhaseAccumulator {
+        &self.state.drive
+    }
+
+    /// Realised drive frequency (Hz).
+    pub fn drive_frequency(&self) -> f64 {
+        self.state.drive.frequency(self.sample_rate)
+    }
+
+    /// Input samples consumed so far; also the index of the next one.
+    pub const fn samples_processed(&self) -> u64 {
+        self.state.samples
+    }
+
+    /// Change the drive frequency (Hz) without a phase jump: the drive phase of the next
+    /// sample is kept and only the frequency word changes. Real-time safe (no allocation),
+    /// but recomputes the mixing tables, about 10³ `sin_cos`. For the next c = 30 samples
+    /// the pre-decimator window straddles the change and mixes its older samples at the new
+    /// frequency: a transient far shorter than any low-pass time constant.
+    pub fn set_drive_frequency(&mut self, frequency: f64) -> Result<(), DspError> {
+        self.state
+            .drive
+            .set_frequency(frequency, self.sample_rate)?;
+        self.plan.tune(self.state.drive.frequency_word());
+        self.state.reanchor_in = 0;
+        Ok(())
+    }
+
+    /// Lock the bank to an external drive phase accumulator: `phase` is the phase word of
+    /// the next input sample and `frequency_word` its step per sample. Retunes (as
+    /// [`set_drive_frequency`](Self::set_drive_frequency) does) only when the word changes,
+    /// so calling it for every block costs nothing while the drive is steady. Real-time safe.
+    pub fn align_drive(&mut self, phase: u64, frequency_word: u64) {
+        if frequency_word != self.state.drive.frequency_word() {
+            self.state.drive = PhaseAccumulator::from_words(phase, frequency_word);
+            self.plan.tune(frequency_word);
+        } else {
+            self.state.drive.set_phase(phase);
+        }
+        self.state.reanchor_in = 0;
+    }
+
+    /// Set the drive phase word (2^-64 cycle) of the next input sample, to align the bank
+    /// with the drive's own phase accumulator.
+    pub fn set_drive_phase(&mut self, phase: u64) {
+        self.state.drive.set_phase(phase);
+        self.state.reanchor_in = 0;
+    }
+
+    /// Demodulate a block of input samples (any length) and hand each output to `sink` in
+    /// time order (demodulators in index order within one time). Real-time safe.
+    pub fn process<F>(&mut self, input: &[f64], mut sink: F)
+    where
+        F: FnMut(LockInSample),
+    {
+        #[cfg(target_arch = "x86_64")]
+        if self.fma {
+            // SAFETY: `fma` is only true when the CPU reported AVX2 and FMA at construction.
+            unsafe { self.process_avx2_fma(input, &mut sink) };
+        } else {
+            // SAFETY: SSE2 is part of every x86-64 CPU.
+            unsafe { self.process_kernel::<super::simd::Sse2, 4, F>(input, &mut sink) };
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        // SAFETY: plain f64 needs no CPU feature.
+        unsafe {
+            self.process_kernel::<f64, 4, F>(input, &mut sink)
+        };
+    }
+
+    /// The kernel compiled for AVX2 and FMA.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2 and FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn process_avx2_fma<F>(&mut self, input: &[f64], sink: &mut F)
+    where
+        F: FnMut(LockInSample),
+    {
+        // Four registers of four lanes for re and four for im: eight independent FMA
+        // chains, enough to cover the FMA latency, and registers to spare.
+        // SAFETY: the caller guarantees AVX2 and FMA.
+        unsafe { self.process_kernel::<super::simd::Avx2Fma, 4, F>(input, sink) };
+    }
+
+    /// The whole block loop, monomorphised per vector type `V` (`NV` registers per
+    /// quantity) so that everything inlines into the function carrying the target features.
+    ///
+    /// # Safety
+    /// The CPU must support `V`'s target features.
+    #[inline(always)]
+    unsafe fn process_kernel<V: F64s, const NV: usize, F>(&mut self, input: &[f64], sink: &mut F)
+    where
+        F: FnMut(LockInSample),
+    {
+        let span = 2 * HALF;
+        for chunk in input.chunks(CHUNK) {
+            let n = chunk.len();
+            self.state.history[span..span + n].copy_from_slice(chunk);
+            let mut fire = self.state.until_output - 1;
+            while fire < n {
+                // SAFETY: passed on from the caller.
+                unsafe { self.decimated_step::<V, NV, F>(fire, sink) };
+                fire += PREDECIMATION;
+            }
+            self.state.until_output = fire - n + 1;
+            self.state.history.copy_within(n..n + span, 0);
+            self.state.samples += n as u64;
+            self.state.drive.advance(n as u64);
+        }
+    }
+
+    /// One decimated sample, completed by chunk sample `fire` (history index `fire + 2c`).
+    ///
+    /// # Safety
+    /// The CPU must support `V`'s target features.
+    #[inline(always)]
+    unsafe fn decimated_step<V: F64s, const NV: usize, F>(&mut self, fire: usize, sink: &mut F)
+    where
+        F: FnMut(LockInSample),
+    {
+        let plan = &self.plan;
+        let st = &mut self.state;
+        if plan.count == 0 {
+            return;
+        }
+
+        let window = &st.history[fire..fire + 2 * HALF + 1];
+        let (older, newer) = window.split_at(HALF);
+        let (centre, newer) = newer.split_first().expect("window has a centre");
+        st.sums[0] = *centre;
+        st.diffs[0] = 0.0;
+        for (((s, d), a), b) in st.sums[1..]
+            .iter_mut()
+            .zip(&mut st.diffs[1..])
+            .zip(older.iter().rev())
+            .zip(newer)
+        {
+            *s = a + b;
+            *d = a - b;
+        }
+
+        if st.reanchor_in == 0 {
+            // The window centre is `HALF` samples before `fire`; `fire` is relative to the
+            // sample whose phase the accumulator holds.
+            let centre_phase = st.drive.phase_at(fire as i64 - HALF as i64);
+            for l in 0..plan.count {
+                let theta = phase_to_radians(harmonic_phase(centre_phase, plan.harmonic[l]));
+                let (s, c) = theta.sin_cos();
+                let block = &mut st.blocks[l / BLOCK];
+                block.rot_re[l % BLOCK] = c;
+                block.rot_im[l % BLOCK] = -s;
+            }
+            st.reanchor_in = REANCHOR_INTERVAL;
+        }
+        st.reanchor_in -= 1;
+
+        // The section count is a constant inside the kernel, so its loop unrolls.
+        let c = self.compensation;
+        // SAFETY (all arms): passed on from the caller.
+        unsafe {
+            match plan.sections {
+                1 => all_blocks::<V, NV, 1>(plan, st, c),
+                2 => all_blocks::<V, NV, 2>(plan, st, c),
+                3 => all_blocks::<V, NV, 3>(plan, st, c),
+                4 => all_blocks::<V, NV, 4>(plan, st, c),
+                5 => all_blocks::<V, NV, 5>(plan, st, c),
+                6 => all_blocks::<V, NV, 6>(plan, st, c),
+                7 => all_blocks::<V, NV, 7>(plan, st, c),
+                _ => all_blocks::<V, NV, 8>(plan, st, c),
+            }
+        }
+
+        // Outputs are rare (kHz against the MHz decimated rate): look at the lanes only
+        // when the earliest of them is due.
+        st.since_output += 1;
+        if st.since_output == st.next_output {
+            let sample_index = st.samples + fire as u64;
+            let elapsed = st.since_output;
+            let mut next = u32::MAX;
+            for l in 0..plan.count {
+                st.countdown[l] -= elapsed;
+                if st.countdown[l] == 0 {
+                    st.countdown[l] = plan.period[l];
+                    sink(LockInSample {
+                        demod: plan.demod[l],
+                        harmonic: plan.harmonic[l],
+                        sample_index,
+                        x: st.out_re[l],
+                        y: st.out_im[l],
+                    });
+                }
+                next = next.min(st.countdown[l]);
+            }
+            st.since_output = 0;
+            st.next_output = next;
+        }
+    }
+}
+
+/// [`lane_block`] over every block of lanes, for low-pass filters of `S` sections.
+///
+/// # Safety
+/// The CPU must support `V`'s target features.
+#[inline(always)]
+unsafe fn all_blocks<V: F64s, const NV: usize, const S: usize>(
+    plan: &Plan,
+    st: &mut State,
+    compensation: f64,
+) {
+    let lanes = NV * V::LANES;
+    let blocks = plan
+        .coef
+        .chunks_exact(HALF + 1)
+        .zip(&plan.blocks)
+        .zip(&mut st.blocks)
+        .zip(
+            st.out_re
+                .chunks_exact_mut(BLOCK)
+                .zip(st.out_im.chunks_exact_mut(BLOCK)),
+        );
+    for (((coef, constants), state), (out_re, out_im)) in blocks {
+        for sub in (0..BLOCK).step_by(lanes) {
+            // SAFETY: `sub + lanes <= BLOCK` (BLOCK is a multiple of `lanes`); the CPU
+            // features are passed on from the caller.
+            unsafe {
+                lane_block::<V, NV, S>(
+                    sub,
+                    coef,
+                    (&st.sums, &st.diffs),
+                    constants,
+                    state,
+                    compensation,
+                    (&mut out_re[sub..sub + lanes], &mut out_im[sub..sub + lanes]),
+                )
+            };
+        }
+    }
+}
+
+/// Everything after the shared sums and differences, for lanes `sub .. sub + NV·LANES`
+/// of one block, kept in registers from one stage to the next: mixer and pre-decimator,
+/// shift to baseband, droop compensation, low-pass. Writes the low-pass output to `out`
+/// and rotates the reference phasors on by one decimated sample.
+///
+/// # Safety
+/// The CPU must support `V`'s target features, `sub + NV·LANES <= BLOCK`, and both `out`
+/// slices must hold `NV·LANES` values.
+#[inline(always)]
+unsafe fn lane_block<V: F64s, const NV: usize, const S: usize>(
+    sub: usize,
+    coef: &[[Lanes; 2]],
+    (sums, diffs): (&[f64], &[f64]),
+    k: &BlockConstants,
+    st: &mut BlockState,
+    compensation: f64,
+    (out_re, out_im): (&mut [f64], &mut [f64]),
+) {
+    let w = V::LANES;
+    debug_assert!(sub + NV * w <= BLOCK);
+    debug_assert!(out_re.len() >= NV * w && out_im.len() >= NV * w);
+    // SAFETY: every pointer below is `sub + j·w` (j < NV) into a BLOCK-long array, or
+    // `j·w` into an `out` slice, and `w` values from there are in bounds by the
+    // preconditions; the CPU features are the caller's guarantee.
+    unsafe {
+        let at = |lanes: &Lanes, j: usize| lanes.as_ptr().add(sub + j * w);
+        let at_mut = |lanes: &mut Lanes, j: usize| lanes.as_mut_ptr().add(sub + j * w);
+
+        let mut fr = [V::splat(0.0); NV];
+        let mut fi = [V::splat(0.0); NV];
+        for ([row_re, row_im], (p, q)) in coef.iter().zip(sums.iter().zip(diffs)) {
+            let (p, q) = (V::splat(*p), V::splat(*q));
+            for j in 0..NV {
+                fr[j] = V::load(at(row_re, j)).mul_add(p, fr[j]);
+                fi[j] = V::load(at(row_im, j)).mul_add(q, fi[j]);
+            }
+        }
+
+        let a = V::splat(compensation);
+        let centre_gain = V::splat(1.0 + 2.0 * compensation);
+        for j in 0..NV {
+            // Shift to baseband.
+            let (rr, ri) = (V::load(at(&st.rot_re, j)), V::load(at(&st.rot_im, j)));
+            let zr = rr.mul(fr[j]).sub(ri.mul(fi[j]));
+            let zi = rr.mul(fi[j]).add(ri.mul(fr[j]));
+            // Rotate the reference on to the next decimated sample.
+            let (sr, si) = (V::load(at(&k.step_re, j)), V::load(at(&k.step_im, j)));
+            rr.mul(sr).sub(ri.mul(si)).store(at_mut(&mut st.rot_re, j));
+            rr.mul(si).add(ri.mul(sr)).store(at_mut(&mut st.rot_im, j));
+
+            // Droop compensator, centred on the previous sample.
+            let (p1r, p1i) = (V::load(at(&st.prev1_re, j)), V::load(at(&st.prev1_im, j)));
+            let (p2r, p2i) = (V::load(at(&st.prev2_re, j)), V::load(at(&st.prev2_im, j)));
+            let mut xr = centre_gain.mul(p1r).sub(a.mul(zr.add(p2r)));
+            let mut xi = centre_gain.mul(p1i).sub(a.mul(zi.add(p2i)));
+            p1r.store(at_mut(&mut st.prev2_re, j));
+            p1i.store(at_mut(&mut st.prev2_im, j));
+            zr.store(at_mut(&mut st.prev1_re, j));
+            zi.store(at_mut(&mut st.prev1_im, j));
+
+            // Low-pass cascade.
+            for s in 0..S {
+                let alpha = V::load(at(&k.alpha[s], j));
+                let yr = V::load(at(&st.lowpass_re[s], j));
+                let yi = V::load(at(&st.lowpass_im[s], j));
+                xr = alpha.mul_add(xr.sub(yr), yr);
+                xi = alpha.mul_add(xi.sub(yi), yi);
+                xr.store(at_mut(&mut st.lowpass_re[s], j));
+                xi.store(at_mut(&mut st.lowpass_im[s], j));
+            }
+            xr.store(out_re.as_mut_ptr().add(j * w));
+            xi.store(out_im.as_mut_ptr().add(j * w));
+        }
+    }
+}
+
+impl Plan {
+    /// Recompute everything that depends on the drive's frequency word (no allocation).
+    fn tune(&mut self, word: u64) {
+        for (l, (&k, &g)) in self.harmonic.iter().zip(&self.gain).enumerate() {
+            let (block, i) = (l / BLOCK, l % BLOCK);
+            let rows = &mut self.coef[block * (HALF + 1)..][..HALF + 1];
+            for (u, (h, row)) in self.taps.iter().zip(rows).enumerate() {
+                let theta = phase_to_radians(harmonic_phase(word.wrapping_mul(u as u64), k));
+                let (s, c) = theta.sin_cos();
+                row[0][i] = g * h * c;
+                row[1][i] = g * h * s;
+            }
+            let step = word.wrapping_mul(PREDECIMATION as u64);
+            let (s, c) = phase_to_radians(harmonic_phase(step, k)).sin_cos();
+            self.blocks[block].step_re[i] = c;
+            self.blocks[block].step_im[i] = -s;
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+fn fma_available() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn fma_available() -> bool {
+    false
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tone(n: usize, fs: f64, f: f64, amp: f64, phase: f64) -> Vec<f64> {
+        let r = f / fs;
+        (0..n)
+            .map(|m| amp * (std::f64::consts::TAU * (m as f64 * r).fract() + phase).cos())
+            .collect()
+    }
+
+    fn last_outputs(bank: &mut LockInBank, input: &[f64]) -> Vec<LockInSample> {
+        let mut last = vec![None; MAX_DEMODULATORS];
+        bank.process(input, |s| last[s.demod] = Some(s));
+        last.into_iter().flatten().collect()
+    }
+
+    #[test]
+    fn reads_a_tone_with_both_kernels() {
+        let fs = 10e6;
+        let fd = 100.0123e3;
+        let demods = [
+            Demodulator::new(1, 4, 100e-6, 10e3),
+            Demodulator::new(3, 4, 100e-6, 10e3),
+        ];
+        let mut x = tone(200_000, fs, fd, 2.0, 0.3);
+        for (m, v) in tone(200_000, fs, 3.0 * fd, 0.5, -1.2).iter().enumerate() {
+            x[m] += v;
+        }
+        for portable in [false, true] {
+            let mut bank = LockInBank::new(fs, fd, &demods).unwrap();
+            if portable {
+                bank = bank.with_portable_kernel();
+            }
+            let out = last_outputs(&mut bank, &x);
+            assert_eq!(out.len(), 2);
+            assert!((out[0].r() - 2.0).abs() < 1e-6, "{:?}", out[0]);
+            assert!((out[0].phase() - 0.3).abs() < 1e-6);
+            assert!((out[1].r() - 0.5).abs() < 1e-6, "{:?}", out[1]);
+            assert!((out[1].phase() + 1.2).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn blocks_can_move_to_the_real_time_thread() {
+        fn send<T: Send + 'static>() {}
+        send::<LockInBank>();
+        send::<crate::dsp::SlidingSpectrum>();
+    }
+
+    #[test]
+    fn output_rate_is_quantised_to_the_decimated_rate() {
+        let bank = LockInBank::new(10e6, 100e3, &[Demodulator::new(1, 1, 1e-3, 3e3)]).unwrap();
+        let period = (625e3f64 / 3e3).round();
+        assert_eq!(bank.output_rate(0), Some(625e3 / period));
+        assert_eq!(bank.output_rate(1), None);
+    }
+
+    #[test]
+    fn rejects_bad_settings_naming_the_demodulator() {
+        let mut d = [Demodulator::new(1, 4, 1e-4, 1e3); 3];
+        d[2].order = 9;
+        assert!(matches!(
+            LockInBank::new(10e6, 1e5, &d),
+            Err(DspError::Demodulator { index: 2, .. })
+        ));
+        d[2].enable = false;
+        assert!(LockInBank::new(10e6, 1e5, &d).is_ok());
+        assert!(LockInBank::new(10e6, 1e5, &[d[0]; 33]).is_err());
+    }
+}

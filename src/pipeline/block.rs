@@ -1,0 +1,25 @@
+//! The header the synthesiser sends with every block of samples: where the block sits in
+//! the stream and the exact drive phase, so the DSP's reference stays locked to it.
+
+/// Describes one block of samples in the sample ring.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BlockHeader {
+    /// Index of the block's first sample.
+    pub index: u64,
+    /// Samples in the block.
+    pub len: u32,
+    /// Drive phase word of the first sample (2^64 = one period).
+    pub phase: u64,
+    /// Drive phase words per sample.
+    pub frequency_word: u64,
+    /// Unix time (ns) when the block's newest sample was synthesised.
+    pub t_synth_ns: u64,
+}
+
+/// Unix time in ns now.
+pub fn unix_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0)
+}

@@ -1,0 +1,98 @@
+//! Counters of the signal chain: atomics the real-time threads bump with relaxed stores,
+//! read as a [`CountersSnapshot`] by anyone. Every lost thing is counted here.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use serde::Serialize;
+
+/// Live counters shared by the pipeline's threads.
+#[derive(Debug, Default)]
+pub struct Counters {
+    pub(crate) samples_synthesized: AtomicU64,
+    pub(crate) samples_processed: AtomicU64,
+    pub(crate) overrun_samples: AtomicU64,
+    pub(crate) overrun_blocks: AtomicU64,
+    pub(crate) clipped_samples: AtomicU64,
+    pub(crate) discontinuities: AtomicU64,
+    pub(crate) demod_frames: AtomicU64,
+    pub(crate) demod_frames_dropped: AtomicU64,
+    pub(crate) spectrum_frames: AtomicU64,
+    pub(crate) spectrum_frames_dropped: AtomicU64,
+    pub(crate) synth_plans_applied: AtomicU64,
+    pub(crate) dsp_plans_applied: AtomicU64,
+    pub(crate) synth_busy_ns: AtomicU64,
+    pub(crate) dsp_busy_ns: AtomicU64,
+    pub(crate) late_blocks: AtomicU64,
+    pub(crate) ring_fill: AtomicU64,
+    pub(crate) ring_fill_max: AtomicU64,
+}
+
+impl Counters {
+    #[inline]
+    pub(crate) fn add(counter: &AtomicU64, n: u64) {
+        counter.fetch_add(n, Ordering::Relaxed);
+    }
+
+    /// A consistent-enough copy (each counter read once, relaxed).
+    pub fn snapshot(&self) -> CountersSnapshot {
+        let r = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        CountersSnapshot {
+            samples_synthesized: r(&self.samples_synthesized),
+            samples_processed: r(&self.samples_processed),
+            overrun_samples: r(&self.overrun_samples),
+            overrun_blocks: r(&self.overrun_blocks),
+            clipped_samples: r(&self.clipped_samples),
+            discontinuities: r(&self.discontinuities),
+            demod_frames: r(&self.demod_frames),
+            demod_frames_dropped: r(&self.demod_frames_dropped),
+            spectrum_frames: r(&self.spectrum_frames),
+            spectrum_frames_dropped: r(&self.spectrum_frames_dropped),
+            synth_plans_applied: r(&self.synth_plans_applied),
+            dsp_plans_applied: r(&self.dsp_plans_applied),
+            synth_busy_ns: r(&self.synth_busy_ns),
+            dsp_busy_ns: r(&self.dsp_busy_ns),
+            late_blocks: r(&self.late_blocks),
+            ring_fill: r(&self.ring_fill),
+            ring_fill_max: r(&self.ring_fill_max),
+        }
+    }
+}
+
+/// The counters at one moment.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct CountersSnapshot {
+    /// Samples the synthesiser produced (including dropped ones).
+    pub samples_synthesized: u64,
+    /// Samples the DSP consumed.
+    pub samples_processed: u64,
+    /// Samples dropped because the ring was full (real-time pacing only).
+    pub overrun_samples: u64,
+    /// Blocks dropped because the ring was full.
+    pub overrun_blocks: u64,
+    /// Samples clipped by the ADC's full scale.
+    pub clipped_samples: u64,
+    /// Times the DSP saw a jump in the sample index (after an overrun).
+    pub discontinuities: u64,
+    /// Demodulator frames produced.
+    pub demod_frames: u64,
+    /// Demodulator frames dropped because no consumer took them in time.
+    pub demod_frames_dropped: u64,
+    /// Spectrum frames produced.
+    pub spectrum_frames: u64,
+    /// Spectrum frames dropped (no free buffer or full queue).
+    pub spectrum_frames_dropped: u64,
+    /// Synthesiser plans (settings changes) applied.
+    pub synth_plans_applied: u64,
+    /// DSP plans (demodulator or spectrum changes) applied.
+    pub dsp_plans_applied: u64,
+    /// Time the synthesiser spent computing (ns).
+    pub synth_busy_ns: u64,
+    /// Time the DSP spent computing (ns).
+    pub dsp_busy_ns: u64,
+    /// Blocks the real-time pacing found already late (the synthesiser fell behind).
+    pub late_blocks: u64,
+    /// Samples in the ring when the DSP last looked.
+    pub ring_fill: u64,
+    /// Largest ring fill seen.
+    pub ring_fill_max: u64,
+}

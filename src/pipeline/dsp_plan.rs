@@ -1,0 +1,111 @@
+//! The DSP stage's configuration and state, built off the real-time thread from the
+//! settings: the lock-in bank and the sliding spectrum.
+
+use crate::config::{Settings, SpectrumWindow};
+use crate::dsp::{Demodulator, DspError, LockInBank, SlidingSpectrum, SpectrumConfig, Window};
+
+use super::dsp_worker::Emitter;
+use super::frames::DemodValue;
+
+/// Lock-in bank plus sliding spectrum, with the mapping from their own sample counts to
+/// the stream's sample index.
+pub struct DspPlan {
+    /// Input sample rate (Hz).
+    pub sample_rate: f64,
+    bank: LockInBank,
+    spectrum: Option<SlidingSpectrum>,
+    /// Stream index of the bank's sample 0.
+    bank_offset: u64,
+    /// Stream index of the spectrum's sample 0.
+    spectrum_offset: u64,
+}
+
+impl DspPlan {
+    /// Builds the bank and spectrum of `settings` (plans FFTs, allocates every buffer).
+    pub fn new(settings: &Settings) -> Result<Self, DspError> {
+        let fs = settings.synth.sample_rate;
+        let demods: Vec<Demodulator> = settings
+            .demods
+            .iter()
+            .map(|d| Demodulator {
+                enable: d.enable,
+                harmonic: d.harmonic,
+                order: d.order,
+                time_constant: d.timeconstant,
+                output_rate: d.rate,
+            })
+            .collect();
+        let bank = LockInBank::new(fs, settings.drive.frequency, &demods)?;
+        let spectrum = if settings.spectrum.enable {
+            let hop = (fs / settings.spectrum.rate).round().max(1.0) as usize;
+            Some(SlidingSpectrum::new(SpectrumConfig {
+                sample_rate: fs,
+                size: settings.spectrum.size as usize,
+                hop,
+                window: window(settings.spectrum.window),
+            })?)
+        } else {
+            None
+        };
+        Ok(Self {
+            sample_rate: fs,
+            bank,
+            spectrum,
+            bank_offset: 0,
+            spectrum_offset: 0,
+        })
+    }
+
+    /// Bins per spectrum frame (0 without a spectrum).
+    pub fn spectrum_bins(&self) -> usize {
+        self.spectrum.as_ref().map_or(0, |s| s.bin_count())
+    }
+
+    /// The stream continues at `index` (a new plan, or after an overrun): map the bank's and
+    /// the spectrum's own counts onto it.
+    pub(crate) fn restart(&mut self, index: u64) {
+        self.bank_offset = index - self.bank.samples_processed();
+        if let Some(s) = &mut self.spectrum {
+            // A spectrum frame must not straddle a gap.
+            s.reset();
+            self.spectrum_offset = index;
+        }
+    }
+
+    /// Locks the lock-in reference to the synthesiser's drive for the next sample.
+    pub(crate) fn align(&mut self, phase: u64, frequency_word: u64) {
+        self.bank.align_drive(phase, frequency_word);
+    }
+
+    pub(crate) fn process(&mut self, input: &[f64], emit: &mut Emitter<'_>) {
+        let offset = self.bank_offset;
+        self.bank.process(input, |s| {
+            emit.demod(
+                offset + s.sample_index,
+                DemodValue {
+                    index: s.demod as u8,
+                    harmonic: s.harmonic,
+                    x: s.x,
+                    y: s.y,
+                },
+            )
+        });
+        if let Some(spectrum) = &mut self.spectrum {
+            let offset = self.spectrum_offset;
+            let size = spectrum.config().size as u64;
+            spectrum.process(input, |f| {
+                let newest = offset + f.start_index + size - 1;
+                emit.spectrum(newest, f.bin_width, f.bins.iter().map(|c| c.norm()));
+            });
+        }
+    }
+}
+
+fn window(w: SpectrumWindow) -> Window {
+    match w {
+        SpectrumWindow::Rectangular => Window::Rectangular,
+        SpectrumWindow::Hann => Window::Hann,
+        SpectrumWindow::BlackmanHarris => Window::BlackmanHarris,
+        SpectrumWindow::FlatTop => Window::FlatTop,
+    }
+}

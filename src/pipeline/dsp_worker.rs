@@ -1,0 +1,168 @@
+//! The DSP thread: takes blocks from the sample ring, keeps the lock-in's reference locked
+//! to the synthesiser's drive phase, and emits demodulator and spectrum frames.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use ringbuf::traits::{Consumer, Observer, Producer};
+use ringbuf::{HeapCons, HeapProd};
+
+use super::block::{BlockHeader, unix_ns};
+use super::counters::Counters;
+use super::dsp_plan::DspPlan;
+use super::frames::{DemodFrame, DemodValue, SpectrumBuffer};
+
+/// How long the DSP thread sleeps when the ring is empty: well under a block (410 µs).
+const IDLE: Duration = Duration::from_micros(50);
+
+pub(crate) struct DspWorker {
+    pub plan: Box<DspPlan>,
+    pub samples: HeapCons<f64>,
+    pub headers: HeapCons<BlockHeader>,
+    pub plans_in: HeapCons<Box<DspPlan>>,
+    pub plans_out: HeapProd<Box<DspPlan>>,
+    pub demods: HeapProd<DemodFrame>,
+    pub spectra: HeapProd<SpectrumBuffer>,
+    pub free_spectra: HeapCons<SpectrumBuffer>,
+    pub counters: Arc<Counters>,
+    pub stop: Arc<AtomicBool>,
+}
+
+impl DspWorker {
+    pub fn run(mut self) {
+        let mut expected: Option<u64> = None;
+        loop {
+            if self.stop.load(Ordering::Relaxed) {
+                // What is left is reported, not processed: the caller asked to stop.
+                self.counters
+                    .ring_fill
+                    .store(self.samples.occupied_len() as u64, Ordering::Relaxed);
+                return;
+            }
+            if let Some(next) = self.plans_in.try_pop() {
+                let old = std::mem::replace(&mut self.plan, next);
+                let _ = self.plans_out.try_push(old);
+                // A new bank starts on the next block, wherever the stream is.
+                expected = None;
+                Counters::add(&self.counters.dsp_plans_applied, 1);
+            }
+            let Some(header) = self.headers.try_pop() else {
+                std::thread::sleep(IDLE);
+                continue;
+            };
+            let fill = self.samples.occupied_len() as u64;
+            self.counters.ring_fill.store(fill, Ordering::Relaxed);
+            self.counters
+                .ring_fill_max
+                .fetch_max(fill, Ordering::Relaxed);
+            match expected {
+                Some(index) if index != header.index => {
+                    Counters::add(&self.counters.discontinuities, 1);
+                    self.plan.restart(header.index);
+                }
+                None => self.plan.restart(header.index),
+                _ => {}
+            }
+            let busy = Instant::now();
+            self.plan.align(header.phase, header.frequency_word);
+            let len = header.len as usize;
+            let (a, b) = self.samples.as_slices();
+            let first = len.min(a.len());
+            let (first, second) = (&a[..first], &b[..len - first]);
+            let mut emit = Emitter {
+                demods: &mut self.demods,
+                spectra: &mut self.spectra,
+                free_spectra: &mut self.free_spectra,
+                counters: &self.counters,
+                header,
+                frame: DemodFrame::empty(),
+                sample_rate: self.plan.sample_rate,
+            };
+            for part in [first, second] {
+                if !part.is_empty() {
+                    self.plan.process(part, &mut emit);
+                }
+            }
+            emit.flush();
+            self.samples.skip(len);
+            Counters::add(&self.counters.dsp_busy_ns, busy.elapsed().as_nanos() as u64);
+            Counters::add(&self.counters.samples_processed, len as u64);
+            expected = Some(header.index + len as u64);
+        }
+    }
+}
+
+/// Collects the bank's outputs into frames and hands frames to the output rings.
+pub(crate) struct Emitter<'a> {
+    demods: &'a mut HeapProd<DemodFrame>,
+    spectra: &'a mut HeapProd<SpectrumBuffer>,
+    free_spectra: &'a mut HeapCons<SpectrumBuffer>,
+    counters: &'a Counters,
+    header: BlockHeader,
+    frame: DemodFrame,
+    sample_rate: f64,
+}
+
+impl Emitter<'_> {
+    /// One demodulator output at stream sample `index`.
+    pub fn demod(&mut self, index: u64, value: DemodValue) {
+        if self.frame.len > 0 && self.frame.sample_index != index {
+            self.flush();
+        }
+        if self.frame.len == 0 {
+            self.frame.sample_index = index;
+        }
+        if self.frame.len < self.frame.values.len() {
+            self.frame.values[self.frame.len] = value;
+            self.frame.len += 1;
+        }
+    }
+
+    /// Sends the frame being collected, if any.
+    pub fn flush(&mut self) {
+        if self.frame.len == 0 {
+            return;
+        }
+        self.frame.t = self.frame.sample_index as f64 / self.sample_rate;
+        self.frame.t_synth_ns = self.header.t_synth_ns;
+        self.frame.t_dsp_ns = unix_ns();
+        if self.demods.try_push(self.frame).is_ok() {
+            Counters::add(&self.counters.demod_frames, 1);
+        } else {
+            Counters::add(&self.counters.demod_frames_dropped, 1);
+        }
+        self.frame.len = 0;
+    }
+
+    /// One spectrum ending at stream sample `index`: magnitudes from `bins`.
+    pub fn spectrum(
+        &mut self,
+        index: u64,
+        bin_width: f64,
+        bins: impl ExactSizeIterator<Item = f64>,
+    ) {
+        let Some(mut buffer) = self.free_spectra.try_pop() else {
+            Counters::add(&self.counters.spectrum_frames_dropped, 1);
+            return;
+        };
+        buffer.magnitudes.clear();
+        // The pool's buffers were allocated for this size; `extend` stays within capacity.
+        buffer
+            .magnitudes
+            .extend(bins.take(buffer.magnitudes.capacity()).map(|m| m as f32));
+        buffer.sample_index = index;
+        buffer.t = index as f64 / self.sample_rate;
+        buffer.t_synth_ns = self.header.t_synth_ns;
+        buffer.bin_width = bin_width;
+        buffer.t_dsp_ns = unix_ns();
+        match self.spectra.try_push(buffer) {
+            Ok(()) => Counters::add(&self.counters.spectrum_frames, 1),
+            Err(buffer) => {
+                Counters::add(&self.counters.spectrum_frames_dropped, 1);
+                // Back to the pool (it came from there, so there is room).
+                drop(buffer);
+            }
+        }
+    }
+}

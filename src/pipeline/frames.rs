@@ -1,0 +1,84 @@
+//! What the DSP thread hands out: demodulator frames (one output time point of the bank)
+//! and spectrum frames (in buffers from a fixed pool, so nothing is allocated per frame).
+
+use serde::Serialize;
+
+use crate::dsp::MAX_DEMODULATORS;
+
+/// One demodulator's output at one time point.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct DemodValue {
+    /// Demodulator index N of `/demods/N`.
+    pub index: u8,
+    /// Its harmonic k.
+    pub harmonic: u32,
+    /// In-phase part X (m, nominal photodiode deflection).
+    pub x: f64,
+    /// Quadrature part Y (m).
+    pub y: f64,
+}
+
+impl DemodValue {
+    /// Peak amplitude R = |X + iY| (m).
+    pub fn r(&self) -> f64 {
+        self.x.hypot(self.y)
+    }
+
+    /// Phase (rad) against k times the drive phase (cosine reference).
+    pub fn phase(&self) -> f64 {
+        self.y.atan2(self.x)
+    }
+}
+
+/// All demodulator outputs at one output time point.
+#[derive(Clone, Copy, Debug)]
+pub struct DemodFrame {
+    /// Index of the newest input sample reflected.
+    pub sample_index: u64,
+    /// Simulated time of that sample (s).
+    pub t: f64,
+    /// Unix time (ns) at which that sample was synthesised.
+    pub t_synth_ns: u64,
+    /// Unix time (ns) at which the DSP finished this frame.
+    pub t_dsp_ns: u64,
+    /// Number of valid entries in `values`.
+    pub len: usize,
+    /// The outputs, in demodulator order.
+    pub values: [DemodValue; MAX_DEMODULATORS],
+}
+
+impl DemodFrame {
+    /// The valid outputs.
+    pub fn values(&self) -> &[DemodValue] {
+        &self.values[..self.len]
+    }
+
+    pub(crate) fn empty() -> Self {
+        Self {
+            sample_index: 0,
+            t: 0.0,
+            t_synth_ns: 0,
+            t_dsp_ns: 0,
+            len: 0,
+            values: [DemodValue::default(); MAX_DEMODULATORS],
+        }
+    }
+}
+
+/// One spectrum: peak amplitudes (m) of bins 0…N/2. The buffer comes from a fixed pool;
+/// give it back with [`PipelineOutput::recycle`](super::PipelineOutput::recycle).
+#[derive(Clone, Debug)]
+pub struct SpectrumBuffer {
+    /// Index of the newest input sample in the frame.
+    pub sample_index: u64,
+    /// Simulated time of that sample (s).
+    pub t: f64,
+    /// Unix time (ns) at which that sample was synthesised.
+    pub t_synth_ns: u64,
+    /// Unix time (ns) at which the DSP finished this frame.
+    pub t_dsp_ns: u64,
+    /// Bin spacing (Hz).
+    pub bin_width: f64,
+    /// |bin| for bins 0…N/2 (m, peak amplitude calibration).
+    pub magnitudes: Vec<f32>,
+}

@@ -1,0 +1,299 @@
+//! The signal chain's threads and what connects them.
+//!
+//! ```text
+//! control (any thread) ──plans──► synth thread ──samples + headers (SPSC rings)──► dsp thread ──frames──► output
+//!        ◄──old plans (freed here)──┘                                                 │
+//!        ◄──────────────────────────────────────────old plans─────────────────────────┘
+//! ```
+//!
+//! New settings become plans off the real-time threads ([`Pipeline::apply`]); the threads
+//! swap them in between blocks and send the old ones back, so nothing is allocated or freed
+//! on a real-time thread. The synthesiser never waits in real time: a full ring drops the
+//! block and counts it. Every header carries the exact drive phase, so the lock-in
+//! reference follows the synthesiser through frequency changes and overruns.
+
+mod block;
+mod counters;
+mod dsp_plan;
+mod dsp_worker;
+mod frames;
+mod synth_worker;
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+
+use ringbuf::traits::{Consumer, Observer, Producer, Split};
+use ringbuf::{HeapCons, HeapProd, HeapRb};
+
+pub use block::{BlockHeader, unix_ns};
+pub use counters::{Counters, CountersSnapshot};
+pub use dsp_plan::DspPlan;
+pub use frames::{DemodFrame, DemodValue, SpectrumBuffer};
+pub use synth_worker::BLOCK_SAMPLES;
+
+use crate::config::Settings;
+use crate::dsp::DspError;
+use crate::synth::{PlanError, SynthPlan, SynthState};
+use dsp_worker::DspWorker;
+use synth_worker::SynthWorker;
+
+/// Capacity of the sample ring: 2^21 samples, 0.21 s at 10 MS/s, so the DSP thread may be
+/// descheduled for a fifth of a second before anything is lost.
+pub const SAMPLE_RING: usize = 1 << 21;
+/// Plans in flight per thread (queued plus waiting to be freed).
+const PLAN_SLOTS: usize = 4;
+/// Demodulator frames queued for the consumer: 4 s at 1 kHz.
+const DEMOD_QUEUE: usize = 4096;
+/// Spectrum buffers in the pool.
+const SPECTRUM_POOL: usize = 8;
+
+/// Why the pipeline could not start or take new settings.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    /// The synthesiser's plan could not be built.
+    #[error(transparent)]
+    Synth(#[from] PlanError),
+    /// The DSP stage could not be built.
+    #[error(transparent)]
+    Dsp(#[from] DspError),
+    /// Too many settings changes are still being taken up; try again.
+    #[error("settings changes are arriving faster than the real-time threads take them up")]
+    Busy,
+    /// A setting that only takes effect on restart changed.
+    #[error("{0} cannot change while the pipeline runs")]
+    Restart(&'static str),
+    /// A thread could not be started.
+    #[error("cannot start the {0} thread: {1}")]
+    Thread(&'static str, std::io::Error),
+}
+
+/// Frames for the consumer (the server, a bench, a test).
+pub struct PipelineOutput {
+    /// Demodulator frames, in time order.
+    pub demods: HeapCons<DemodFrame>,
+    /// Spectrum frames, in time order; return each buffer with [`recycle`](Self::recycle).
+    pub spectra: HeapCons<SpectrumBuffer>,
+    free_spectra: HeapProd<SpectrumBuffer>,
+}
+
+impl PipelineOutput {
+    /// Gives a spectrum buffer back to the pool.
+    pub fn recycle(&mut self, buffer: SpectrumBuffer) {
+        let _ = self.free_spectra.try_push(buffer);
+    }
+
+    /// Drains every queued frame (recycling spectra); returns (demod, spectrum) counts.
+    pub fn drain(&mut self) -> (usize, usize) {
+        let demods = self.demods.skip(usize::MAX);
+        let mut spectra = 0;
+        while let Some(b) = self.spectra.try_pop() {
+            self.recycle(b);
+            spectra += 1;
+        }
+        (demods, spectra)
+    }
+}
+
+/// Control ends of one real-time thread's plan hand-off.
+struct PlanLink<P> {
+    to_thread: HeapProd<Box<P>>,
+    from_thread: HeapCons<Box<P>>,
+}
+
+impl<P> PlanLink<P> {
+    /// Frees what the thread gave back; whether another plan may be queued. Plans in
+    /// flight (queued + not yet returned) stay below the capacity, so the thread's return
+    /// push always has room and never has to free anything itself.
+    fn has_room(&mut self) -> bool {
+        while self.from_thread.try_pop().is_some() {}
+        self.to_thread.occupied_len() + self.from_thread.occupied_len() < PLAN_SLOTS
+    }
+
+    /// Queues `plan`; call only after [`has_room`](Self::has_room) said yes.
+    fn send(&mut self, plan: Box<P>) {
+        let _ = self.to_thread.try_push(plan);
+    }
+}
+
+fn plan_link<P>() -> (PlanLink<P>, HeapCons<Box<P>>, HeapProd<Box<P>>) {
+    let (to_thread, thread_in) = HeapRb::new(PLAN_SLOTS).split();
+    let (thread_out, from_thread) = HeapRb::new(PLAN_SLOTS).split();
+    (
+        PlanLink {
+            to_thread,
+            from_thread,
+        },
+        thread_in,
+        thread_out,
+    )
+}
+
+/// The running signal chain: a synthesiser thread and a DSP thread.
+pub struct Pipeline {
+    settings: Settings,
+    counters: Arc<Counters>,
+    stop_synth: Arc<AtomicBool>,
+    stop_dsp: Arc<AtomicBool>,
+    realtime: Arc<AtomicBool>,
+    synth_link: PlanLink<SynthPlan>,
+    dsp_link: PlanLink<DspPlan>,
+    synth_thread: Option<JoinHandle<()>>,
+    dsp_thread: Option<JoinHandle<()>>,
+}
+
+impl Pipeline {
+    /// Builds the plans for `settings` and starts both threads.
+    pub fn start(settings: &Settings) -> Result<(Self, PipelineOutput), PipelineError> {
+        let synth_plan = Box::new(SynthPlan::new(settings)?);
+        let dsp_plan = Box::new(DspPlan::new(settings)?);
+        let state = SynthState::steady(&synth_plan, settings.synth.seed);
+        let bins = dsp_plan.spectrum_bins();
+
+        let (samples_in, samples_out) = HeapRb::<f64>::new(SAMPLE_RING).split();
+        let (headers_in, headers_out) =
+            HeapRb::<BlockHeader>::new(SAMPLE_RING / BLOCK_SAMPLES + 1).split();
+        let (demods_in, demods_out) = HeapRb::<DemodFrame>::new(DEMOD_QUEUE).split();
+        let (spectra_in, spectra_out) = HeapRb::<SpectrumBuffer>::new(SPECTRUM_POOL).split();
+        let (mut free_in, free_out) = HeapRb::<SpectrumBuffer>::new(SPECTRUM_POOL).split();
+        for _ in 0..SPECTRUM_POOL {
+            let _ = free_in.try_push(SpectrumBuffer {
+                sample_index: 0,
+                t: 0.0,
+                t_synth_ns: 0,
+                t_dsp_ns: 0,
+                bin_width: 0.0,
+                magnitudes: Vec::with_capacity(bins),
+            });
+        }
+        let (synth_link, synth_plans_in, synth_plans_out) = plan_link();
+        let (dsp_link, dsp_plans_in, dsp_plans_out) = plan_link();
+
+        let counters = Arc::new(Counters::default());
+        let stop_synth = Arc::new(AtomicBool::new(false));
+        let stop_dsp = Arc::new(AtomicBool::new(false));
+        let realtime = Arc::new(AtomicBool::new(settings.synth.realtime));
+        let synth = SynthWorker {
+            plan: synth_plan,
+            state,
+            samples: samples_in,
+            headers: headers_in,
+            plans_in: synth_plans_in,
+            plans_out: synth_plans_out,
+            counters: counters.clone(),
+            stop: stop_synth.clone(),
+            realtime: realtime.clone(),
+        };
+        let dsp = DspWorker {
+            plan: dsp_plan,
+            samples: samples_out,
+            headers: headers_out,
+            plans_in: dsp_plans_in,
+            plans_out: dsp_plans_out,
+            demods: demods_in,
+            spectra: spectra_in,
+            free_spectra: free_out,
+            counters: counters.clone(),
+            stop: stop_dsp.clone(),
+        };
+        let mut pipeline = Self {
+            settings: settings.clone(),
+            counters,
+            stop_synth,
+            stop_dsp,
+            realtime,
+            synth_link,
+            dsp_link,
+            synth_thread: None,
+            dsp_thread: None,
+        };
+        let spawn = |name: &'static str, f: Box<dyn FnOnce() + Send>| {
+            std::thread::Builder::new()
+                .name(format!("ftafm-{name}"))
+                .spawn(f)
+                .map_err(|e| PipelineError::Thread(name, e))
+        };
+        pipeline.dsp_thread = Some(spawn("dsp", Box::new(move || dsp.run()))?);
+        pipeline.synth_thread = Some(spawn("synth", Box::new(move || synth.run()))?);
+        let output = PipelineOutput {
+            demods: demods_out,
+            spectra: spectra_out,
+            free_spectra: free_in,
+        };
+        Ok((pipeline, output))
+    }
+
+    /// The settings in force.
+    pub fn settings(&self) -> &Settings {
+        &self.settings
+    }
+
+    /// The counters now.
+    pub fn counters(&self) -> CountersSnapshot {
+        self.counters.snapshot()
+    }
+
+    /// Takes up new settings: rebuilds (here, off the real-time threads) the plans whose
+    /// inputs changed and hands them over; the threads switch between blocks. The 1-DOF
+    /// solve of a physics change takes a few milliseconds. On error nothing changes.
+    pub fn apply(&mut self, settings: &Settings) -> Result<(), PipelineError> {
+        let old = &self.settings;
+        if settings.synth.sample_rate != old.synth.sample_rate {
+            return Err(PipelineError::Restart("/synth/sample_rate"));
+        }
+        let synth_changed = settings.cantilever != old.cantilever
+            || settings.tip != old.tip
+            || settings.sample != old.sample
+            || settings.drive != old.drive
+            || settings.surface != old.surface
+            || settings.noise != old.noise
+            || settings.synth.engine != old.synth.engine;
+        let dsp_changed = settings.demods != old.demods || settings.spectrum != old.spectrum;
+        // Build both and check both links before sending either, so a failure changes
+        // nothing.
+        let synth = synth_changed
+            .then(|| SynthPlan::new(settings))
+            .transpose()?;
+        let dsp = dsp_changed.then(|| DspPlan::new(settings)).transpose()?;
+        let synth_room = synth.is_none() || self.synth_link.has_room();
+        let dsp_room = dsp.is_none() || self.dsp_link.has_room();
+        if !(synth_room && dsp_room) {
+            return Err(PipelineError::Busy);
+        }
+        if let Some(plan) = synth {
+            self.synth_link.send(Box::new(plan));
+        }
+        if let Some(plan) = dsp {
+            self.dsp_link.send(Box::new(plan));
+        }
+        self.realtime
+            .store(settings.synth.realtime, Ordering::Relaxed);
+        self.settings = settings.clone();
+        Ok(())
+    }
+
+    /// Stops both threads, waits for them and returns the final counters, for which
+    /// `samples_synthesized = samples_processed + overrun_samples + ring_fill` holds exactly.
+    pub fn stop(mut self) -> CountersSnapshot {
+        self.shutdown();
+        self.counters.snapshot()
+    }
+
+    fn shutdown(&mut self) {
+        // The synthesiser first, so nothing enters the ring after the DSP's last look.
+        self.stop_synth.store(true, Ordering::Relaxed);
+        if let Some(t) = self.synth_thread.take() {
+            let _ = t.join();
+        }
+        self.stop_dsp.store(true, Ordering::Relaxed);
+        if let Some(t) = self.dsp_thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for Pipeline {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}

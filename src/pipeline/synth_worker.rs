@@ -1,0 +1,114 @@
+//! The synthesiser thread: fills blocks, hands them to the sample ring, paces itself to the
+//! wall clock (or runs free), and swaps in new plans between blocks.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use ringbuf::traits::{Consumer, Observer, Producer};
+use ringbuf::{HeapCons, HeapProd};
+
+use super::block::{BlockHeader, unix_ns};
+use super::counters::Counters;
+use crate::synth::{SynthPlan, SynthState};
+
+/// Samples per block: 0.41 ms at 10 MS/s, short against the 1 ms output period.
+pub const BLOCK_SAMPLES: usize = 4096;
+
+pub(crate) struct SynthWorker {
+    pub plan: Box<SynthPlan>,
+    pub state: SynthState,
+    pub samples: HeapProd<f64>,
+    pub headers: HeapProd<BlockHeader>,
+    pub plans_in: HeapCons<Box<SynthPlan>>,
+    pub plans_out: HeapProd<Box<SynthPlan>>,
+    pub counters: Arc<Counters>,
+    pub stop: Arc<AtomicBool>,
+    pub realtime: Arc<AtomicBool>,
+}
+
+impl SynthWorker {
+    pub fn run(mut self) {
+        let mut block = vec![0.0; BLOCK_SAMPLES];
+        // Pacing reference: wall time at which sample `paced_index` was due.
+        let mut paced_from = Instant::now();
+        let mut paced_index = self.state.sample_index();
+        let mut was_realtime = self.realtime.load(Ordering::Relaxed);
+        while !self.stop.load(Ordering::Relaxed) {
+            if let Some(next) = self.plans_in.try_pop() {
+                self.state.retarget(&self.plan, &next);
+                let old = std::mem::replace(&mut self.plan, next);
+                // The control side keeps (plans in flight) ≤ capacity, so this has room; the
+                // old plan is freed there, not here.
+                let _ = self.plans_out.try_push(old);
+                Counters::add(&self.counters.synth_plans_applied, 1);
+            }
+            let realtime = self.realtime.load(Ordering::Relaxed);
+            if realtime && !was_realtime {
+                paced_from = Instant::now();
+                paced_index = self.state.sample_index();
+            }
+            was_realtime = realtime;
+
+            let header_index = self.state.sample_index();
+            let phase = self.state.phase();
+            let clipped_before = self.state.counters.clipped;
+            let busy = Instant::now();
+            self.plan.process(&mut self.state, &mut block);
+            Counters::add(
+                &self.counters.synth_busy_ns,
+                busy.elapsed().as_nanos() as u64,
+            );
+            Counters::add(
+                &self.counters.clipped_samples,
+                self.state.counters.clipped - clipped_before,
+            );
+            Counters::add(&self.counters.samples_synthesized, BLOCK_SAMPLES as u64);
+            let header = BlockHeader {
+                index: header_index,
+                len: BLOCK_SAMPLES as u32,
+                phase,
+                frequency_word: self.plan.frequency_word,
+                t_synth_ns: unix_ns(),
+            };
+            if !self.push(&block, header, realtime) {
+                Counters::add(&self.counters.overrun_samples, BLOCK_SAMPLES as u64);
+                Counters::add(&self.counters.overrun_blocks, 1);
+            }
+            if realtime {
+                self.pace(&mut paced_from, &mut paced_index);
+            }
+        }
+    }
+
+    /// Hands a block to the DSP. In real time a full ring drops the block (the caller counts
+    /// it); free-running waits for room, since nothing is due by the clock.
+    fn push(&mut self, block: &[f64], header: BlockHeader, realtime: bool) -> bool {
+        loop {
+            if self.samples.vacant_len() >= block.len() && self.headers.vacant_len() >= 1 {
+                self.samples.push_slice(block);
+                let _ = self.headers.try_push(header);
+                return true;
+            }
+            if realtime || self.stop.load(Ordering::Relaxed) {
+                return false;
+            }
+            std::thread::yield_now();
+        }
+    }
+
+    /// Sleeps until the next block is due by the wall clock.
+    fn pace(&mut self, paced_from: &mut Instant, paced_index: &mut u64) {
+        let ahead = (self.state.sample_index() - *paced_index) as f64 / self.plan.sample_rate;
+        let due = *paced_from + Duration::from_secs_f64(ahead);
+        let now = Instant::now();
+        if due > now {
+            std::thread::sleep(due - now);
+        } else if now - due > Duration::from_millis(100) {
+            // Hopelessly behind (a stall): start pacing afresh instead of racing to catch up.
+            Counters::add(&self.counters.late_blocks, 1);
+            *paced_from = now;
+            *paced_index = self.state.sample_index();
+        }
+    }
+}

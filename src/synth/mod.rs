@@ -1,0 +1,13 @@
+//! Photodiode synthesis on the real-time thread: every flexural mode as an exactly
+//! discretised oscillator, driven at the base and by the tap force, with thermal,
+//! detector and ADC noise. [`SynthPlan`] is built off the real-time thread; its
+//! [`process`](SynthPlan::process) fills blocks without allocating, locking or blocking.
+
+pub mod modal;
+pub mod plan;
+pub mod pulse;
+pub mod synthesizer;
+
+pub use plan::{Adc, BOLTZMANN, PlanError, SynthPlan, TapForce};
+pub use pulse::PulseTrain;
+pub use synthesizer::{SynthCounters, SynthState};

@@ -1,0 +1,281 @@
+//! Everything the synthesiser needs, computed off the real-time thread from the settings:
+//! the modal kernels, the drive's steady response, the tap-force pulse from the 1-DOF
+//! solution, and the noise levels. Immutable once built; the real-time loop only reads it.
+
+use std::f64::consts::PI;
+
+use rustfft::num_complex::Complex64;
+
+use super::modal::ModalKernel;
+use super::pulse::{PulseKernel, PulseTrain};
+use crate::config::{Engine, Settings};
+use crate::dsp::{DspError, frequency_word};
+use crate::model;
+use crate::physics::beam::{BeamError, MAX_MODES};
+use crate::physics::impact::ImpactError;
+use crate::physics::{Cantilever, ImpactSolution};
+
+/// Boltzmann's constant (J/K).
+pub const BOLTZMANN: f64 = 1.380_649e-23;
+
+/// 2^64: phase words per drive period.
+pub(crate) const TURN: f64 = 18_446_744_073_709_551_616.0;
+
+/// Why a plan cannot be built from the settings.
+#[derive(Debug, thiserror::Error)]
+pub enum PlanError {
+    /// The cantilever is not buildable.
+    #[error(transparent)]
+    Beam(#[from] BeamError),
+    /// The 1-DOF tapping problem has no solution we could find.
+    #[error("1-DOF tapping solution: {0}")]
+    Impact(#[from] ImpactError),
+    /// The drive frequency cannot be represented.
+    #[error(transparent)]
+    Drive(#[from] DspError),
+    /// The engine is not implemented.
+    #[error("engine {0:?} is not available")]
+    Engine(Engine),
+}
+
+/// The tap force the synthesiser applies, from the 1-DOF solution (paper engine).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TapForce {
+    /// The cut-cosine pulse train.
+    pub train: PulseTrain,
+    /// θ of the 1-DOF solution (degrees).
+    pub phase_shift_deg: f64,
+    /// Fundamental amplitude of the 1-DOF tip motion (m).
+    pub tapping_amplitude: f64,
+    /// Maximum indentation (m).
+    pub max_indentation: f64,
+}
+
+impl TapForce {
+    fn from_solution(s: &ImpactSolution) -> Self {
+        Self {
+            train: PulseTrain {
+                max_force: s.max_force,
+                tau: s.contact_time_ratio,
+                centre_phase: s.pulse_phase,
+            },
+            phase_shift_deg: s.phase_shift_deg(),
+            tapping_amplitude: s.tapping_amplitude,
+            max_indentation: s.max_indentation,
+        }
+    }
+}
+
+/// ADC model: quantisation step and clipping level.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Adc {
+    /// Least significant bit (m).
+    pub lsb: f64,
+    /// Full scale: samples are clipped to ±range (m).
+    pub range: f64,
+    /// 1/lsb (1/m).
+    pub codes_per_metre: f64,
+}
+
+/// The synthesiser's immutable configuration.
+#[derive(Clone, Debug)]
+pub struct SynthPlan {
+    /// Sample rate (Hz).
+    pub sample_rate: f64,
+    /// Sample period h (s).
+    pub h: f64,
+    /// Drive phase words per sample.
+    pub frequency_word: u64,
+    /// Realised drive frequency f_s·word/2^64 (Hz).
+    pub drive_frequency: f64,
+    /// The cantilever.
+    pub cantilever: Cantilever,
+    pub(crate) modes: Vec<ModalKernel>,
+    /// Steady drive response of each mode: Y_n = Re[Ŷ_n e^{iθ}] (m).
+    pub(crate) drive_response: Vec<Complex64>,
+    /// Steady drive response of the photodiode: Re[Ŝ e^{iθ}] (m).
+    pub(crate) drive_signal: Complex64,
+    pub(crate) pulse: Option<PulseKernel>,
+    /// The tap force, if the tip touches the sample.
+    pub tap: Option<TapForce>,
+    /// Standard deviation of the held thermal input of each mode (m/s²).
+    pub(crate) thermal_sigma: Vec<f64>,
+    /// Standard deviation of the detector noise per sample (m).
+    pub detector_sigma: f64,
+    /// ADC, if quantisation is on.
+    pub adc: Option<Adc>,
+    /// Per-mode constants laid out for the hot loop.
+    pub(crate) lanes: Lanes,
+}
+
+/// Per-mode constants as structure of arrays, zero past the plan's modes.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Lanes {
+    /// e^{λh}, real and imaginary parts.
+    pub a_re: [f64; MAX_MODES],
+    pub a_im: [f64; MAX_MODES],
+    /// Photodiode metres per unit of Im q.
+    pub lever: [f64; MAX_MODES],
+    /// Thermal input per standard normal deviate: σ·∫₀ʰe^{λ(h−s)}ds, real and imaginary.
+    pub noise_re: [f64; MAX_MODES],
+    pub noise_im: [f64; MAX_MODES],
+}
+
+impl Lanes {
+    fn new(modes: &[ModalKernel], thermal_sigma: &[f64]) -> Self {
+        let mut l = Self::default();
+        for (m, (k, sigma)) in modes.iter().zip(thermal_sigma).enumerate() {
+            l.a_re[m] = k.propagator.re;
+            l.a_im[m] = k.propagator.im;
+            l.lever[m] = k.lever_gain;
+            l.noise_re[m] = k.hold_gain.re * sigma;
+            l.noise_im[m] = k.hold_gain.im * sigma;
+        }
+        l
+    }
+}
+
+impl SynthPlan {
+    /// Builds the plan for `settings`; solves the 1-DOF tapping problem (a few ms).
+    pub fn new(settings: &Settings) -> Result<Self, PlanError> {
+        if settings.synth.engine != Engine::Paper {
+            return Err(PlanError::Engine(settings.synth.engine));
+        }
+        let cantilever = model::cantilever(settings)?;
+        let sample_rate = settings.synth.sample_rate;
+        let h = 1.0 / sample_rate;
+        let word = frequency_word(settings.drive.frequency, sample_rate)?;
+        let drive_frequency = word as f64 / TURN * sample_rate;
+        let omega = 2.0 * PI * drive_frequency;
+        let modes: Vec<ModalKernel> = cantilever
+            .modes
+            .iter()
+            .map(|m| ModalKernel::new(m, h))
+            .collect();
+
+        // Base excitation: a uniform inertial load, G·Pn·sin θ on mode n (Pn = ∫φn dξ),
+        // with G such that the free tip deflection amplitude is /drive/free_amplitude.
+        let unit: Vec<Complex64> = cantilever
+            .modes
+            .iter()
+            .map(|m| {
+                Complex64::new(0.0, -m.participation) * m.transfer(omega) / (m.omega * m.omega)
+            })
+            .collect();
+        let tip: Complex64 = cantilever
+            .modes
+            .iter()
+            .zip(&unit)
+            .map(|(m, u)| u * m.tip_value)
+            .sum();
+        let gain = settings.drive.free_amplitude / tip.norm();
+        let drive_response: Vec<Complex64> = unit.iter().map(|u| u * gain).collect();
+        let drive_signal = cantilever
+            .modes
+            .iter()
+            .zip(&drive_response)
+            .map(|(m, y)| y * (2.0 / 3.0 * m.tip_slope))
+            .sum();
+
+        let solution = model::impact_oscillator(settings, &cantilever, settings.sample).solve()?;
+        let tap = solution
+            .in_contact()
+            .then(|| TapForce::from_solution(&solution));
+        let pulse = tap.map(|t| PulseKernel::new(&t.train, h, word, &modes));
+
+        let noise = &settings.noise;
+        let thermal_sigma: Vec<f64> = cantilever
+            .modes
+            .iter()
+            .zip(&modes)
+            .map(|(m, k)| {
+                if noise.enable && noise.temperature > 0.0 {
+                    // Equipartition: ⟨Y²⟩ = k_B·T/Kn, with Y = Im q/ω_d.
+                    let variance = BOLTZMANN * noise.temperature / m.stiffness;
+                    (variance * k.omega_d * k.omega_d / k.held_noise_gain()).sqrt()
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        // One-sided density ρ over the band 0..f_s/2: variance ρ²·f_s/2 per sample.
+        let detector_sigma = if noise.enable {
+            noise.detector_density * (sample_rate / 2.0).sqrt()
+        } else {
+            0.0
+        };
+        let adc = (noise.enable && noise.adc_bits > 0).then(|| {
+            let lsb = 2.0 * noise.adc_range / 2f64.powi(noise.adc_bits as i32);
+            Adc {
+                lsb,
+                range: noise.adc_range,
+                codes_per_metre: 1.0 / lsb,
+            }
+        });
+        let lanes = Lanes::new(&modes, &thermal_sigma);
+        Ok(Self {
+            lanes,
+            sample_rate,
+            h,
+            frequency_word: word,
+            drive_frequency,
+            cantilever,
+            modes,
+            drive_response,
+            drive_signal,
+            pulse,
+            tap,
+            thermal_sigma,
+            detector_sigma,
+            adc,
+        })
+    }
+
+    /// Number of modes synthesised.
+    pub fn mode_count(&self) -> usize {
+        self.modes.len()
+    }
+
+    /// Steady-state modal states at drive phase `theta` (rad) under the tap force alone:
+    /// q_n = Σ_k (ikΩ − λ̄n)·Y_{n,k}·e^{ikθ} with Y_{n,k} = gain·c_k·Hn(kΩ)/ωn², summed over
+    /// |k| ≤ 4096 (the terms fall off like 1/k³ past the pulse's bandwidth).
+    pub(crate) fn tap_steady_state(&self, theta: f64) -> Vec<Complex64> {
+        let Some(tap) = self.tap else {
+            return vec![Complex64::new(0.0, 0.0); self.modes.len()];
+        };
+        let omega = 2.0 * PI * self.drive_frequency;
+        let train = tap.train;
+        let kmax = 4096;
+        let coefficients = crate::physics::spectrum::cut_cosine_train(
+            train.max_force,
+            train.tau,
+            train.centre_phase,
+            kmax,
+        );
+        self.cantilever
+            .modes
+            .iter()
+            .zip(&self.modes)
+            .map(|(mode, kernel)| {
+                let lambda_bar = kernel.lambda.conj();
+                let mut q = Complex64::new(0.0, 0.0);
+                for (k, c) in coefficients.iter().enumerate() {
+                    // Both signs of k: c_{−k} = conj(c_k).
+                    for sign in [1.0, -1.0] {
+                        if k == 0 && sign < 0.0 {
+                            continue;
+                        }
+                        let kk = sign * k as f64;
+                        let ck = if sign > 0.0 { *c } else { c.conj() };
+                        let y = ck * kernel.force_gain * mode.transfer(kk * omega)
+                            / (mode.omega * mode.omega);
+                        q += (Complex64::new(0.0, kk * omega) - lambda_bar)
+                            * y
+                            * Complex64::from_polar(1.0, kk * theta);
+                    }
+                }
+                q
+            })
+            .collect()
+    }
+}

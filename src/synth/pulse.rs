@@ -1,0 +1,147 @@
+//! The paper engine's tip force: a cut-cosine pulse train locked to the drive phase,
+//! integrated exactly over each sample interval (the pulse is only ~5 samples wide at the
+//! default rate, so sampling it would distort the high harmonics).
+
+use std::f64::consts::PI;
+
+use rustfft::num_complex::Complex64;
+
+use super::modal::ModalKernel;
+
+/// Phase words per drive period.
+const TURN: f64 = 18_446_744_073_709_551_616.0; // 2^64
+
+/// A cut-cosine pulse train, F·cos(π(t − t_c)/(τT)) for |t − t_c| < τT/2, once per period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PulseTrain {
+    /// Peak force F (N).
+    pub max_force: f64,
+    /// Width as a fraction of the period, τ (1).
+    pub tau: f64,
+    /// Drive phase of the pulse centre (rad).
+    pub centre_phase: f64,
+}
+
+/// The pulse train prepared for one sample rate and drive frequency.
+#[derive(Clone, Debug)]
+pub struct PulseKernel {
+    max_force: f64,
+    /// Phase word of the window start, t_c − τT/2.
+    window_start: u64,
+    /// Window length in phase words (τ·2^64).
+    window_words: u64,
+    /// Seconds per phase word at this drive frequency.
+    seconds_per_word: f64,
+    /// ν = π/(τT) (rad/s).
+    nu: f64,
+    h: f64,
+    /// Per mode: 1/(−λ + iν) and 1/(−λ − iν).
+    inverse_rates: Vec<(Complex64, Complex64)>,
+}
+
+/// Where the pulse lies within one sample interval [t_n, t_n + h], in seconds from t_n.
+#[derive(Clone, Copy, Debug)]
+pub struct Overlap {
+    /// Start of the overlap (s), ≥ 0.
+    pub a: f64,
+    /// End of the overlap (s), ≤ h.
+    pub b: f64,
+    /// Pulse centre relative to t_n (s).
+    pub centre: f64,
+}
+
+impl PulseKernel {
+    /// Prepares `train` for sample period `h` (s), a drive advancing `frequency_word` phase
+    /// words per sample, and the given modes.
+    pub fn new(train: &PulseTrain, h: f64, frequency_word: u64, modes: &[ModalKernel]) -> Self {
+        let tau = train.tau.clamp(0.0, 1.0);
+        let window_words = (tau * TURN).min(TURN - 1.0) as u64;
+        let centre = (train.centre_phase / (2.0 * PI)).rem_euclid(1.0) * TURN;
+        let window_start = (centre as u64).wrapping_sub(window_words / 2);
+        let seconds_per_word = h / frequency_word.max(1) as f64;
+        let period = TURN * seconds_per_word;
+        let nu = if tau > 0.0 { PI / (tau * period) } else { 0.0 };
+        let inverse_rates = modes
+            .iter()
+            .map(|m| {
+                let i_nu = Complex64::new(0.0, nu);
+                ((-m.lambda + i_nu).inv(), (-m.lambda - i_nu).inv())
+            })
+            .collect();
+        Self {
+            max_force: if tau > 0.0 { train.max_force } else { 0.0 },
+            window_start,
+            window_words,
+            seconds_per_word,
+            nu,
+            h,
+            inverse_rates,
+        }
+    }
+
+    /// The part of the pulse in the sample interval starting at drive phase word `phase`
+    /// and advancing `step` words, if any.
+    #[inline]
+    pub fn overlap(&self, phase: u64, step: u64) -> Option<Overlap> {
+        if self.max_force == 0.0 {
+            return None;
+        }
+        let rel = phase.wrapping_sub(self.window_start);
+        // Window start relative to t_n, in words: −rel if the interval starts inside the
+        // window, or the distance ahead if the window starts within this interval.
+        let start_words = if rel < self.window_words {
+            -(rel as f64)
+        } else {
+            let ahead = rel.wrapping_neg();
+            if ahead >= step {
+                return None;
+            }
+            ahead as f64
+        };
+        let ws = start_words * self.seconds_per_word;
+        let we = ws + self.window_words as f64 * self.seconds_per_word;
+        let a = ws.max(0.0);
+        let b = we.min(self.h);
+        if b <= a {
+            return None;
+        }
+        Some(Overlap {
+            a,
+            b,
+            centre: 0.5 * (ws + we),
+        })
+    }
+
+    /// Adds to the modal states (`re`, `im`: real and imaginary parts of q, one per mode)
+    /// the exact response to the pulse over `overlap`:
+    /// F·gain·∫_a^b e^{λ(h−s)}·cos(ν(s − centre)) ds for each mode.
+    #[inline]
+    pub fn apply(&self, overlap: &Overlap, modes: &[ModalKernel], re: &mut [f64], im: &mut [f64]) {
+        let Overlap { a, b, centre } = *overlap;
+        let cb = Complex64::from_polar(1.0, self.nu * (b - centre));
+        let ca = Complex64::from_polar(1.0, self.nu * (a - centre));
+        for (((m, re), im), (inv_plus, inv_minus)) in modes
+            .iter()
+            .zip(re.iter_mut())
+            .zip(im.iter_mut())
+            .zip(&self.inverse_rates)
+        {
+            // e^{λ(h−x)}: the constants 1 and e^{λh} at the interval ends, else computed.
+            let e_b = if b >= self.h {
+                Complex64::new(1.0, 0.0)
+            } else {
+                (m.lambda * (self.h - b)).exp()
+            };
+            let e_a = if a <= 0.0 {
+                m.propagator
+            } else {
+                (m.lambda * (self.h - a)).exp()
+            };
+            let plus = (e_b * cb - e_a * ca) * inv_plus;
+            let minus = (e_b * cb.conj() - e_a * ca.conj()) * inv_minus;
+            let dq = (plus + minus) * (0.5 * self.max_force * m.force_gain);
+            *re += dq.re;
+            *im += dq.im;
+        }
+    }
+}

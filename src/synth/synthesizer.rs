@@ -1,0 +1,248 @@
+//! The real-time photodiode synthesiser: state plus the per-sample loop.
+//!
+//! Sample n is the light-lever signal at t_n = n·h: the drive's steady response
+//! Re[Ŝ·e^{iθ_n}] plus Σ (2/3)·Lφn′(L)·Y_n of the modal states, which carry the response to
+//! the tap force, every transient and the thermal noise; then detector noise and the ADC.
+
+use rand_distr::{Distribution, StandardNormal};
+use rand_xoshiro::Xoshiro256PlusPlus;
+use rand_xoshiro::rand_core::SeedableRng;
+use rustfft::num_complex::Complex64;
+
+use super::plan::{SynthPlan, TURN};
+use crate::dsp::phase_to_radians;
+use crate::physics::beam::MAX_MODES;
+
+/// The drive phasor e^{iθ} is advanced by multiplication and re-anchored from the exact
+/// integer phase at every multiple of this many samples (of the absolute sample index, so
+/// the stream does not depend on how it is cut into blocks).
+const REANCHOR: u64 = 256;
+
+/// Counters the synthesiser keeps; read them between blocks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SynthCounters {
+    /// Samples produced.
+    pub samples: u64,
+    /// Samples clipped by the ADC's full scale.
+    pub clipped: u64,
+}
+
+/// Samples per chunk of pre-drawn normal deviates. Drawing them in a tight loop is several
+/// times faster than interleaving the ziggurat's branches with the oscillator arithmetic;
+/// they are consumed in the same order either way, so the stream is unchanged.
+const CHUNK: usize = 256;
+
+/// Mutable state of the synthesiser. Build it off the real-time thread.
+#[derive(Clone, Debug)]
+pub struct SynthState {
+    /// Real and imaginary parts of each mode's q (structure of arrays, so they vectorise).
+    re: [f64; MAX_MODES],
+    im: [f64; MAX_MODES],
+    phase: u64,
+    rho: Complex64,
+    rng: Xoshiro256PlusPlus,
+    /// Pre-drawn standard normals for one chunk: per sample the detector's, then one per
+    /// mode. Allocated once here, reused by every `process`.
+    normals: Vec<f64>,
+    /// Counters.
+    pub counters: SynthCounters,
+}
+
+impl SynthState {
+    /// State at sample 0, drive phase 0, with every mode already in its periodic steady
+    /// state under the tap force and its thermal motion drawn from the stationary
+    /// distribution, so the stream starts settled. `seed` seeds every random source.
+    pub fn steady(plan: &SynthPlan, seed: u64) -> Self {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+        let mut q = [Complex64::new(0.0, 0.0); MAX_MODES];
+        for (slot, value) in q.iter_mut().zip(plan.tap_steady_state(0.0)) {
+            *slot = value;
+        }
+        for (m, kernel) in plan.modes.iter().enumerate() {
+            let sigma = plan.thermal_sigma[m];
+            if sigma == 0.0 {
+                continue;
+            }
+            // Stationary covariance of q under q ← a·q + g·σ·ξ: E|q|² = σ²|g|²/(1 − |a|²),
+            // E q² = σ²g²/(1 − a²); draw (Re q, Im q) from it by Cholesky.
+            let (a, g) = (kernel.propagator, kernel.hold_gain);
+            let abs2 = sigma * sigma * g.norm_sqr() / (1.0 - a.norm_sqr());
+            let sq = g * g * (sigma * sigma) / (1.0 - a * a);
+            let (vr, vi, c) = (0.5 * (abs2 + sq.re), 0.5 * (abs2 - sq.re), 0.5 * sq.im);
+            let l11 = vr.max(0.0).sqrt();
+            let l21 = if l11 > 0.0 { c / l11 } else { 0.0 };
+            let l22 = (vi - l21 * l21).max(0.0).sqrt();
+            let (z1, z2): (f64, f64) = (
+                StandardNormal.sample(&mut rng),
+                StandardNormal.sample(&mut rng),
+            );
+            q[m] += Complex64::new(l11 * z1, l21 * z1 + l22 * z2);
+        }
+        Self {
+            re: q.map(|q| q.re),
+            im: q.map(|q| q.im),
+            phase: 0,
+            rho: Complex64::new(1.0, 0.0),
+            rng,
+            normals: vec![0.0; CHUNK * (MAX_MODES + 1)],
+            counters: SynthCounters::default(),
+        }
+    }
+
+    fn q(&self, m: usize) -> Complex64 {
+        Complex64::new(self.re[m], self.im[m])
+    }
+
+    fn set_q(&mut self, m: usize, q: Complex64) {
+        self.re[m] = q.re;
+        self.im[m] = q.im;
+    }
+
+    /// Index of the next sample.
+    pub fn sample_index(&self) -> u64 {
+        self.counters.samples
+    }
+
+    /// Drive phase word of the next sample (2^64 = one period; 0 = cosine peak).
+    pub fn phase(&self) -> u64 {
+        self.phase
+    }
+
+    /// Moves from `old` to `new` without a jump: the modal displacements and velocities
+    /// stay continuous, so a change of drive, sample or cantilever shows as a physical
+    /// transient. Modes that `new` adds start at rest; modes it drops are gone.
+    pub fn retarget(&mut self, old: &SynthPlan, new: &SynthPlan) {
+        let theta = phase_to_radians(self.phase);
+        let rho = Complex64::from_polar(1.0, theta);
+        let particular = |plan: &SynthPlan, m: usize| -> (f64, f64) {
+            let y = plan.drive_response[m] * rho;
+            let omega = 2.0 * std::f64::consts::PI * plan.drive_frequency;
+            (y.re, (y * Complex64::new(0.0, omega)).re)
+        };
+        for m in 0..new.modes.len() {
+            let (y, v) = if m < old.modes.len() {
+                let (yh, vh) = old.modes[m].displacement_velocity(self.q(m));
+                let (yp, vp) = particular(old, m);
+                (yh + yp, vh + vp)
+            } else {
+                (0.0, 0.0)
+            };
+            let (yp, vp) = particular(new, m);
+            self.set_q(m, new.modes[m].state_of(y - yp, v - vp));
+        }
+        for m in new.modes.len()..MAX_MODES {
+            self.set_q(m, Complex64::new(0.0, 0.0));
+        }
+    }
+}
+
+impl SynthPlan {
+    /// Fills `out` with the next samples (nominal metres). Allocation-free, lock-free.
+    pub fn process(&self, state: &mut SynthState, out: &mut [f64]) {
+        if self.modes.len() <= 8 {
+            self.process_lanes::<8>(state, out);
+        } else {
+            self.process_lanes::<MAX_MODES>(state, out);
+        }
+    }
+
+    /// The loop over `L` mode lanes (a fixed count, so the per-mode arithmetic vectorises;
+    /// lanes past the plan's modes hold zeros and contribute nothing).
+    // Several lane arrays are read and written in lock-step by index; that is the form
+    // the compiler vectorises, and clearer than a five-way zip.
+    #[allow(clippy::needless_range_loop)]
+    fn process_lanes<const L: usize>(&self, state: &mut SynthState, out: &mut [f64]) {
+        let k = &self.lanes;
+        let n_modes = self.modes.len();
+        let detector = self.detector_sigma > 0.0;
+        let thermal = self.thermal_sigma.iter().any(|&s| s > 0.0);
+        let step = Complex64::from_polar(
+            1.0,
+            self.frequency_word as f64 / TURN * std::f64::consts::TAU,
+        );
+        // Each sample's deviates sit at a fixed stride: the detector's at 0, mode m's at
+        // 1 + m. Slots that are not drawn stay zero, so the loops over all L lanes need no
+        // branches; the order of drawing is the order of use, whatever the block size.
+        let stride = L + 1;
+        let drawn: usize = usize::from(detector) + if thermal { n_modes } else { 0 };
+        let mut re: [f64; L] = std::array::from_fn(|m| state.re[m]);
+        let mut im: [f64; L] = std::array::from_fn(|m| state.im[m]);
+        let mut phase = state.phase;
+        let mut rho = state.rho;
+        let mut index = state.counters.samples;
+        let mut clipped = 0u64;
+        for chunk in out.chunks_mut(CHUNK) {
+            let normals = &mut state.normals[..chunk.len() * stride];
+            if drawn > 0 {
+                // A local copy keeps the generator in registers (the compiler cannot prove
+                // the buffer's stores leave a field of `state` alone).
+                let mut rng = state.rng.clone();
+                for z in normals.chunks_exact_mut(stride) {
+                    if detector {
+                        z[0] = StandardNormal.sample(&mut rng);
+                    }
+                    if thermal {
+                        for z in &mut z[1..=n_modes] {
+                            *z = StandardNormal.sample(&mut rng);
+                        }
+                    }
+                }
+                state.rng = rng;
+            }
+            for (out, z) in chunk.iter_mut().zip(normals.chunks_exact(stride)) {
+                if index % REANCHOR == 0 {
+                    rho = Complex64::from_polar(1.0, phase_to_radians(phase));
+                }
+                let mut s = (self.drive_signal * rho).re;
+                let mut lever = 0.0;
+                for m in 0..L {
+                    lever += k.lever[m] * im[m];
+                }
+                s += lever + self.detector_sigma * z[0];
+                if let Some(adc) = self.adc {
+                    if s.abs() > adc.range {
+                        clipped += 1;
+                        s = s.clamp(-adc.range, adc.range);
+                    }
+                    s = round_to_step(s, adc.lsb, adc.codes_per_metre);
+                }
+                *out = s;
+
+                // Advance every mode to t_{n+1}: propagate, then add this interval's inputs.
+                for m in 0..L {
+                    let (r, i) = (re[m], im[m]);
+                    re[m] = k.a_re[m] * r - k.a_im[m] * i + k.noise_re[m] * z[1 + m];
+                    im[m] = k.a_re[m] * i + k.a_im[m] * r + k.noise_im[m] * z[1 + m];
+                }
+                if let Some(pulse) = &self.pulse
+                    && let Some(overlap) = pulse.overlap(phase, self.frequency_word)
+                {
+                    pulse.apply(
+                        &overlap,
+                        &self.modes,
+                        &mut re[..n_modes],
+                        &mut im[..n_modes],
+                    );
+                }
+                phase = phase.wrapping_add(self.frequency_word);
+                rho *= step;
+                index += 1;
+            }
+        }
+        state.re[..L].copy_from_slice(&re);
+        state.im[..L].copy_from_slice(&im);
+        state.phase = phase;
+        state.rho = rho;
+        state.counters.samples = index;
+        state.counters.clipped += clipped;
+    }
+}
+
+/// `x` rounded to the nearest multiple of `step` = 1/`inverse` (ties to even). Adding and
+/// subtracting 1.5·2^52 rounds in the FPU's default mode; `f64::round` is a library call on
+/// baseline x86-64. Valid while |x/step| < 2^51, far beyond any ADC's 2^32 codes.
+#[inline]
+fn round_to_step(x: f64, step: f64, inverse: f64) -> f64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5·2^52
+    ((x * inverse + MAGIC) - MAGIC) * step
+}

@@ -1,0 +1,173 @@
+//! The running signal chain: synth thread → ring → DSP thread → frames, end to end.
+
+use std::time::{Duration, Instant};
+
+use ftafm::config::{Settings, default_settings};
+use ftafm::paper;
+use ftafm::pipeline::{DemodFrame, Pipeline, PipelineOutput};
+use ringbuf::traits::Consumer;
+
+fn free_running_quiet() -> Settings {
+    let mut s = default_settings();
+    s.noise.enable = false;
+    s.synth.realtime = false;
+    s
+}
+
+/// Collects demod frames until `t` (simulated s) is reached; returns the last one.
+fn run_until(output: &mut PipelineOutput, t: f64) -> DemodFrame {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let mut last = None;
+    loop {
+        while let Some(f) = output.demods.try_pop() {
+            last = Some(f);
+        }
+        while let Some(b) = output.spectra.try_pop() {
+            output.recycle(b);
+        }
+        if let Some(f) = last
+            && f.t >= t
+        {
+            return f;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the pipeline stalled at {:?}",
+            last.map(|f| f.t)
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+#[test]
+fn lock_in_reads_the_paper_spectrum_in_steady_state() {
+    let settings = free_running_quiet();
+    let (pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    // 4th-order 0.5 ms filters settle to 1e-6 in ≈ 15 ms; take 50 ms.
+    let frame = run_until(&mut output, 0.05);
+    let report = paper::compute(&settings, 0.9).unwrap();
+    let expected = &report.materials[0].spectrum;
+    assert_eq!(frame.len, 32);
+    for v in frame.values() {
+        let k = v.harmonic as usize;
+        if !(2..=20).contains(&k) {
+            continue;
+        }
+        let rel = v.r() / expected[k].amplitude - 1.0;
+        assert!(
+            rel.abs() < 0.005,
+            "H{k}: lock-in {:e} vs paper {:e} ({:.3} %)",
+            v.r(),
+            expected[k].amplitude,
+            rel * 100.0
+        );
+        let dphi = (v.phase() - expected[k].phase + std::f64::consts::PI)
+            .rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI;
+        assert!(
+            dphi.abs() < 0.01,
+            "H{k}: phase {} vs {}",
+            v.phase(),
+            expected[k].phase
+        );
+    }
+    let c = pipeline.counters();
+    assert_eq!(c.overrun_samples, 0, "free-running never overruns");
+    assert!(c.samples_processed > 0 && c.samples_processed <= c.samples_synthesized);
+    assert!(c.spectrum_frames > 0, "spectra are produced");
+    pipeline.stop();
+}
+
+#[test]
+fn settings_changes_reach_the_running_chain() {
+    let settings = free_running_quiet();
+    let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    let before = run_until(&mut output, 0.03);
+    let h17 = |f: &DemodFrame| f.values().iter().find(|v| v.harmonic == 17).map(|v| v.r());
+    let silicon = h17(&before).unwrap();
+
+    let mut softer = settings.clone();
+    softer.sample.youngs_modulus = 60e9;
+    pipeline.apply(&softer).unwrap();
+    let t_switch = run_until(&mut output, 0.0).t;
+    let after = run_until(&mut output, t_switch + 0.05);
+    let expected = paper::compute(&softer, 1.0).unwrap().materials[0].spectrum[17].amplitude;
+    let got = h17(&after).unwrap();
+    assert!(
+        got < silicon,
+        "a softer sample lowers H17: {got:e} vs {silicon:e}"
+    );
+    assert!(
+        (got / expected - 1.0).abs() < 0.005,
+        "H17 {got:e} vs paper {expected:e}"
+    );
+
+    // A demodulator moved to another harmonic reports it.
+    let mut moved = softer.clone();
+    moved.demods[0].harmonic = 40;
+    pipeline.apply(&moved).unwrap();
+    let t_switch = run_until(&mut output, 0.0).t;
+    let frame = run_until(&mut output, t_switch + 0.02);
+    assert_eq!(frame.values()[0].harmonic, 40);
+    let c = pipeline.counters();
+    assert_eq!((c.synth_plans_applied, c.dsp_plans_applied), (1, 1));
+    assert_eq!(c.discontinuities, 0);
+    pipeline.stop();
+}
+
+#[test]
+fn real_time_pacing_follows_the_wall_clock() {
+    let mut settings = default_settings();
+    settings.synth.sample_rate = 1e6;
+    settings.synth.realtime = true;
+    for d in &mut settings.demods {
+        d.rate = 100.0;
+        d.harmonic = d.harmonic.min(4);
+    }
+    let (pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    let start = Instant::now();
+    std::thread::sleep(Duration::from_millis(600));
+    output.drain();
+    let elapsed = start.elapsed().as_secs_f64();
+    let c = pipeline.counters();
+    let simulated = c.samples_synthesized as f64 / 1e6;
+    assert!(
+        (simulated - elapsed).abs() < 0.1,
+        "simulated {simulated} s in {elapsed} s of wall time"
+    );
+    assert_eq!(c.overrun_samples, 0);
+    pipeline.stop();
+}
+
+#[test]
+fn an_overrun_is_counted_and_nothing_is_lost_silently() {
+    // A DSP far slower than real time (a 2^20-point FFT 1000 times a second at 10 MS/s):
+    // the ring fills, the synthesiser drops blocks, and every sample is accounted for.
+    let mut settings = default_settings();
+    settings.synth.realtime = true;
+    settings.spectrum.size = 1 << 20;
+    settings.spectrum.rate = 1000.0;
+    let (pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    // Wait until blocks were dropped and the DSP, working through the backlog, met the gap.
+    while pipeline.counters().overrun_blocks < 3 || pipeline.counters().discontinuities < 1 {
+        output.drain();
+        assert!(
+            Instant::now() < deadline,
+            "no overrun happened: {:?}",
+            pipeline.counters()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let c = pipeline.stop();
+    assert!(
+        c.overrun_samples >= 3 * 4096 && c.overrun_samples % 4096 == 0,
+        "{c:?}"
+    );
+    assert!(c.discontinuities >= 1, "the DSP saw the gap: {c:?}");
+    assert_eq!(
+        c.samples_synthesized,
+        c.samples_processed + c.overrun_samples + c.ring_fill,
+        "every sample is processed, dropped-and-counted, or still in the ring: {c:?}"
+    );
+}

@@ -1,0 +1,239 @@
+//! The photodiode synthesiser against `ftafm paper`'s spectrum (Eq. 9), textbook noise
+//! physics (equipartition) and its own promises: steady start, no jumps, determinism.
+
+use std::f64::consts::PI;
+
+use ftafm::config::{Settings, default_settings};
+use ftafm::paper;
+use ftafm::physics::spectrum::{cut_cosine_train, photodiode_transfer};
+use ftafm::synth::{BOLTZMANN, SynthPlan, SynthState};
+use rustfft::num_complex::Complex64;
+
+fn quiet(mut s: Settings) -> Settings {
+    s.noise.enable = false;
+    s
+}
+
+/// Peak-amplitude phasor of harmonic k over whole periods: (2/N)·Σ s_n e^{−ikθ_n}.
+fn harmonic(samples: &[f64], plan: &SynthPlan, start_phase: u64, k: u64) -> Complex64 {
+    let turn = 2f64.powi(64);
+    let sum: Complex64 = samples
+        .iter()
+        .enumerate()
+        .map(|(n, &s)| {
+            let word = start_phase
+                .wrapping_add(plan.frequency_word.wrapping_mul(n as u64))
+                .wrapping_mul(k);
+            s * Complex64::from_polar(1.0, -(word as f64) / turn * 2.0 * PI)
+        })
+        .sum();
+    sum * (2.0 / samples.len() as f64)
+}
+
+fn run(plan: &SynthPlan, state: &mut SynthState, n: usize) -> Vec<f64> {
+    let mut out = vec![0.0; n];
+    plan.process(state, &mut out);
+    out
+}
+
+/// What exact sampling of the continuous Eq. (9) signal gives in the DFT bin of harmonic k
+/// over a window of `window` samples holding `periods` periods: the two-sided coefficient
+/// S_j of every harmonic j whose bin folds onto k's (aliases; no anti-alias filter is
+/// modelled), summed to |j| = 3000.
+fn aliased_eq9(plan: &SynthPlan, window: i64, periods: i64, k: i64) -> Complex64 {
+    let tap = plan.tap.expect("in contact").train;
+    let omega = 2.0 * PI * plan.drive_frequency;
+    let c = cut_cosine_train(tap.max_force, tap.tau, tap.centre_phase, 3000);
+    let mut sum = Complex64::new(0.0, 0.0);
+    for j in -3000i64..=3000 {
+        if (j * periods - k * periods).rem_euclid(window) != 0 {
+            continue;
+        }
+        let cj = if j >= 0 {
+            c[j as usize]
+        } else {
+            c[(-j) as usize].conj()
+        };
+        sum += photodiode_transfer(&plan.cantilever, j as f64 * omega) * cj;
+    }
+    sum * 2.0
+}
+
+fn check_against_paper(settings: &Settings, samples_per_window: usize, periods: i64) {
+    let plan = SynthPlan::new(settings).unwrap();
+    let mut state = SynthState::steady(&plan, 1);
+    let start = state.phase();
+    let samples = run(&plan, &mut state, samples_per_window);
+    let report = paper::compute(settings, 0.9).unwrap();
+    let expected = &report.materials[0].spectrum;
+    let reference = expected[6].amplitude;
+    for k in 2..=20u64 {
+        let got = harmonic(&samples, &plan, start, k);
+        // The criterion: within 0.5 % of `ftafm paper`'s amplitude.
+        let want = expected[k as usize];
+        let rel = got.norm() / want.amplitude - 1.0;
+        assert!(
+            rel.abs() < 0.005,
+            "H{k}: {:.6e} vs {:.6e} ({:.3} %)",
+            got.norm(),
+            want.amplitude,
+            rel * 100.0
+        );
+        // Stronger: the samples are the continuous signal sampled exactly, aliases and all.
+        let exact = aliased_eq9(&plan, samples_per_window as i64, periods, k as i64);
+        let err = (got - exact).norm() / exact.norm().max(1e-3 * reference);
+        assert!(
+            err < 1e-4,
+            "H{k}: {got} vs exact {exact} (relative error {err:e})"
+        );
+    }
+    // Self-consistency: the photodiode fundamental is the 1-DOF tapping amplitude seen
+    // through mode 1's light lever (0.9177), to within a few percent.
+    let h1 = harmonic(&samples, &plan, start, 1).norm();
+    let lever = plan.cantilever.modes[0].light_lever_factor().abs();
+    let one_dof = report.materials[0].tapping_amplitude * lever;
+    assert!(
+        (h1 / one_dof - 1.0).abs() < 0.03,
+        "H1 {h1:e} vs 1-DOF {one_dof:e}"
+    );
+}
+
+#[test]
+fn steady_state_harmonics_match_the_paper_spectrum() {
+    // 100 samples per period; 200 whole periods.
+    check_against_paper(&quiet(default_settings()), 20_000, 200);
+}
+
+#[test]
+fn the_pulse_is_placed_to_a_fraction_of_a_sample() {
+    // 97.3 samples per period: the pulse (≈ 5 samples wide) lands at a different sub-sample
+    // offset every period; 973 samples hold exactly 10 periods.
+    let mut s = quiet(default_settings());
+    s.synth.sample_rate = 9.73e6;
+    check_against_paper(&s, 973 * 20, 200);
+}
+
+#[test]
+fn the_stream_starts_in_steady_state() {
+    let settings = quiet(default_settings());
+    let plan = SynthPlan::new(&settings).unwrap();
+    let mut state = SynthState::steady(&plan, 1);
+    let first = run(&plan, &mut state, 100);
+    let _ = run(&plan, &mut state, 100 * 499);
+    let later = run(&plan, &mut state, 100);
+    let scale = first.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    for (a, b) in first.iter().zip(&later) {
+        assert!((a - b).abs() < 1e-6 * scale, "{a} vs {b}");
+    }
+}
+
+#[test]
+fn same_seed_same_stream_whatever_the_block_size() {
+    let settings = default_settings();
+    let plan = SynthPlan::new(&settings).unwrap();
+    let mut a = SynthState::steady(&plan, 7);
+    let whole = run(&plan, &mut a, 10_000);
+    let mut b = SynthState::steady(&plan, 7);
+    let mut pieces = Vec::new();
+    for len in [1, 255, 256, 1000, 3, 4096, 4389] {
+        pieces.extend(run(&plan, &mut b, len));
+    }
+    assert_eq!(whole.len(), pieces.len());
+    assert!(
+        whole
+            .iter()
+            .zip(&pieces)
+            .all(|(x, y)| x.to_bits() == y.to_bits()),
+        "bit-identical"
+    );
+    let mut c = SynthState::steady(&plan, 8);
+    let other = run(&plan, &mut c, 10_000);
+    assert!(
+        whole.iter().zip(&other).any(|(x, y)| x != y),
+        "another seed differs"
+    );
+}
+
+#[test]
+fn thermal_noise_obeys_equipartition() {
+    // No contact, no drive to speak of, thermal noise only. Each mode contributes
+    // (light-lever factor)²·φn(L)²·k_B·T/Kn to the photodiode variance.
+    let mut s = default_settings();
+    s.surface.distance = 1e-6;
+    s.drive.free_amplitude = 1e-15;
+    s.cantilever.q = vec![10.0, 20.0, 20.0];
+    s.synth.sample_rate = 2e6;
+    s.noise.enable = true;
+    s.noise.temperature = 300.0;
+    s.noise.detector_density = 0.0;
+    s.noise.adc_bits = 0;
+    for d in &mut s.demods {
+        d.enable = false;
+    }
+    let plan = SynthPlan::new(&s).unwrap();
+    let expected: f64 = plan
+        .cantilever
+        .modes
+        .iter()
+        .map(|m| (m.light_lever_factor() * m.tip_value).powi(2) * BOLTZMANN * 300.0 / m.stiffness)
+        .sum();
+    let mut state = SynthState::steady(&plan, 3);
+    let mut block = vec![0.0; 1 << 16];
+    let (mut sum, mut sum2, mut n) = (0.0, 0.0, 0.0);
+    for _ in 0..300 {
+        plan.process(&mut state, &mut block);
+        for &x in &block {
+            sum += x;
+            sum2 += x * x;
+            n += 1.0;
+        }
+    }
+    let variance = sum2 / n - (sum / n).powi(2);
+    assert!(
+        (variance / expected - 1.0).abs() < 0.02,
+        "variance {variance:e} vs {expected:e}"
+    );
+}
+
+#[test]
+fn a_live_change_is_a_physical_transient_not_a_jump() {
+    let silicon = quiet(default_settings());
+    let mut softer = silicon.clone();
+    softer.sample.youngs_modulus = 60e9;
+    let old = SynthPlan::new(&silicon).unwrap();
+    let new = SynthPlan::new(&softer).unwrap();
+    let mut state = SynthState::steady(&old, 1);
+    let before = run(&old, &mut state, 10_000);
+    state.retarget(&old, &new);
+    let after = run(&new, &mut state, 200);
+    // No jump at the switch: the step across it is no larger than the steady signal's
+    // largest sample-to-sample step.
+    let max_step = before
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .fold(0.0, f64::max);
+    let across = (after[0] - before[before.len() - 1]).abs();
+    assert!(
+        across <= max_step * 1.05,
+        "step across the switch {across:e} vs {max_step:e}"
+    );
+    // Settled (mode 1 decays with Q/π ≈ 32 periods; wait 2000), the spectrum is the new
+    // sample's, and H17 has moved by the amount `ftafm paper` predicts.
+    let _ = run(&new, &mut state, 200_000 - 200);
+    let start = state.phase();
+    let settled = run(&new, &mut state, 20_000);
+    let expected = paper::compute(&softer, 1.0).unwrap().materials[0]
+        .spectrum
+        .clone();
+    let old_h17 = paper::compute(&silicon, 1.0).unwrap().materials[0].spectrum[17].amplitude;
+    let h17 = harmonic(&settled, &new, start, 17).norm();
+    assert!(
+        (h17 / expected[17].amplitude - 1.0).abs() < 0.005,
+        "H17 {h17:e} vs {:e}",
+        expected[17].amplitude
+    );
+    assert!(
+        h17 < old_h17 * 0.9,
+        "softer sample: H17 falls ({h17:e} vs {old_h17:e})"
+    );
+}
