@@ -3,6 +3,7 @@
 //! Layers (each depends only on those before it): [`physics`] (pure maths of the paper),
 //! [`config`] (typed settings), [`dsp`] (real-time blocks), then the report and the daemon.
 
+pub mod bench;
 pub mod config;
 pub mod dsp;
 pub mod model;

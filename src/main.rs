@@ -38,6 +38,27 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Run the whole signal chain on its threads and measure throughput (or, with
+    /// --realtime, soak it at the wall-clock rate and count overruns).
+    Bench {
+        /// TOML file overlaid on the embedded default configuration.
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
+        /// Duration of the run in seconds (0 < S ≤ 86400).
+        #[arg(
+            long,
+            value_name = "S",
+            default_value_t = 10.0,
+            allow_negative_numbers = true
+        )]
+        seconds: f64,
+        /// Pace the chain by the wall clock, as the daemon does, instead of free-running.
+        #[arg(long)]
+        realtime: bool,
+        /// Print exactly one JSON object on stdout (progress still goes to stderr).
+        #[arg(long)]
+        json: bool,
+    },
     /// Print the configured instrument: its modes and the 1-DOF tapping solution.
     Info {
         /// TOML file overlaid on the embedded default configuration.
@@ -65,6 +86,12 @@ fn main() -> ExitCode {
             json,
         } => run_paper(config.as_ref(), inhomogeneity_factor, json),
         Command::Info { config } => run_info(config.as_ref()),
+        Command::Bench {
+            config,
+            seconds,
+            realtime,
+            json,
+        } => run_bench(config.as_ref(), seconds, realtime, json),
     };
     result.unwrap_or_else(|code| code)
 }
@@ -92,6 +119,37 @@ fn run_paper(config: Option<&PathBuf>, factor: f64, json: bool) -> Result<ExitCo
     } else {
         let paper_case = paper::is_paper_case(&settings) && factor == 0.9;
         print!("{}", paper::render_text(&report, paper_case));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_bench(
+    config: Option<&PathBuf>,
+    seconds: f64,
+    realtime: bool,
+    json: bool,
+) -> Result<ExitCode, ExitCode> {
+    if !(seconds.is_finite() && seconds > 0.0 && seconds <= 86_400.0) {
+        eprintln!("ftafm: --seconds = {seconds} is out of range: allowed 0 < S ≤ 86400");
+        return Err(ExitCode::from(EXIT_USAGE));
+    }
+    let settings = load(config)?;
+    let report = ftafm::bench::run(&settings, seconds, realtime, |t, c| {
+        eprintln!(
+            "[{t:>5.0} s] {:.1} M samples processed, overruns {}, ring {} samples",
+            c.samples_processed as f64 / 1e6,
+            c.overrun_samples,
+            c.ring_fill
+        );
+    })
+    .map_err(|e| {
+        eprintln!("ftafm: {e}");
+        ExitCode::FAILURE
+    })?;
+    if json {
+        println!("{}", serde_json::to_string(&report).expect("plain numbers"));
+    } else {
+        print!("{}", ftafm::bench::render_text(&report));
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -218,3 +218,56 @@ fn plain_ftafm_runs_on_the_embedded_default() {
         "{text}"
     );
 }
+
+#[test]
+fn bench_json_reports_throughputs_and_the_realtime_factor() {
+    let file = config_file("[synth]\nsample_rate = 8e6\n");
+    let out = ftafm(&[
+        "bench",
+        "--seconds",
+        "1.5",
+        "--json",
+        "--config",
+        file.path(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout.clone()).unwrap();
+    assert_eq!(text.trim().lines().count(), 1, "one JSON object on stdout");
+    let v: serde_json::Value = serde_json::from_str(text.trim()).unwrap();
+    assert_eq!(v["sample_rate"].as_f64(), Some(8e6));
+    assert_eq!(v["demodulators"].as_u64(), Some(32));
+    for key in [
+        "synth_samples_per_s",
+        "dsp_samples_per_s",
+        "chain_samples_per_s",
+        "realtime_factor",
+    ] {
+        assert!(
+            v[key].as_f64().is_some_and(|x| x > 0.0),
+            "{key}: {}",
+            v[key]
+        );
+    }
+    let chain = v["chain_samples_per_s"].as_f64().unwrap();
+    assert!((v["realtime_factor"].as_f64().unwrap() - chain / 8e6).abs() < 1e-9);
+    assert_eq!(
+        v["counters"]["overrun_samples"].as_u64(),
+        Some(0),
+        "free-running never overruns"
+    );
+    // Progress goes to stderr while it runs.
+    assert!(
+        stderr(&out).contains("samples processed"),
+        "{}",
+        stderr(&out)
+    );
+}
+
+#[test]
+fn bench_rejects_bad_durations() {
+    for bad in ["0", "-3", "nan", "1e9"] {
+        let out = ftafm(&["bench", "--seconds", bad]);
+        assert_eq!(out.status.code(), Some(2), "--seconds {bad}");
+        assert!(stderr(&out).contains("--seconds"), "{}", stderr(&out));
+    }
+}

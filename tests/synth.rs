@@ -237,3 +237,55 @@ fn a_live_change_is_a_physical_transient_not_a_jump() {
         "softer sample: H17 falls ({h17:e} vs {old_h17:e})"
     );
 }
+
+#[test]
+fn the_adc_quantises_clips_and_counts() {
+    let mut s = default_settings();
+    s.noise.enable = true;
+    s.noise.temperature = 0.0;
+    s.noise.detector_density = 0.0;
+    s.noise.adc_bits = 12;
+    s.noise.adc_range = 10e-9; // the ≈ 19 nm fundamental overdrives it
+    let plan = SynthPlan::new(&s).unwrap();
+    let adc = plan.adc.expect("quantisation on");
+    assert_eq!(adc.lsb, 20e-9 / 4096.0);
+    let mut state = SynthState::steady(&plan, 1);
+    let samples = run(&plan, &mut state, 10_000);
+    let clipped = samples.iter().filter(|x| x.abs() >= 10e-9).count() as u64;
+    assert!(clipped > 1000, "the overdriven ADC clips often: {clipped}");
+    assert_eq!(
+        state.counters.clipped, clipped,
+        "every clipped sample is counted"
+    );
+    for x in &samples {
+        assert!(x.abs() <= 10e-9);
+        let codes = x / adc.lsb;
+        assert!(
+            (codes - codes.round()).abs() < 1e-6,
+            "{x} is not on the {:e} m grid",
+            adc.lsb
+        );
+    }
+}
+
+#[test]
+fn detector_noise_has_the_configured_density() {
+    // White noise of one-sided density ρ over 0…f_s/2 has variance ρ²·f_s/2.
+    let mut s = default_settings();
+    s.surface.distance = 1e-6;
+    s.drive.free_amplitude = 1e-15;
+    s.noise.enable = true;
+    s.noise.temperature = 0.0;
+    s.noise.adc_bits = 0;
+    s.noise.detector_density = 1e-13;
+    let plan = SynthPlan::new(&s).unwrap();
+    let mut state = SynthState::steady(&plan, 5);
+    let samples = run(&plan, &mut state, 1 << 20);
+    let variance = samples.iter().map(|x| x * x).sum::<f64>() / samples.len() as f64;
+    let expected = 1e-26 * 10e6 / 2.0;
+    // 2^20 independent samples: the estimate's relative spread is √(2/2^20) ≈ 0.14 %.
+    assert!(
+        (variance / expected - 1.0).abs() < 0.01,
+        "{variance:e} vs {expected:e}"
+    );
+}

@@ -27,6 +27,10 @@ pub(crate) struct DspWorker {
     pub free_spectra: HeapCons<SpectrumBuffer>,
     pub counters: Arc<Counters>,
     pub stop: Arc<AtomicBool>,
+    /// A spectrum buffer the consumer's queue refused, kept for the next frame so it is
+    /// never freed here. (With the queue as long as the pool this cannot happen today; the
+    /// slot keeps it true whatever the two sizes become.)
+    pub spare: Option<SpectrumBuffer>,
 }
 
 impl DspWorker {
@@ -74,6 +78,7 @@ impl DspWorker {
                 demods: &mut self.demods,
                 spectra: &mut self.spectra,
                 free_spectra: &mut self.free_spectra,
+                spare: &mut self.spare,
                 counters: &self.counters,
                 header,
                 frame: DemodFrame::empty(),
@@ -98,6 +103,7 @@ pub(crate) struct Emitter<'a> {
     demods: &'a mut HeapProd<DemodFrame>,
     spectra: &'a mut HeapProd<SpectrumBuffer>,
     free_spectra: &'a mut HeapCons<SpectrumBuffer>,
+    spare: &'a mut Option<SpectrumBuffer>,
     counters: &'a Counters,
     header: BlockHeader,
     frame: DemodFrame,
@@ -142,7 +148,7 @@ impl Emitter<'_> {
         bin_width: f64,
         bins: impl ExactSizeIterator<Item = f64>,
     ) {
-        let Some(mut buffer) = self.free_spectra.try_pop() else {
+        let Some(mut buffer) = self.spare.take().or_else(|| self.free_spectra.try_pop()) else {
             Counters::add(&self.counters.spectrum_frames_dropped, 1);
             return;
         };
@@ -160,8 +166,7 @@ impl Emitter<'_> {
             Ok(()) => Counters::add(&self.counters.spectrum_frames, 1),
             Err(buffer) => {
                 Counters::add(&self.counters.spectrum_frames_dropped, 1);
-                // Back to the pool (it came from there, so there is room).
-                drop(buffer);
+                *self.spare = Some(buffer);
             }
         }
     }

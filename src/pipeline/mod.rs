@@ -195,6 +195,7 @@ impl Pipeline {
             free_spectra: free_out,
             counters: counters.clone(),
             stop: stop_dsp.clone(),
+            spare: None,
         };
         let mut pipeline = Self {
             settings: settings.clone(),

@@ -193,20 +193,11 @@ impl SynthPlan {
                 if index % REANCHOR == 0 {
                     rho = Complex64::from_polar(1.0, phase_to_radians(phase));
                 }
-                let mut s = (self.drive_signal * rho).re;
                 let mut lever = 0.0;
                 for m in 0..L {
                     lever += k.lever[m] * im[m];
                 }
-                s += lever + self.detector_sigma * z[0];
-                if let Some(adc) = self.adc {
-                    if s.abs() > adc.range {
-                        clipped += 1;
-                        s = s.clamp(-adc.range, adc.range);
-                    }
-                    s = round_to_step(s, adc.lsb, adc.codes_per_metre);
-                }
-                *out = s;
+                *out = (self.drive_signal * rho).re + lever;
 
                 // Advance every mode to t_{n+1}: propagate, then add this interval's inputs.
                 for m in 0..L {
@@ -227,6 +218,20 @@ impl SynthPlan {
                 phase = phase.wrapping_add(self.frequency_word);
                 rho *= step;
                 index += 1;
+            }
+            // The detector and the ADC act on the signal only, not on the modes: a separate
+            // branch-free pass over the chunk.
+            if detector {
+                for (out, z) in chunk.iter_mut().zip(normals.chunks_exact(stride)) {
+                    *out += self.detector_sigma * z[0];
+                }
+            }
+            if let Some(adc) = self.adc {
+                for out in chunk.iter_mut() {
+                    let s = out.clamp(-adc.range, adc.range);
+                    clipped += u64::from(s != *out);
+                    *out = round_to_step(s, adc.lsb, adc.codes_per_metre);
+                }
             }
         }
         state.re[..L].copy_from_slice(&re);

@@ -1,0 +1,118 @@
+//! The real-time threads (`ftafm-synth`, `ftafm-dsp`) allocate nothing once running, also
+//! while settings change: a global allocator that counts allocations made on them.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Duration;
+
+use ftafm::config::default_settings;
+use ftafm::pipeline::Pipeline;
+
+struct Counting;
+
+static REALTIME_ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+thread_local! {
+    /// Whether this thread is one of the pipeline's real-time threads (decided once).
+    static REALTIME: Cell<Option<bool>> = const { Cell::new(None) };
+}
+
+fn on_realtime_thread() -> bool {
+    REALTIME
+        .try_with(|flag| match flag.get() {
+            Some(v) => v,
+            None => {
+                // Decided on the thread's first allocation, which is before its loop runs.
+                let v = std::thread::current()
+                    .name()
+                    .is_some_and(|n| n.starts_with("ftafm-"));
+                flag.set(Some(v));
+                v
+            }
+        })
+        .unwrap_or(false)
+}
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        if on_realtime_thread() {
+            REALTIME_ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        }
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        if on_realtime_thread() {
+            // Freeing on a real-time thread is as bad as allocating.
+            REALTIME_ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        }
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        if on_realtime_thread() {
+            REALTIME_ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        }
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn realtime_threads_do_not_allocate_or_free_while_running() {
+    let mut settings = default_settings();
+    settings.synth.realtime = false;
+    let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    // Let both threads pass their start-up (buffers are allocated before the loops).
+    while pipeline.counters().demod_frames < 20 {
+        output.drain();
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let before = REALTIME_ALLOCATIONS.load(Ordering::SeqCst);
+    let processed = pipeline.counters().samples_processed;
+    for step in 0..6 {
+        let mut next = settings.clone();
+        next.sample.youngs_modulus = 100e9 + step as f64 * 5e9;
+        next.demods[3].harmonic = 5 + step;
+        next.drive.frequency = 100e3 + step as f64 * 10.0;
+        pipeline.apply(&next).unwrap();
+        for _ in 0..50 {
+            output.drain();
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+    // A consumer that stops taking frames: the queues fill and frames are dropped (and
+    // counted) on the DSP thread, still without allocating or freeing there.
+    std::thread::sleep(Duration::from_millis(1500));
+    output.drain();
+    let after = REALTIME_ALLOCATIONS.load(Ordering::SeqCst);
+    let c = pipeline.counters();
+    assert!(
+        c.spectrum_frames_dropped > 0,
+        "the stalled consumer made spectra drop: {c:?}"
+    );
+    assert!(
+        c.samples_processed > processed + 10_000_000,
+        "the chain ran: {c:?}"
+    );
+    assert_eq!((c.synth_plans_applied, c.dsp_plans_applied), (6, 6));
+    assert_eq!(
+        after - before,
+        0,
+        "allocations or frees on the real-time threads"
+    );
+    drop(pipeline);
+    // Sanity of the instrument: a thread of that name that does allocate is seen.
+    let seen = std::thread::Builder::new()
+        .name("ftafm-probe".into())
+        .spawn(|| {
+            let before = REALTIME_ALLOCATIONS.load(Ordering::SeqCst);
+            drop(std::hint::black_box(vec![0u8; 32]));
+            REALTIME_ALLOCATIONS.load(Ordering::SeqCst) - before
+        })
+        .unwrap()
+        .join()
+        .unwrap();
+    assert!(seen >= 1);
+}
