@@ -10,4 +10,5 @@ pub mod model;
 pub mod paper;
 pub mod physics;
 pub mod pipeline;
+pub mod server;
 pub mod synth;

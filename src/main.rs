@@ -21,6 +21,15 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run the instrument daemon: dashboard at /, WebSocket at /ws, /metrics, /healthz.
+    Serve {
+        /// TOML file overlaid on the embedded default configuration.
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
+        /// Address to listen on (loopback by default; other hosts only if you mean it).
+        #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:8700")]
+        bind: String,
+    },
     /// Compute the paper's Table 1 and Fig. 3 offline for the configured instrument.
     Paper {
         /// TOML file overlaid on the embedded default configuration.
@@ -79,7 +88,12 @@ fn load(path: Option<&PathBuf>) -> Result<Settings, ExitCode> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let result = match cli.command.unwrap_or(Command::Info { config: None }) {
+    let command = cli.command.unwrap_or(Command::Serve {
+        config: None,
+        bind: "127.0.0.1:8700".into(),
+    });
+    let result = match command {
+        Command::Serve { config, bind } => run_serve(config.as_ref(), &bind),
         Command::Paper {
             config,
             inhomogeneity_factor,
@@ -121,6 +135,72 @@ fn run_paper(config: Option<&PathBuf>, factor: f64, json: bool) -> Result<ExitCo
         print!("{}", paper::render_text(&report, paper_case));
     }
     Ok(ExitCode::SUCCESS)
+}
+
+fn run_serve(config: Option<&PathBuf>, bind: &str) -> Result<ExitCode, ExitCode> {
+    let addr: std::net::SocketAddr = bind.parse().map_err(|_| {
+        eprintln!(
+            "ftafm: --bind = {bind:?} is not an address: expected IP:PORT, e.g. 127.0.0.1:8700"
+        );
+        ExitCode::from(EXIT_USAGE)
+    })?;
+    let settings = load(config)?;
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .init();
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .thread_name("ftafm-server")
+        .build()
+        .map_err(|e| {
+            eprintln!("ftafm: cannot start the async runtime: {e}");
+            ExitCode::FAILURE
+        })?;
+    runtime.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(addr).await.map_err(|e| {
+            eprintln!("ftafm: cannot listen on {addr}: {e}");
+            ExitCode::FAILURE
+        })?;
+        let local = listener.local_addr().map_err(|e| {
+            eprintln!("ftafm: {e}");
+            ExitCode::FAILURE
+        })?;
+        println!("ftafm {} — dashboard http://{local}/  WebSocket ws://{local}/ws  metrics http://{local}/metrics", env!("CARGO_PKG_VERSION"));
+        ftafm::server::run(listener, settings, shutdown_signal()).await.map_err(|e| {
+            eprintln!("ftafm: {e}");
+            ExitCode::FAILURE
+        })
+    })?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Resolves on SIGINT (Ctrl-C) or SIGTERM.
+async fn shutdown_signal() {
+    let interrupt = tokio::signal::ctrl_c();
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => {
+                tokio::select! {
+                    _ = interrupt => {}
+                    _ = term.recv() => {}
+                }
+            }
+            Err(_) => {
+                let _ = interrupt.await;
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = interrupt.await;
+    }
 }
 
 fn run_bench(

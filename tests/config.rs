@@ -57,6 +57,14 @@ fn default_is_the_papers_silicon_case() {
     assert_eq!(s.spectrum.size, 32768);
     assert_eq!(s.spectrum.window, SpectrumWindow::BlackmanHarris);
     assert_eq!(s.spectrum.rate, 10.0);
+    assert!(s.scope.enable);
+    assert_eq!(s.scope.length, 2000);
+    assert_eq!(s.scope.decimation, 1);
+    assert_eq!(s.scope.rate, 20.0);
+    assert!(s.server.allowed_origins.is_empty());
+    assert_eq!(s.server.max_clients, 128);
+    assert_eq!(s.server.client_queue, 1024);
+    assert_eq!(s.server.stall_timeout, 10.0);
     assert_eq!(s.demods.len(), 32);
     for (n, demod) in s.demods.iter().enumerate() {
         assert!(demod.enable);
@@ -88,6 +96,16 @@ fn settings_serialise_to_toml_that_loads_back() {
     );
     let json = serde_json::to_value(default_settings()).unwrap();
     assert_eq!(json["demods"]["3"]["harmonic"], json!(4));
+    assert_eq!(json["server"]["allowed_origins"], json!([]));
+    // A list of origins is a TOML array of strings, and comes back the same.
+    let mut s = default_settings();
+    s.server.allowed_origins = vec!["http://localhost:3000".into(), "https://lab.example".into()];
+    let text = toml::to_string(&s).unwrap();
+    assert!(
+        text.contains(r#"allowed_origins = ["http://localhost:3000", "https://lab.example"]"#),
+        "{text}"
+    );
+    assert_eq!(load_str(&text, "roundtrip.toml").unwrap(), s);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -447,6 +465,337 @@ fn spectrum_window_and_rate() {
     assert!(s.spectrum.rate > s.synth.sample_rate / f64::from(s.spectrum.size));
 }
 
+#[test]
+fn scope_ranges_name_the_key() {
+    assert_eq!(
+        error_of("[scope]\nlength = 8\n"),
+        "test.toml: /scope/length = 8 is out of range: allowed 16 ≤ value ≤ 65536"
+    );
+    assert_eq!(
+        error_of("[scope]\nlength = 65537\n"),
+        "test.toml: /scope/length = 65537 is out of range: allowed 16 ≤ value ≤ 65536"
+    );
+    assert_eq!(
+        error_of("[scope]\ndecimation = 0\n"),
+        "test.toml: /scope/decimation = 0 is out of range: allowed 1 ≤ value ≤ 10000"
+    );
+    assert_mentions(
+        &error_of("[scope]\ndecimation = 10001\n"),
+        &["/scope/decimation = 10001", "out of range"],
+    );
+    assert_mentions(
+        &error_of("[scope]\nlength = 100.5\n"),
+        &["/scope/length = 100.5", "not an integer"],
+    );
+    assert_eq!(
+        error_of("[scope]\nrate = 0\n"),
+        "test.toml: /scope/rate = 0 is out of range: allowed 0 < value ≤ 100 Hz"
+    );
+    assert_eq!(
+        error_of("[scope]\nrate = 101\n"),
+        "test.toml: /scope/rate = 101 is out of range: allowed 0 < value ≤ 100 Hz"
+    );
+    assert_mentions(
+        &error_of("[scope]\nenable = \"yes\"\n"),
+        &["/scope/enable = \"yes\"", "true or false"],
+    );
+    for (overlay, path) in [
+        ("[scope]\nlength = 8\n", "/scope/length"),
+        ("[scope]\ndecimation = 0\n", "/scope/decimation"),
+        ("[scope]\nrate = 101\n", "/scope/rate"),
+    ] {
+        assert_eq!(load_str(overlay, "t.toml").unwrap_err().path(), Some(path));
+    }
+    // The ends themselves are allowed.
+    let s = load_str("[scope]\nlength = 16\nrate = 100\n", "t.toml").unwrap();
+    assert_eq!((s.scope.length, s.scope.rate), (16, 100.0));
+    let s = load_str("[scope]\ndecimation = 10000\nrate = 0.1\n", "t.toml").unwrap();
+    assert_eq!((s.scope.decimation, s.scope.rate), (10000, 0.1));
+}
+
+const OVERLAPPING_TRACES: &str = "/scope/length × /scope/decimation / /synth/sample_rate = \
+                                  65536 × 2 / 10 MHz = 13.1072 ms, the duration of one trace, \
+                                  must not exceed 1 / /scope/rate = 1 / 100 Hz = 10 ms: traces \
+                                  must not overlap (lower /scope/rate, /scope/length or \
+                                  /scope/decimation)";
+
+#[test]
+fn scope_traces_must_not_overlap() {
+    // 65536 samples at 10 MS/s last 6.5536 ms, within the 10 ms between traces at 100 Hz.
+    let s = load_str("[scope]\nlength = 65536\nrate = 100\n", "t.toml").unwrap();
+    assert_eq!((s.scope.length, s.scope.decimation), (65536, 1));
+    // Every other sample doubles that to 13.1 ms: the traces would overlap.
+    let overlay = "[scope]\nlength = 65536\ndecimation = 2\nrate = 100\n";
+    assert_eq!(
+        error_of(overlay),
+        format!("test.toml: {OVERLAPPING_TRACES}")
+    );
+    assert_eq!(
+        load_str(overlay, "t.toml").unwrap_err().path(),
+        Some("/scope/rate")
+    );
+    // The same relation ties the scope to the sample rate: 2000 samples at 20 kHz last 0.1 s,
+    // longer than the 50 ms between the default's 20 traces a second (the drive is lowered
+    // too, to stay below Nyquist).
+    assert_mentions(
+        &error_of("[synth]\nsample_rate = 20e3\n[drive]\nfrequency = 1e3\n"),
+        &[
+            "/scope/length × /scope/decimation / /synth/sample_rate = 2000 × 1 / 20 kHz = 100 ms",
+            "1 / /scope/rate = 1 / 20 Hz = 50 ms",
+            "must not overlap",
+        ],
+    );
+    // Exactly one trace per period is allowed: 65536 × 10 samples at 6.5536 MS/s is 0.1 s.
+    let s = load_str(
+        "[synth]\nsample_rate = 6553600\n[scope]\nlength = 65536\ndecimation = 10\nrate = 10\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!(s.scope.rate, 10.0);
+    // A disabled scope is checked as well, so enabling it never fails.
+    assert_mentions(
+        &error_of("[scope]\nenable = false\nlength = 65536\ndecimation = 2\nrate = 100\n"),
+        &["traces must not overlap"],
+    );
+    // By `set`, the node set is named first, then the relation with all four nodes.
+    let mut s = default_settings();
+    s.set("/scope/length", &json!(65536)).unwrap();
+    s.set("/scope/rate", &json!(100)).unwrap();
+    let before = s.clone();
+    let error = s.set("/scope/decimation", &json!(2)).unwrap_err();
+    assert_eq!(error.path(), "/scope/decimation");
+    assert_eq!(error.code(), "invalid_value");
+    assert_eq!(
+        error.to_string(),
+        format!("cannot set /scope/decimation = 2: {OVERLAPPING_TRACES}")
+    );
+    assert_eq!(s, before);
+    // And `list` reports the highest values that still fit.
+    let max_of = |s: &Settings, path: &str| s.nodes_under(path).into_iter().next().unwrap().max;
+    assert_eq!(max_of(&s, "/scope/decimation"), json!(1));
+    assert_eq!(max_of(&s, "/scope/length"), json!(65536));
+    assert_eq!(max_of(&s, "/scope/rate"), json!(100.0));
+    s.set("/scope/rate", &json!(20)).unwrap();
+    // 10 MS/s / 20 Hz = 500000 samples per trace period.
+    assert_eq!(max_of(&s, "/scope/decimation"), json!(7));
+    s.set("/scope/decimation", &json!(7)).unwrap();
+    assert!(s.set("/scope/decimation", &json!(8)).is_err());
+    assert_eq!(max_of(&s, "/scope/length"), json!(65536));
+    let d = default_settings();
+    assert_eq!(max_of(&d, "/scope/decimation"), json!(250));
+    assert_eq!(max_of(&d, "/scope/rate"), json!(100.0));
+}
+
+const WILDCARD_REFUSED: &str = "/server/allowed_origins = [\"*\"]: entry 0 (\"*\") is not \
+                                allowed (a wildcard would let any web page drive the \
+                                instrument; list each origin as scheme://host[:port]): allowed \
+                                a list of 0 to 64 strings of at most 256 bytes, each an origin \
+                                scheme://host[:port] with scheme http or https";
+
+#[test]
+fn allowed_origins_are_plain_http_origins() {
+    let error = load_str("[server]\nallowed_origins = [\"*\"]\n", "test.toml").unwrap_err();
+    assert_eq!(error.path(), Some("/server/allowed_origins"));
+    assert_eq!(error.to_string(), format!("test.toml: {WILDCARD_REFUSED}"));
+    let refused = [
+        (
+            r#"["ftp://x"]"#,
+            "entry 0 (\"ftp://x\") is not an origin (it must start with \"http://\" or \"https://\")",
+        ),
+        (
+            r#"["http://x/path"]"#,
+            "entry 0 (\"http://x/path\") is not an origin (it has a path",
+        ),
+        (r#"["http://localhost:3000/"]"#, "trailing \"/\""),
+        (
+            r#"["http://localhost:3000", 3]"#,
+            "entry 1 (3) is not a string",
+        ),
+        (
+            r#"["http://localhost:3000", ["http://x"]]"#,
+            "entry 1 ([\"http://x\"]) is not a string",
+        ),
+        (r#"[""]"#, "entry 0 (\"\") is empty"),
+        (r#"["http://"]"#, "the host is missing"),
+        (r#"["https://:443"]"#, "the host is missing"),
+        (r#"["http://*.example.com"]"#, "wildcards are not supported"),
+        (r#"["http://x?a=1"]"#, "query or fragment"),
+        (r#"["http://user@x"]"#, "user name"),
+        (r#"["http://x y"]"#, "white space"),
+        (
+            r#"["http://x:port"]"#,
+            "the port after the host must be a number",
+        ),
+        (
+            r#"["http://x:65536"]"#,
+            "the port after the host must be a number",
+        ),
+        (r#"["http://[::1"]"#, "closing"),
+        (r#"["localhost:3000"]"#, "must start with"),
+        (
+            r#""http://localhost:3000""#,
+            "has the wrong type: expected a list of 0 to 64 strings",
+        ),
+        ("[\"http://x\", \"*\"]", "entry 1 (\"*\") is not allowed"),
+    ];
+    for (value, part) in refused {
+        let message = error_of(&format!("[server]\nallowed_origins = {value}\n"));
+        assert_mentions(&message, &["test.toml: /server/allowed_origins = ", part]);
+    }
+    let long = format!("http://{}.example", "a".repeat(250));
+    assert_mentions(
+        &error_of(&format!("[server]\nallowed_origins = [\"{long}\"]\n")),
+        &[
+            "/server/allowed_origins",
+            "entry 0",
+            "is 265 bytes long",
+            "at most 256 bytes",
+        ],
+    );
+    let many: Vec<String> = (0..65).map(|i| format!("\"http://host{i}\"")).collect();
+    let message = error_of(&format!(
+        "[server]\nallowed_origins = [{}]\n",
+        many.join(", ")
+    ));
+    assert_mentions(
+        &message,
+        &[
+            "/server/allowed_origins = ",
+            "has 65 entries",
+            "0 to 64 strings",
+        ],
+    );
+    // Long lists are cut short in the message.
+    assert!(message.len() < 400, "{message}");
+    // 64 entries at the longest are fine, and so are ports and IPv6 hosts.
+    let most: Vec<String> = (0..64)
+        .map(|i| format!("\"https://{:0>248}\"", i))
+        .collect();
+    let s = load_str(
+        &format!("[server]\nallowed_origins = [{}]\n", most.join(", ")),
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!(s.server.allowed_origins.len(), 64);
+    assert!(s.server.allowed_origins.iter().all(|o| o.len() == 256));
+    let ok = [
+        "http://localhost:3000",
+        "https://lab.example.org",
+        "http://127.0.0.1:8080",
+        "http://[::1]:8080",
+        "https://[2001:db8::1]",
+    ];
+    let s = load_str(
+        &format!("[server]\nallowed_origins = {}\n", json!(ok)),
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!(s.server.allowed_origins, ok);
+    let s = load_str("[server]\nallowed_origins = []\n", "t.toml").unwrap();
+    assert!(s.server.allowed_origins.is_empty());
+}
+
+#[test]
+fn allowed_origins_by_set() {
+    let mut s = default_settings();
+    assert_eq!(s.get("/server/allowed_origins").unwrap(), json!([]));
+    let origins = json!(["http://localhost:3000", "https://lab.example"]);
+    assert_eq!(s.set("/server/allowed_origins", &origins).unwrap(), origins);
+    assert_eq!(s.get("/server/allowed_origins").unwrap(), origins);
+    assert_eq!(
+        s.server.allowed_origins,
+        ["http://localhost:3000", "https://lab.example"]
+    );
+    let before = s.clone();
+    let error = s.set("/server/allowed_origins", &json!(["*"])).unwrap_err();
+    assert_eq!(error.to_string(), WILDCARD_REFUSED);
+    assert_eq!(error.code(), "invalid_value");
+    assert_eq!(s, before);
+    assert_eq!(
+        s.set("/server/allowed_origins", &json!([])).unwrap(),
+        json!([])
+    );
+    assert!(s.server.allowed_origins.is_empty());
+}
+
+#[test]
+fn server_ranges_name_the_key() {
+    assert_eq!(
+        error_of("[server]\nmax_clients = 0\n"),
+        "test.toml: /server/max_clients = 0 is out of range: allowed 1 ≤ value ≤ 4096"
+    );
+    assert_mentions(
+        &error_of("[server]\nmax_clients = 4097\n"),
+        &["/server/max_clients = 4097", "out of range"],
+    );
+    assert_eq!(
+        error_of("[server]\nclient_queue = 8\n"),
+        "test.toml: /server/client_queue = 8 is out of range: allowed 16 ≤ value ≤ 65536"
+    );
+    assert_mentions(
+        &error_of("[server]\nclient_queue = 65537\n"),
+        &["/server/client_queue = 65537", "out of range"],
+    );
+    assert_eq!(
+        error_of("[server]\nstall_timeout = 0.5\n"),
+        "test.toml: /server/stall_timeout = 0.5 is out of range: allowed 1 ≤ value ≤ 600 s"
+    );
+    assert_mentions(
+        &error_of("[server]\nstall_timeout = 601\n"),
+        &["/server/stall_timeout = 601", "out of range"],
+    );
+    assert_mentions(
+        &error_of("[server]\nstall_timeout = inf\n"),
+        &["/server/stall_timeout = inf", "not a finite number"],
+    );
+    for (overlay, path) in [
+        ("[server]\nmax_clients = 0\n", "/server/max_clients"),
+        ("[server]\nclient_queue = 8\n", "/server/client_queue"),
+        ("[server]\nstall_timeout = 0.5\n", "/server/stall_timeout"),
+        (
+            "[server]\nallowed_origins = [\"*\"]\n",
+            "/server/allowed_origins",
+        ),
+        ("[server]\nmax_client = 3\n", "/server/max_client"),
+    ] {
+        assert_eq!(load_str(overlay, "t.toml").unwrap_err().path(), Some(path));
+    }
+    let s = load_str(
+        "[server]\nmax_clients = 4096\nclient_queue = 16\nstall_timeout = 600\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!(
+        (
+            s.server.max_clients,
+            s.server.client_queue,
+            s.server.stall_timeout
+        ),
+        (4096, 16, 600.0)
+    );
+    // All of them may change at runtime.
+    let mut s = default_settings();
+    assert_eq!(s.set("/server/max_clients", &json!(1)).unwrap(), json!(1));
+    assert_eq!(
+        s.set("/server/client_queue", &json!(65536.0)).unwrap(),
+        json!(65536)
+    );
+    assert_eq!(
+        s.set("/server/stall_timeout", &json!(1)).unwrap(),
+        json!(1.0)
+    );
+    assert_eq!(s.set("/scope/enable", &json!(false)).unwrap(), json!(false));
+    assert_eq!(
+        (
+            s.server.max_clients,
+            s.server.client_queue,
+            s.server.stall_timeout,
+            s.scope.enable
+        ),
+        (1, 65536, 1.0, false)
+    );
+}
+
 const COUPLED_REFUSED: &str = "/synth/engine = \"coupled\" is not available yet (the coupled \
                                engine is a later piece of work); allowed: \"paper\"";
 
@@ -646,6 +995,22 @@ fn failed_set_changes_nothing() {
         ("/spectrum/rate", json!(0.0)),
         ("/synth/engine", json!("coupled")),
         ("/synth/sample_rate", json!(20e6)),
+        ("/scope/enable", json!(1)),
+        ("/scope/length", json!(8)),
+        ("/scope/length", json!(65537)),
+        ("/scope/decimation", json!(0)),
+        ("/scope/decimation", json!(400)),
+        ("/scope/rate", json!(0.0)),
+        ("/scope/rate", json!(101.0)),
+        ("/server/allowed_origins", json!(["*"])),
+        ("/server/allowed_origins", json!(["ftp://x"])),
+        ("/server/allowed_origins", json!(["http://x/path"])),
+        ("/server/allowed_origins", json!(["http://x", 1])),
+        ("/server/allowed_origins", json!("http://x")),
+        ("/server/allowed_origins", json!(vec!["http://x"; 65])),
+        ("/server/max_clients", json!(0)),
+        ("/server/client_queue", json!(8)),
+        ("/server/stall_timeout", json!(0.5)),
     ];
     for (path, value) in attempts {
         let error = s.set(path, &value).unwrap_err();
@@ -705,7 +1070,7 @@ fn every_node_round_trips_through_set() {
 fn list_entries_have_the_protocol_fields() {
     let nodes = default_settings().nodes();
     assert_eq!(nodes.len(), registry().len());
-    assert_eq!(nodes.len(), 25 + 32 * 5);
+    assert_eq!(nodes.len(), 33 + 32 * 5);
     let entry = serde_json::to_value(&nodes[0]).unwrap();
     let keys: BTreeSet<&str> = entry
         .as_object()
@@ -746,6 +1111,34 @@ fn list_entries_have_the_protocol_fields() {
     assert!(density.writable);
     let spectrum_rate = nodes.iter().find(|n| n.path == "/spectrum/rate").unwrap();
     assert_eq!(spectrum_rate.max, json!(1000.0));
+    let find = |path: &str| nodes.iter().find(|n| n.path == path).unwrap();
+    let origins = find("/server/allowed_origins");
+    assert_eq!(
+        (
+            &origins.value,
+            &origins.unit[..],
+            &origins.min,
+            &origins.max
+        ),
+        (&json!([]), "", &Value::Null, &Value::Null)
+    );
+    assert!(origins.writable);
+    for (path, unit, min, max) in [
+        ("/scope/length", "samples", json!(16), json!(65536)),
+        ("/scope/decimation", "samples", json!(1), json!(250)),
+        ("/scope/rate", "Hz", json!(0.0), json!(100.0)),
+        ("/server/max_clients", "clients", json!(1), json!(4096)),
+        ("/server/client_queue", "messages", json!(16), json!(65536)),
+        ("/server/stall_timeout", "s", json!(1.0), json!(600.0)),
+    ] {
+        let info = find(path);
+        assert_eq!(
+            (&info.unit[..], &info.min, &info.max),
+            (unit, &min, &max),
+            "{path}"
+        );
+        assert!(info.writable, "{path}");
+    }
     // Limits that depend on other nodes are reported as they stand now.
     let drive = nodes.iter().find(|n| n.path == "/drive/frequency").unwrap();
     assert_eq!(drive.max, json!(5e6));
@@ -780,6 +1173,8 @@ fn nodes_under_matches_whole_segments() {
     assert_eq!(s.nodes_under("/sample/").len(), 2);
     assert_eq!(s.nodes_under("/noise").len(), 5);
     assert_eq!(s.nodes_under("/spectrum").len(), 4);
+    assert_eq!(s.nodes_under("/scope").len(), 4);
+    assert_eq!(s.nodes_under("/server").len(), 4);
     assert_eq!(s.nodes_under("/sample/poisson").len(), 1);
     assert_eq!(s.nodes_under("/").len(), s.nodes().len());
     assert!(s.nodes_under("/samp").is_empty());
@@ -875,6 +1270,22 @@ fn docs_example_overlay_loads_and_its_error_is_as_documented() {
 }
 
 #[test]
+fn docs_quote_the_scope_and_origin_errors() {
+    let docs = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/docs/configuration.md"
+    ))
+    .unwrap();
+    for message in [OVERLAPPING_TRACES, WILDCARD_REFUSED] {
+        assert!(
+            docs.contains(&format!("`{message}`")),
+            "docs lack {message:?}"
+        );
+    }
+    assert_mentions(&docs, &["`\"*\"` is refused", "drive the instrument"]);
+}
+
+#[test]
 fn every_default_is_inside_its_range() {
     let s = default_settings();
     s.validate().unwrap();
@@ -882,7 +1293,8 @@ fn every_default_is_inside_its_range() {
     for info in s.nodes() {
         let values: Vec<f64> = match &info.value {
             Value::Number(_) => vec![number(&info.value)],
-            Value::Array(items) => items.iter().map(number).collect(),
+            // Lists of numbers; lists of text (`/server/allowed_origins`) have no bounds.
+            Value::Array(items) if info.min.is_number() => items.iter().map(number).collect(),
             _ => continue,
         };
         for x in values {
@@ -920,6 +1332,17 @@ fn any_json() -> impl Strategy<Value = Value> {
             "blackman_harris",
             "flat_top",
             "kaiser",
+            "*",
+            "http://localhost:3000",
+            "https://lab.example",
+            "ftp://x",
+            "http://x/path",
+        ])
+        .prop_map(Value::from),
+        // Scope and server values near their limits.
+        prop::sample::select(vec![
+            0.5, 15.0, 16.0, 20.0, 64.0, 127.0, 600.0, 601.0, 2000.0, 4096.0, 4097.0, 10000.0,
+            10001.0, 65536.0, 65537.0, 101.0,
         ])
         .prop_map(Value::from),
         "\\PC{0,8}".prop_map(Value::from),
@@ -929,10 +1352,38 @@ fn any_json() -> impl Strategy<Value = Value> {
             prop::collection::vec(inner.clone(), 0..6).prop_map(Value::Array),
             prop::collection::vec((-10.0..1e4f64).prop_map(Value::from), 0..20)
                 .prop_map(Value::Array),
+            // Lists of origins, valid and not, up to and past the 64-entry limit.
+            prop::collection::vec(any_origin(), 0..70).prop_map(Value::Array),
+            // Short lists of valid origins, so that many of these sets succeed.
+            prop::collection::vec(
+                "https?://[a-z0-9]{1,12}(:[0-9]{1,4})?".prop_map(Value::from),
+                0..8
+            )
+            .prop_map(Value::Array),
             prop::collection::btree_map("[a-z]{1,4}", inner, 0..3)
                 .prop_map(|m| Value::Object(m.into_iter().collect())),
         ]
     })
+}
+
+/// Origin-like strings: valid ones, and ones that break one rule each.
+fn any_origin() -> impl Strategy<Value = Value> {
+    prop_oneof![
+        4 => ("https?://[a-z0-9.-]{1,12}(:[0-9]{1,5})?").prop_map(Value::from),
+        1 => prop::sample::select(vec![
+            "*",
+            "",
+            "http://",
+            "http://x/",
+            "http://x/path",
+            "ftp://x",
+            "http://*.x",
+            "http://[::1]:80",
+        ])
+        .prop_map(Value::from),
+        1 => "\\PC{0,300}".prop_map(Value::from),
+        1 => any::<u8>().prop_map(Value::from),
+    ]
 }
 
 fn any_path() -> impl Strategy<Value = String> {

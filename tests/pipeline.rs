@@ -171,3 +171,53 @@ fn an_overrun_is_counted_and_nothing_is_lost_silently() {
         "every sample is processed, dropped-and-counted, or still in the ring: {c:?}"
     );
 }
+
+#[test]
+fn scope_traces_are_the_synthesised_samples_with_their_drive_phase() {
+    use ftafm::synth::{SynthPlan, SynthState};
+    let mut settings = free_running_quiet();
+    settings.scope.length = 500;
+    settings.scope.decimation = 3;
+    settings.scope.rate = 100.0;
+    let (pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    let mut traces = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while traces.len() < 5 {
+        output.demods.skip(usize::MAX);
+        while let Some(b) = output.spectra.try_pop() {
+            output.recycle(b);
+        }
+        while let Some(t) = output.scopes.try_pop() {
+            traces.push(t);
+        }
+        assert!(Instant::now() < deadline);
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    pipeline.stop();
+    // The same stream, synthesised here: noise off, so it is the same whatever the seed.
+    let plan = SynthPlan::new(&settings).unwrap();
+    let mut state = SynthState::steady(&plan, settings.synth.seed);
+    let last = traces.last().unwrap().sample_index as usize;
+    let mut stream = vec![0.0; last + 1];
+    plan.process(&mut state, &mut stream);
+    for t in &traces {
+        assert_eq!(t.samples.len(), 500);
+        assert_eq!(t.dt, 3.0 / settings.synth.sample_rate);
+        let first = t.sample_index as usize - 499 * 3;
+        for (j, &s) in t.samples.iter().enumerate() {
+            assert_eq!(
+                s,
+                stream[first + 3 * j] as f32,
+                "trace at {first}, sample {j}"
+            );
+        }
+        let phase = ftafm::dsp::phase_to_radians(plan.frequency_word.wrapping_mul(first as u64));
+        assert!(
+            (t.start_phase - phase).abs() < 1e-12,
+            "start phase {} vs {phase}",
+            t.start_phase
+        );
+        // Traces start every f_s / rate = 100 000 samples.
+        assert_eq!(first % 100_000, 0, "trace starts on the rate grid: {first}");
+    }
+}

@@ -26,7 +26,7 @@ fn on_realtime_thread() -> bool {
                 // Decided on the thread's first allocation, which is before its loop runs.
                 let v = std::thread::current()
                     .name()
-                    .is_some_and(|n| n.starts_with("ftafm-"));
+                    .is_some_and(|n| matches!(n, "ftafm-synth" | "ftafm-dsp" | "ftafm-probe"));
                 flag.set(Some(v));
                 v
             }

@@ -4,6 +4,7 @@
 
 use serde_json::Value;
 
+use super::nodes::show_json;
 use super::quantity::number;
 use super::range::Range;
 use super::settings::{Engine, Settings, SpectrumWindow};
@@ -23,6 +24,22 @@ pub const MAX_ADC_BITS: u32 = 32;
 pub const MIN_SPECTRUM_SIZE: u32 = 256;
 /// Longest FFT of the spectrum, in samples (`/spectrum/size`, a power of two): 2^20.
 pub const MAX_SPECTRUM_SIZE: u32 = 1 << 20;
+/// Shortest scope trace, in samples after decimation (`/scope/length`).
+pub const MIN_SCOPE_LENGTH: u32 = 16;
+/// Longest scope trace, in samples after decimation (`/scope/length`): 2^16.
+pub const MAX_SCOPE_LENGTH: u32 = 1 << 16;
+/// Highest scope decimation (`/scope/decimation`): every 10000th photodiode sample.
+pub const MAX_SCOPE_DECIMATION: u32 = 10_000;
+/// Most origins in `/server/allowed_origins`.
+pub const MAX_ALLOWED_ORIGINS: usize = 64;
+/// Longest entry of `/server/allowed_origins`, in bytes.
+pub const MAX_ORIGIN_BYTES: usize = 256;
+/// Most WebSocket clients connected at once (`/server/max_clients`).
+pub const MAX_CLIENTS: u32 = 4096;
+/// Shortest per-client outgoing queue, in messages (`/server/client_queue`).
+pub const MIN_CLIENT_QUEUE: u32 = 16;
+/// Longest per-client outgoing queue, in messages (`/server/client_queue`): 2^16.
+pub const MAX_CLIENT_QUEUE: u32 = 1 << 16;
 
 // Static ranges. Limits that depend on another node (the Nyquist frequency, one sample
 // period) are checked in `relations`, after a whole file or a `set` has been applied, so the
@@ -57,6 +74,10 @@ const DETECTOR_DENSITY: Range = Range::closed(0.0, 1e-9);
 const ADC_RANGE: Range = Range::above_up_to(0.0, 1e-5);
 /// Spectra per second in Hz (and, in `relations`, never above the sample rate).
 const SPECTRUM_RATE: Range = Range::above_up_to(0.0, 1e3);
+/// Scope traces per second in Hz (and, in `relations`, traces must not overlap).
+const SCOPE_RATE: Range = Range::above_up_to(0.0, 100.0);
+/// Seconds a client's socket may accept nothing before it is disconnected.
+const STALL_TIMEOUT: Range = Range::closed(1.0, 600.0);
 
 /// One node of the tree. Demodulator nodes carry their index N of `/demods/N/…`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -111,6 +132,22 @@ pub enum Field {
     SpectrumWindow,
     /// `/spectrum/rate` (Hz).
     SpectrumRate,
+    /// `/scope/enable` (bool).
+    ScopeEnable,
+    /// `/scope/length` (samples).
+    ScopeLength,
+    /// `/scope/decimation` (samples).
+    ScopeDecimation,
+    /// `/scope/rate` (Hz).
+    ScopeRate,
+    /// `/server/allowed_origins` (list of text).
+    ServerAllowedOrigins,
+    /// `/server/max_clients` (clients).
+    ServerMaxClients,
+    /// `/server/client_queue` (messages).
+    ServerClientQueue,
+    /// `/server/stall_timeout` (s).
+    ServerStallTimeout,
     /// `/demods/N/enable` (bool).
     DemodEnable(usize),
     /// `/demods/N/harmonic` (integer).
@@ -153,6 +190,114 @@ pub enum Kind {
         /// Longest list allowed.
         max_len: usize,
     },
+    /// A list of 0 to `max_len` strings, each of 1 to `max_bytes` bytes and of the form
+    /// `entry` (a JSON array of strings; a TOML array of strings in files).
+    TextList {
+        /// Longest list allowed.
+        max_len: usize,
+        /// Longest entry allowed, in bytes (UTF-8).
+        max_bytes: usize,
+        /// The form every entry takes.
+        entry: TextEntry,
+    },
+}
+
+/// The form each entry of a [`Kind::TextList`] takes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TextEntry {
+    /// A web origin as browsers send it in the `Origin` header: `http://` or `https://`, then
+    /// a non-empty host with an optional `:port`, and nothing after it (no path, not even a
+    /// trailing `/`, no query, fragment or user name). A wildcard (`"*"`) is no origin.
+    Origin,
+}
+
+impl TextEntry {
+    /// What an entry looks like, for "allowed …".
+    pub fn describe(self) -> &'static str {
+        match self {
+            TextEntry::Origin => "an origin scheme://host[:port] with scheme http or https",
+        }
+    }
+
+    /// Why `entry` is not of this form (a phrase that follows "is"), or `None` if it is.
+    /// The length in bytes is checked by the list, not here.
+    pub fn problem(self, entry: &str) -> Option<&'static str> {
+        match self {
+            TextEntry::Origin => origin_problem(entry),
+        }
+    }
+}
+
+fn origin_problem(entry: &str) -> Option<&'static str> {
+    if entry == "*" {
+        return Some(
+            "not allowed (a wildcard would let any web page drive the instrument; list each \
+             origin as scheme://host[:port])",
+        );
+    }
+    let Some(authority) = entry
+        .strip_prefix("http://")
+        .or_else(|| entry.strip_prefix("https://"))
+    else {
+        return Some("not an origin (it must start with \"http://\" or \"https://\")");
+    };
+    if authority.is_empty() {
+        return Some("not an origin (the host is missing)");
+    }
+    if authority.contains('/') {
+        return Some(
+            "not an origin (it has a path, a \"/\" after the host; an origin is \
+             scheme://host[:port], without even a trailing \"/\")",
+        );
+    }
+    if authority.contains(['?', '#']) {
+        return Some("not an origin (it has a query or fragment after the host)");
+    }
+    if authority.contains('@') {
+        return Some("not an origin (it has a user name before the host)");
+    }
+    if authority.contains('*') {
+        return Some(
+            "not allowed (wildcards are not supported: each entry is one exact origin, and a \
+             pattern would let web pages you do not control drive the instrument)",
+        );
+    }
+    if authority
+        .chars()
+        .any(|c| c.is_whitespace() || c.is_control())
+    {
+        return Some("not an origin (it contains white space or control characters)");
+    }
+    // An IPv6 host is bracketed (`[::1]`); otherwise a colon starts the port.
+    let (host, port) = if let Some(rest) = authority.strip_prefix('[') {
+        let Some((inside, after)) = rest.split_once(']') else {
+            return Some("not an origin (the IPv6 host lacks its closing \"]\")");
+        };
+        if after.is_empty() {
+            (inside, None)
+        } else if let Some(port) = after.strip_prefix(':') {
+            (inside, Some(port))
+        } else {
+            return Some("not an origin (only \":port\" may follow the IPv6 host)");
+        }
+    } else {
+        match authority.split_once(':') {
+            Some((host, port)) => (host, Some(port)),
+            None => (authority, None),
+        }
+    };
+    if host.is_empty() {
+        return Some("not an origin (the host is missing)");
+    }
+    if let Some(port) = port {
+        let digits = !port.is_empty() && port.bytes().all(|b| b.is_ascii_digit());
+        if !digits || port.parse::<u16>().is_err() {
+            return Some(
+                "not an origin (the port after the host must be a number from 0 to 65535)",
+            );
+        }
+    }
+    None
 }
 
 /// A node's value once checked for type, in the representation of its [`Kind`].
@@ -163,6 +308,7 @@ pub(crate) enum Typed {
     Bool(bool),
     Text(&'static str),
     FloatList(Vec<f64>),
+    TextList(Vec<String>),
 }
 
 impl Typed {
@@ -173,6 +319,7 @@ impl Typed {
             Typed::Bool(b) => Value::from(*b),
             Typed::Text(t) => Value::from(*t),
             Typed::FloatList(list) => Value::from(list.clone()),
+            Typed::TextList(list) => Value::from(list.clone()),
         }
     }
 
@@ -187,13 +334,15 @@ impl Typed {
                 let entries: Vec<String> = list.iter().map(|x| number(*x)).collect();
                 format!("[{}]", entries.join(", "))
             }
+            // Entries may be long and many: shown cut short, like JSON in messages.
+            Typed::TextList(_) => show_json(&self.to_json()),
         }
     }
 }
 
 impl Field {
     /// Nodes outside the demodulator bank, in tree order.
-    pub(crate) const SCALARS: [Field; 25] = [
+    pub(crate) const SCALARS: [Field; 33] = [
         Field::CantileverF1,
         Field::CantileverK,
         Field::CantileverQ,
@@ -219,6 +368,14 @@ impl Field {
         Field::SpectrumSize,
         Field::SpectrumWindow,
         Field::SpectrumRate,
+        Field::ScopeEnable,
+        Field::ScopeLength,
+        Field::ScopeDecimation,
+        Field::ScopeRate,
+        Field::ServerAllowedOrigins,
+        Field::ServerMaxClients,
+        Field::ServerClientQueue,
+        Field::ServerStallTimeout,
     ];
 
     /// The nodes of demodulator `index`, in tree order.
@@ -260,6 +417,14 @@ impl Field {
             Field::SpectrumSize => "/spectrum/size",
             Field::SpectrumWindow => "/spectrum/window",
             Field::SpectrumRate => "/spectrum/rate",
+            Field::ScopeEnable => "/scope/enable",
+            Field::ScopeLength => "/scope/length",
+            Field::ScopeDecimation => "/scope/decimation",
+            Field::ScopeRate => "/scope/rate",
+            Field::ServerAllowedOrigins => "/server/allowed_origins",
+            Field::ServerMaxClients => "/server/max_clients",
+            Field::ServerClientQueue => "/server/client_queue",
+            Field::ServerStallTimeout => "/server/stall_timeout",
             Field::DemodEnable(i) => return format!("/demods/{i}/enable"),
             Field::DemodHarmonic(i) => return format!("/demods/{i}/harmonic"),
             Field::DemodOrder(i) => return format!("/demods/{i}/order"),
@@ -270,14 +435,15 @@ impl Field {
     }
 
     /// SI unit: `Hz`, `N/m`, `m`, `Pa`, `s`, `K`, `m/√Hz`, `1` (dimensionless numbers and
-    /// counts), `bit` (ADC resolution), `samples` (FFT length), or empty for text and
-    /// booleans.
+    /// counts), `bit` (ADC resolution), `samples` (FFT and trace lengths, decimation),
+    /// `clients`, `messages`, or empty for text, lists of text and booleans.
     pub fn unit(self) -> &'static str {
         match self {
             Field::CantileverF1
             | Field::DriveFrequency
             | Field::SynthSampleRate
             | Field::SpectrumRate
+            | Field::ScopeRate
             | Field::DemodRate(_) => "Hz",
             Field::CantileverK => "N/m",
             Field::CantileverTipRadius
@@ -287,9 +453,11 @@ impl Field {
             Field::NoiseTemperature => "K",
             Field::NoiseDetectorDensity => "m/√Hz",
             Field::NoiseAdcBits => "bit",
-            Field::SpectrumSize => "samples",
+            Field::SpectrumSize | Field::ScopeLength | Field::ScopeDecimation => "samples",
+            Field::ServerMaxClients => "clients",
+            Field::ServerClientQueue => "messages",
             Field::TipYoungsModulus | Field::SampleYoungsModulus => "Pa",
-            Field::DemodTimeconstant(_) => "s",
+            Field::DemodTimeconstant(_) | Field::ServerStallTimeout => "s",
             Field::CantileverQ
             | Field::CantileverExtraModes
             | Field::TipPoisson
@@ -302,6 +470,8 @@ impl Field {
             | Field::NoiseEnable
             | Field::SpectrumEnable
             | Field::SpectrumWindow
+            | Field::ScopeEnable
+            | Field::ServerAllowedOrigins
             | Field::DemodEnable(_) => "",
         }
     }
@@ -338,6 +508,7 @@ impl Field {
             Field::SynthRealtime
             | Field::NoiseEnable
             | Field::SpectrumEnable
+            | Field::ScopeEnable
             | Field::DemodEnable(_) => Kind::Bool,
             Field::NoiseTemperature => Kind::Float(TEMPERATURE),
             Field::NoiseDetectorDensity => Kind::Float(DETECTOR_DENSITY),
@@ -352,6 +523,29 @@ impl Field {
             },
             Field::SpectrumWindow => Kind::Text(SpectrumWindow::NAMES),
             Field::SpectrumRate => Kind::Float(SPECTRUM_RATE),
+            Field::ScopeLength => Kind::Integer {
+                min: MIN_SCOPE_LENGTH.into(),
+                max: MAX_SCOPE_LENGTH.into(),
+            },
+            Field::ScopeDecimation => Kind::Integer {
+                min: 1,
+                max: MAX_SCOPE_DECIMATION.into(),
+            },
+            Field::ScopeRate => Kind::Float(SCOPE_RATE),
+            Field::ServerAllowedOrigins => Kind::TextList {
+                max_len: MAX_ALLOWED_ORIGINS,
+                max_bytes: MAX_ORIGIN_BYTES,
+                entry: TextEntry::Origin,
+            },
+            Field::ServerMaxClients => Kind::Integer {
+                min: 1,
+                max: MAX_CLIENTS.into(),
+            },
+            Field::ServerClientQueue => Kind::Integer {
+                min: MIN_CLIENT_QUEUE.into(),
+                max: MAX_CLIENT_QUEUE.into(),
+            },
+            Field::ServerStallTimeout => Kind::Float(STALL_TIMEOUT),
             Field::DemodHarmonic(_) => Kind::Integer {
                 min: 0,
                 max: MAX_HARMONIC.into(),
@@ -431,6 +625,30 @@ impl Field {
             Field::SpectrumRate => {
                 "Spectra computed per second, in Hz; frames may overlap, at most the sample rate."
             }
+            Field::ScopeEnable => {
+                "Takes and sends time-domain traces of the raw photodiode signal, the scope stream (true), or not (false)."
+            }
+            Field::ScopeLength => {
+                "Samples per scope trace, counted after decimation, in samples: 16 to 65536."
+            }
+            Field::ScopeDecimation => {
+                "Scope decimation, in samples: each trace keeps every Nth photodiode sample (1 keeps all)."
+            }
+            Field::ScopeRate => {
+                "Scope traces per second, in Hz; traces must not overlap, so length × decimation / sample rate ≤ 1 / rate."
+            }
+            Field::ServerAllowedOrigins => {
+                "Web origins (scheme://host[:port], e.g. \"http://localhost:3000\") besides the server's own whose pages may open the WebSocket; any other origin is refused with 403; no \"*\" wildcard. A change applies to connections opened from then on."
+            }
+            Field::ServerMaxClients => {
+                "Most WebSocket clients connected at once, in clients; beyond it the handshake is refused with 503. A change applies to connections opened from then on."
+            }
+            Field::ServerClientQueue => {
+                "Length of each client's outgoing queue, in messages; a client further behind loses its own messages (counted, seen as gaps in seq). A change applies to sends from then on."
+            }
+            Field::ServerStallTimeout => {
+                "A client whose socket accepts nothing for this long, in s, is disconnected (close 1008 \"stalled\"). A change applies from then on."
+            }
             Field::DemodEnable(i) => {
                 return format!("Demodulator {i} produces output (true) or is idle (false).");
             }
@@ -484,6 +702,14 @@ impl Field {
             Field::SpectrumSize => Typed::Integer(s.spectrum.size.into()),
             Field::SpectrumWindow => Typed::Text(s.spectrum.window.name()),
             Field::SpectrumRate => Typed::Float(s.spectrum.rate),
+            Field::ScopeEnable => Typed::Bool(s.scope.enable),
+            Field::ScopeLength => Typed::Integer(s.scope.length.into()),
+            Field::ScopeDecimation => Typed::Integer(s.scope.decimation.into()),
+            Field::ScopeRate => Typed::Float(s.scope.rate),
+            Field::ServerAllowedOrigins => Typed::TextList(s.server.allowed_origins.clone()),
+            Field::ServerMaxClients => Typed::Integer(s.server.max_clients.into()),
+            Field::ServerClientQueue => Typed::Integer(s.server.client_queue.into()),
+            Field::ServerStallTimeout => Typed::Float(s.server.stall_timeout),
             Field::DemodEnable(i) => Typed::Bool(s.demods.get(i)?.enable),
             Field::DemodHarmonic(i) => Typed::Integer(s.demods.get(i)?.harmonic.into()),
             Field::DemodOrder(i) => Typed::Integer(s.demods.get(i)?.order.into()),
@@ -530,6 +756,22 @@ impl Field {
                 s.spectrum.window = SpectrumWindow::from_name(name)?;
             }
             (Field::SpectrumRate, Typed::Float(x)) => s.spectrum.rate = x,
+            (Field::ScopeEnable, Typed::Bool(b)) => s.scope.enable = b,
+            (Field::ScopeLength, Typed::Integer(n)) => s.scope.length = u32::try_from(n).ok()?,
+            (Field::ScopeDecimation, Typed::Integer(n)) => {
+                s.scope.decimation = u32::try_from(n).ok()?;
+            }
+            (Field::ScopeRate, Typed::Float(x)) => s.scope.rate = x,
+            (Field::ServerAllowedOrigins, Typed::TextList(list)) => {
+                s.server.allowed_origins = list;
+            }
+            (Field::ServerMaxClients, Typed::Integer(n)) => {
+                s.server.max_clients = u32::try_from(n).ok()?;
+            }
+            (Field::ServerClientQueue, Typed::Integer(n)) => {
+                s.server.client_queue = u32::try_from(n).ok()?;
+            }
+            (Field::ServerStallTimeout, Typed::Float(x)) => s.server.stall_timeout = x,
             (Field::DemodEnable(i), Typed::Bool(b)) => s.demods.get_mut(i)?.enable = b,
             (Field::DemodHarmonic(i), Typed::Integer(n)) => {
                 s.demods.get_mut(i)?.harmonic = u32::try_from(n).ok()?;
@@ -544,5 +786,52 @@ impl Field {
             _ => return None,
         }
         Some(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn origins_are_scheme_host_and_port_only() {
+        for ok in [
+            "http://localhost:3000",
+            "https://lab.example.org",
+            "http://127.0.0.1",
+            "http://x:0",
+            "http://x:65535",
+            "http://[::1]:8080",
+            "https://[2001:db8::1]",
+        ] {
+            assert_eq!(TextEntry::Origin.problem(ok), None, "{ok}");
+        }
+        for (bad, why) in [
+            ("*", "wildcard"),
+            ("http://*", "wildcards"),
+            ("ftp://x", "must start with"),
+            ("HTTP://x", "must start with"),
+            ("localhost:3000", "must start with"),
+            ("http://", "host is missing"),
+            ("http://:80", "host is missing"),
+            ("http://x/", "path"),
+            ("http://x/path", "path"),
+            ("http://x?q", "query"),
+            ("http://x#f", "fragment"),
+            ("http://u@x", "user name"),
+            ("http://x\ty", "white space"),
+            ("http://x:", "port"),
+            ("http://x:65536", "port"),
+            ("http://x:+80", "port"),
+            ("http://x:1:2", "port"),
+            ("http://[::1", "closing"),
+            ("http://[::1]x", "only"),
+            ("http://[]:80", "host is missing"),
+        ] {
+            let problem = TextEntry::Origin
+                .problem(bad)
+                .unwrap_or_else(|| panic!("{bad}"));
+            assert!(problem.contains(why), "{bad}: {problem}");
+        }
     }
 }

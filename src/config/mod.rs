@@ -6,8 +6,8 @@
 //!   descriptions, typed reads and writes.
 //! - [`registry`](mod@registry): the one list of nodes, lookup by path, the tables of the tree.
 //! - [`nodes`]: `get`/`set`/`list` by path, with per-node checks.
-//! - `relations`: checks between nodes (Nyquist, sample period, mode count) and the engines
-//!   not available yet.
+//! - `relations`: checks between nodes (Nyquist, sample period, mode count, scope traces that
+//!   must not overlap) and the engines not available yet.
 //! - [`load`](mod@load): the default and overlay files.
 //! - [`error`]: [`NodeError`] and [`ConfigError`].
 //!
@@ -26,8 +26,10 @@ pub mod settings;
 
 pub use error::{ConfigError, NodeError};
 pub use field::{
-    Field, Kind, MAX_ADC_BITS, MAX_FILTER_ORDER, MAX_HARMONIC, MAX_MODES, MAX_SPECTRUM_SIZE,
-    MAX_YOUNGS_MODULUS, MIN_SPECTRUM_SIZE,
+    Field, Kind, MAX_ADC_BITS, MAX_ALLOWED_ORIGINS, MAX_CLIENT_QUEUE, MAX_CLIENTS,
+    MAX_FILTER_ORDER, MAX_HARMONIC, MAX_MODES, MAX_ORIGIN_BYTES, MAX_SCOPE_DECIMATION,
+    MAX_SCOPE_LENGTH, MAX_SPECTRUM_SIZE, MAX_YOUNGS_MODULUS, MIN_CLIENT_QUEUE, MIN_SCOPE_LENGTH,
+    MIN_SPECTRUM_SIZE, TextEntry,
 };
 pub use load::{DEFAULT_TOML, default_settings, load, load_str, overlay_str};
 pub use nodes::{NodeInfo, NodeSpec};

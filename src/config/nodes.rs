@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use super::error::NodeError;
-use super::field::{Field, Kind, Typed};
+use super::field::{Field, Kind, TextEntry, Typed};
 use super::quantity::number;
 use super::registry::{node, registry};
 use super::relations;
@@ -79,6 +79,14 @@ impl NodeSpec {
                 "a list of 1 to {max_len} numbers, each {entry}{}",
                 self.unit_suffix()
             ),
+            Kind::TextList {
+                max_len,
+                max_bytes,
+                entry,
+            } => format!(
+                "a list of 0 to {max_len} strings of at most {max_bytes} bytes, each {}",
+                entry.describe()
+            ),
         }
     }
 
@@ -89,7 +97,9 @@ impl NodeSpec {
             Kind::Integer { .. } | Kind::PowerOfTwo { .. } => {
                 format!("an integer, {}", self.allowed())
             }
-            Kind::Bool | Kind::Text(_) | Kind::FloatList { .. } => self.allowed(),
+            Kind::Bool | Kind::Text(_) | Kind::FloatList { .. } | Kind::TextList { .. } => {
+                self.allowed()
+            }
         }
     }
 
@@ -165,6 +175,25 @@ impl NodeSpec {
                     })
                     .collect::<Result<Vec<f64>, NodeError>>()?;
                 Typed::FloatList(numbers)
+            }
+            Kind::TextList { .. } => {
+                let entries = value.as_array().ok_or_else(|| self.wrong_type(value))?;
+                let texts = entries
+                    .iter()
+                    .enumerate()
+                    .map(|(i, entry)| {
+                        entry.as_str().map(str::to_owned).ok_or_else(|| {
+                            self.invalid(format!(
+                                "{} = {}: entry {i} ({}) is not a string: expected {}",
+                                self.path,
+                                show_json(value),
+                                show_json(entry),
+                                self.allowed()
+                            ))
+                        })
+                    })
+                    .collect::<Result<Vec<String>, NodeError>>()?;
+                Typed::TextList(texts)
             }
         };
         self.check(&typed)?;
@@ -260,6 +289,14 @@ impl NodeSpec {
                 }
                 Ok(())
             }
+            (
+                Kind::TextList {
+                    max_len,
+                    max_bytes,
+                    entry,
+                },
+                Typed::TextList(list),
+            ) => self.check_texts(value, list, max_len, max_bytes, entry),
             _ => Err(self.invalid(format!(
                 "{} = {} has the wrong type: expected {}",
                 self.path,
@@ -269,9 +306,48 @@ impl NodeSpec {
         }
     }
 
+    /// The entries of a [`Kind::TextList`]: how many, how long, and of what form.
+    fn check_texts(
+        &self,
+        value: &Typed,
+        list: &[String],
+        max_len: usize,
+        max_bytes: usize,
+        form: TextEntry,
+    ) -> Result<(), NodeError> {
+        let shown = value.show();
+        if list.len() > max_len {
+            return Err(self.invalid(format!(
+                "{} = {shown} has {} entries: allowed {}",
+                self.path,
+                list.len(),
+                self.allowed()
+            )));
+        }
+        for (i, text) in list.iter().enumerate() {
+            let entry = show_json(&Value::from(text.as_str()));
+            let problem = if text.is_empty() {
+                "empty".to_owned()
+            } else if text.len() > max_bytes {
+                format!("{} bytes long", text.len())
+            } else if let Some(problem) = form.problem(text) {
+                problem.to_owned()
+            } else {
+                continue;
+            };
+            return Err(self.invalid(format!(
+                "{} = {shown}: entry {i} ({entry}) is {problem}: allowed {}",
+                self.path,
+                self.allowed()
+            )));
+        }
+        Ok(())
+    }
+
     /// The lowest and highest value `set` would accept now, as the protocol's `list` reports
     /// them: the static range narrowed by the limits that depend on other nodes. Whether an
-    /// end itself is allowed is in the docs and in error messages; `null` for text and bool.
+    /// end itself is allowed is in the docs and in error messages; `null` for text, lists of
+    /// text and bool.
     fn bounds(&self, s: &Settings) -> (Value, Value) {
         let sample_rate = s.synth.sample_rate;
         match self.kind {
@@ -281,19 +357,33 @@ impl NodeSpec {
                     Field::DriveFrequency => high = high.min(sample_rate / 2.0),
                     Field::DemodTimeconstant(_) => low = low.max(1.0 / sample_rate),
                     Field::DemodRate(_) | Field::SpectrumRate => high = high.min(sample_rate),
+                    Field::ScopeRate => high = high.min(relations::highest_scope_rate(s)),
                     _ => {}
                 }
                 (Value::from(low), Value::from(high))
             }
             Kind::Integer { min, mut max } => {
                 let enabled = |i: usize| s.demods.get(i).is_some_and(|d| d.enable);
-                if matches!(self.field, Field::DemodHarmonic(i) if enabled(i)) {
-                    max = max.min(relations::highest_harmonic(s));
+                match self.field {
+                    Field::DemodHarmonic(i) if enabled(i) => {
+                        max = max.min(relations::highest_harmonic(s));
+                    }
+                    Field::ScopeLength => {
+                        max = max.min(
+                            relations::longest_scope_span(s) / u64::from(s.scope.decimation).max(1),
+                        );
+                    }
+                    Field::ScopeDecimation => {
+                        max = max.min(
+                            relations::longest_scope_span(s) / u64::from(s.scope.length).max(1),
+                        );
+                    }
+                    _ => {}
                 }
                 (Value::from(min), Value::from(max))
             }
             Kind::PowerOfTwo { min, max } => (Value::from(min), Value::from(max)),
-            Kind::Bool | Kind::Text(_) => (Value::Null, Value::Null),
+            Kind::Bool | Kind::Text(_) | Kind::TextList { .. } => (Value::Null, Value::Null),
         }
     }
 }
@@ -303,14 +393,15 @@ impl NodeSpec {
 pub struct NodeInfo {
     /// The node path.
     pub path: String,
-    /// Current value (number, integer, bool, string, or list of numbers).
+    /// Current value (number, integer, bool, string, or list of numbers or of strings).
     pub value: Value,
     /// SI unit; `1` for dimensionless, empty for text and bool.
     pub unit: String,
     /// Whether `set` may change it at runtime.
     pub writable: bool,
     /// Lowest value accepted now (an end that is itself excluded, like the 0 of `0 < value`,
-    /// is still reported), or `null`. For a list, the bound of each entry.
+    /// is still reported), or `null` (text, booleans, lists of text). For a list of numbers,
+    /// the bound of each entry.
     pub min: Value,
     /// Highest value accepted now, or `null`. For a list, the bound of each entry.
     pub max: Value,

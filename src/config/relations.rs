@@ -2,10 +2,10 @@
 //! together (the Nyquist frequency, one sample period, the number of modes), and the values a
 //! node knows but the instrument cannot run yet (the `"coupled"` engine). These run after a
 //! whole config file or a whole `set`, never per key, so the order of keys never matters.
-//! Every message about a relation names both nodes.
+//! Every message about a relation names every node it involves.
 
 use super::error::NodeError;
-use super::field::{MAX_HARMONIC, MAX_MODES};
+use super::field::{MAX_HARMONIC, MAX_MODES, MAX_SCOPE_DECIMATION, MAX_SCOPE_LENGTH};
 use super::quantity::quantity;
 use super::registry::registry;
 use super::settings::{DEMODULATOR_COUNT, Engine, Settings};
@@ -42,6 +42,7 @@ impl Settings {
         check_modes(self)?;
         check_drive(self)?;
         check_spectrum(self)?;
+        check_scope(self)?;
         check_demods(self)
     }
 }
@@ -161,6 +162,68 @@ fn check_spectrum(s: &Settings) -> Result<(), NodeError> {
     Ok(())
 }
 
+/// Whether a trace of `span` photodiode samples (`/scope/length` × `/scope/decimation`)
+/// lasts no longer than the time between traces, 1 / `/scope/rate`. Both sides are correctly
+/// rounded quotients, so the test is monotone in `span`.
+fn scope_span_fits(span: u64, s: &Settings) -> bool {
+    span as f64 / s.synth.sample_rate <= 1.0 / s.scope.rate
+}
+
+/// The most photodiode samples one scope trace may span (`/scope/length` ×
+/// `/scope/decimation`) so that traces do not overlap at the current `/scope/rate` and
+/// `/synth/sample_rate`; at most 65536 × 10000, and 0 if not even one sample fits.
+pub(crate) fn longest_scope_span(s: &Settings) -> u64 {
+    let most = u64::from(MAX_SCOPE_LENGTH) * u64::from(MAX_SCOPE_DECIMATION);
+    let (sample_rate, rate) = (s.synth.sample_rate, s.scope.rate);
+    if !(sample_rate.is_finite() && rate.is_finite() && sample_rate > 0.0 && rate > 0.0) {
+        return most;
+    }
+    // Start from the closed form, then step so the answer agrees exactly with
+    // `scope_span_fits`, which `check_scope` applies.
+    let mut span = (sample_rate / rate).floor().clamp(0.0, most as f64) as u64;
+    while span > 0 && !scope_span_fits(span, s) {
+        span -= 1;
+    }
+    while span < most && scope_span_fits(span + 1, s) {
+        span += 1;
+    }
+    span
+}
+
+/// The highest `/scope/rate` at which traces of the current length and decimation do not
+/// overlap: `/synth/sample_rate` / (`/scope/length` × `/scope/decimation`), as `list`
+/// reports it.
+pub(crate) fn highest_scope_rate(s: &Settings) -> f64 {
+    let span = f64::from(s.scope.length) * f64::from(s.scope.decimation);
+    s.synth.sample_rate / span
+}
+
+/// Scope traces must not overlap: each lasts `/scope/length` × `/scope/decimation` /
+/// `/synth/sample_rate`, and one starts every 1 / `/scope/rate`. Checked whether or not the
+/// scope is enabled, so enabling it never fails.
+fn check_scope(s: &Settings) -> Result<(), NodeError> {
+    let scope = &s.scope;
+    let span = u64::from(scope.length) * u64::from(scope.decimation);
+    if scope_span_fits(span, s) {
+        return Ok(());
+    }
+    let duration = span as f64 / s.synth.sample_rate;
+    Err(invalid(
+        "/scope/rate",
+        format!(
+            "/scope/length × /scope/decimation / /synth/sample_rate = {} × {} / {} = {}, the \
+             duration of one trace, must not exceed 1 / /scope/rate = 1 / {} = {}: traces must \
+             not overlap (lower /scope/rate, /scope/length or /scope/decimation)",
+            scope.length,
+            scope.decimation,
+            quantity(s.synth.sample_rate, "Hz"),
+            quantity(duration, "s"),
+            quantity(scope.rate, "Hz"),
+            quantity(1.0 / scope.rate, "s")
+        ),
+    ))
+}
+
 fn check_demods(s: &Settings) -> Result<(), NodeError> {
     let sample_rate = s.synth.sample_rate;
     let period = 1.0 / sample_rate;
@@ -250,6 +313,54 @@ mod tests {
             message,
             "/spectrum/rate = 1 kHz must not exceed /synth/sample_rate = 500 Hz"
         );
+    }
+
+    #[test]
+    fn longest_scope_span_agrees_with_the_check() {
+        let mut s = default_settings();
+        // 10 MHz / 20 Hz: 500000 samples between trace starts.
+        assert_eq!(longest_scope_span(&s), 500_000);
+        assert!(scope_span_fits(500_000, &s) && !scope_span_fits(500_001, &s));
+        s.scope.rate = 100.0;
+        s.synth.sample_rate = 6_553_600.0;
+        assert_eq!(longest_scope_span(&s), 65_536);
+        s.scope.rate = 3.0;
+        s.synth.sample_rate = 1e3;
+        assert_eq!(longest_scope_span(&s), 333);
+        for rate in [0.7, 1.0 / 3.0, 7.0, 99.9, 100.0] {
+            s.scope.rate = rate;
+            let span = longest_scope_span(&s);
+            assert!(scope_span_fits(span, &s) && !scope_span_fits(span + 1, &s));
+        }
+        // Never above the longest trace the static ranges allow.
+        s.synth.sample_rate = 1e9;
+        s.scope.rate = 1e-3;
+        assert_eq!(longest_scope_span(&s), 65_536 * 10_000);
+    }
+
+    #[test]
+    fn overlapping_scope_traces_name_all_four_nodes() {
+        let mut s = default_settings();
+        s.scope.length = 65_536;
+        s.scope.decimation = 2;
+        s.scope.rate = 100.0;
+        let error = s.validate().unwrap_err();
+        assert_eq!(error.path(), "/scope/rate");
+        let message = error.to_string();
+        for path in [
+            "/scope/length",
+            "/scope/decimation",
+            "/scope/rate",
+            "/synth/sample_rate",
+        ] {
+            assert!(message.contains(path), "{message}");
+        }
+        assert!(
+            message.contains("13.1072 ms") && message.contains("10 ms"),
+            "{message}"
+        );
+        s.scope.decimation = 1;
+        assert!(s.validate().is_ok());
     }
 
     #[test]

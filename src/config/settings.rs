@@ -18,6 +18,8 @@ pub struct Settings {
     pub synth: SynthSettings,
     pub noise: NoiseSettings,
     pub spectrum: SpectrumSettings,
+    pub scope: ScopeSettings,
+    pub server: ServerSettings,
     /// Demodulator bank; always [`DEMODULATOR_COUNT`] entries, index = N of `/demods/N`.
     /// (De)serialised as a table keyed by index (`[demods]` with keys `"0"` … `"31"`), so
     /// TOML and JSON paths mirror the node tree.
@@ -188,6 +190,42 @@ pub struct SpectrumSettings {
     pub window: SpectrumWindow,
     /// Spectra per second (Hz); frames may overlap, so only `rate ≤ sample_rate` is required.
     pub rate: f64,
+}
+
+/// `[scope]`: time-domain traces of the raw photodiode signal (the `scope` stream).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScopeSettings {
+    /// Traces are taken and sent.
+    pub enable: bool,
+    /// Samples per trace, after decimation (samples): 16 to 65536.
+    pub length: u32,
+    /// Keep every Nth photodiode sample (samples): 1 (every sample) to 10000.
+    pub decimation: u32,
+    /// Traces per second (Hz), 0 < rate ≤ 100. Traces do not overlap:
+    /// `length × decimation / sample_rate ≤ 1 / rate`.
+    pub rate: f64,
+}
+
+/// `[server]`: the WebSocket server's limits. All of them may change at runtime and apply to
+/// connections and sends from then on.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServerSettings {
+    /// Web origins (`scheme://host[:port]`, e.g. `http://localhost:3000`) besides the
+    /// server's own whose pages may open the WebSocket; a page from any other origin is
+    /// refused with 403. Each starts with `http://` or `https://` and has no path; at most
+    /// 64 entries of at most 256 bytes. No wildcard: `"*"` would let any web page drive the
+    /// instrument.
+    pub allowed_origins: Vec<String>,
+    /// Most clients connected at once (clients); beyond it the handshake is refused with 503.
+    pub max_clients: u32,
+    /// Length of each client's outgoing queue (messages); a client further behind loses its
+    /// own messages (counted, and visible as gaps in `seq`).
+    pub client_queue: u32,
+    /// A client whose socket accepts nothing for this long is disconnected (s); close code
+    /// 1008, reason `"stalled"`.
+    pub stall_timeout: f64,
 }
 
 /// `[demods.N]`: one lock-in demodulator.

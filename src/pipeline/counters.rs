@@ -18,6 +18,8 @@ pub struct Counters {
     pub(crate) demod_frames_dropped: AtomicU64,
     pub(crate) spectrum_frames: AtomicU64,
     pub(crate) spectrum_frames_dropped: AtomicU64,
+    pub(crate) scope_frames: AtomicU64,
+    pub(crate) scope_frames_dropped: AtomicU64,
     pub(crate) synth_plans_applied: AtomicU64,
     pub(crate) dsp_plans_applied: AtomicU64,
     pub(crate) synth_busy_ns: AtomicU64,
@@ -47,6 +49,8 @@ impl Counters {
             demod_frames_dropped: r(&self.demod_frames_dropped),
             spectrum_frames: r(&self.spectrum_frames),
             spectrum_frames_dropped: r(&self.spectrum_frames_dropped),
+            scope_frames: r(&self.scope_frames),
+            scope_frames_dropped: r(&self.scope_frames_dropped),
             synth_plans_applied: r(&self.synth_plans_applied),
             dsp_plans_applied: r(&self.dsp_plans_applied),
             synth_busy_ns: r(&self.synth_busy_ns),
@@ -81,6 +85,10 @@ pub struct CountersSnapshot {
     pub spectrum_frames: u64,
     /// Spectrum frames dropped (no free buffer or full queue).
     pub spectrum_frames_dropped: u64,
+    /// Scope traces produced.
+    pub scope_frames: u64,
+    /// Scope traces dropped (no free buffer).
+    pub scope_frames_dropped: u64,
     /// Synthesiser plans (settings changes) applied.
     pub synth_plans_applied: u64,
     /// DSP plans (demodulator or spectrum changes) applied.

@@ -6,6 +6,7 @@ use crate::dsp::{Demodulator, DspError, LockInBank, SlidingSpectrum, SpectrumCon
 
 use super::dsp_worker::Emitter;
 use super::frames::DemodValue;
+use super::scope::{ScopeCapture, ScopeConfig};
 
 /// Lock-in bank plus sliding spectrum, with the mapping from their own sample counts to
 /// the stream's sample index.
@@ -14,6 +15,7 @@ pub struct DspPlan {
     pub sample_rate: f64,
     bank: LockInBank,
     spectrum: Option<SlidingSpectrum>,
+    pub(crate) scope: Option<ScopeCapture>,
     /// Stream index of the bank's sample 0.
     bank_offset: u64,
     /// Stream index of the spectrum's sample 0.
@@ -47,10 +49,18 @@ impl DspPlan {
         } else {
             None
         };
+        let scope = settings.scope.enable.then(|| {
+            ScopeCapture::new(ScopeConfig {
+                length: settings.scope.length as usize,
+                decimation: settings.scope.decimation as usize,
+                hop: (fs / settings.scope.rate).round().max(1.0) as u64,
+            })
+        });
         Ok(Self {
             sample_rate: fs,
             bank,
             spectrum,
+            scope,
             bank_offset: 0,
             spectrum_offset: 0,
         })
@@ -69,6 +79,9 @@ impl DspPlan {
             // A spectrum frame must not straddle a gap.
             s.reset();
             self.spectrum_offset = index;
+        }
+        if let Some(s) = &mut self.scope {
+            s.restart();
         }
     }
 

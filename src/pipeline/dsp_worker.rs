@@ -11,7 +11,7 @@ use ringbuf::{HeapCons, HeapProd};
 use super::block::{BlockHeader, unix_ns};
 use super::counters::Counters;
 use super::dsp_plan::DspPlan;
-use super::frames::{DemodFrame, DemodValue, SpectrumBuffer};
+use super::frames::{DemodFrame, DemodValue, ScopeBuffer, SpectrumBuffer};
 
 /// How long the DSP thread sleeps when the ring is empty: well under a block (410 µs).
 const IDLE: Duration = Duration::from_micros(50);
@@ -31,6 +31,12 @@ pub(crate) struct DspWorker {
     /// never freed here. (With the queue as long as the pool this cannot happen today; the
     /// slot keeps it true whatever the two sizes become.)
     pub spare: Option<SpectrumBuffer>,
+    pub scopes: HeapProd<ScopeBuffer>,
+    pub free_scopes: HeapCons<ScopeBuffer>,
+    /// The scope trace being filled.
+    pub scope_current: Option<ScopeBuffer>,
+    /// A scope buffer not in use (a trace abandoned at a gap), used before the pool.
+    pub scope_spare: Option<ScopeBuffer>,
 }
 
 impl DspWorker {
@@ -60,13 +66,20 @@ impl DspWorker {
             self.counters
                 .ring_fill_max
                 .fetch_max(fill, Ordering::Relaxed);
-            match expected {
+            let restart = match expected {
                 Some(index) if index != header.index => {
                     Counters::add(&self.counters.discontinuities, 1);
-                    self.plan.restart(header.index);
+                    true
                 }
-                None => self.plan.restart(header.index),
-                _ => {}
+                None => true,
+                _ => false,
+            };
+            if restart {
+                self.plan.restart(header.index);
+                // A partial trace must not straddle the gap.
+                if let Some(partial) = self.scope_current.take() {
+                    self.scope_spare = Some(partial);
+                }
             }
             let busy = Instant::now();
             self.plan.align(header.phase, header.frequency_word);
@@ -90,6 +103,57 @@ impl DspWorker {
                 }
             }
             emit.flush();
+            if let Some(scope) = &mut self.plan.scope {
+                let counters = &self.counters;
+                let (spare, free, out) = (
+                    &mut self.scope_spare,
+                    &mut self.free_scopes,
+                    &mut self.scopes,
+                );
+                let mut take = || {
+                    let buf = spare.take().or_else(|| free.try_pop());
+                    if buf.is_none() {
+                        Counters::add(&counters.scope_frames_dropped, 1);
+                    }
+                    buf
+                };
+                let mut rejected = None;
+                let mut give = |mut buf: ScopeBuffer| {
+                    buf.t_dsp_ns = unix_ns();
+                    match out.try_push(buf) {
+                        Ok(()) => Counters::add(&counters.scope_frames, 1),
+                        Err(buf) => {
+                            Counters::add(&counters.scope_frames_dropped, 1);
+                            rejected = Some(buf);
+                        }
+                    }
+                };
+                let fs = self.plan.sample_rate;
+                scope.feed(
+                    &header,
+                    header.index,
+                    first,
+                    fs,
+                    &mut self.scope_current,
+                    &mut take,
+                    &mut give,
+                );
+                if !second.is_empty() {
+                    let at = header.index + first.len() as u64;
+                    scope.feed(
+                        &header,
+                        at,
+                        second,
+                        fs,
+                        &mut self.scope_current,
+                        &mut take,
+                        &mut give,
+                    );
+                }
+                if let Some(buf) = rejected {
+                    self.scope_spare = Some(buf);
+                }
+            }
             self.samples.skip(len);
             Counters::add(&self.counters.dsp_busy_ns, busy.elapsed().as_nanos() as u64);
             Counters::add(&self.counters.samples_processed, len as u64);

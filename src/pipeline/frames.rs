@@ -82,3 +82,25 @@ pub struct SpectrumBuffer {
     /// |bin| for bins 0…N/2 (m, peak amplitude calibration).
     pub magnitudes: Vec<f32>,
 }
+
+/// A stretch of consecutive photodiode samples for a time-domain trace (the scope),
+/// optionally decimated. The buffer comes from a fixed pool like [`SpectrumBuffer`].
+#[derive(Clone, Debug)]
+pub struct ScopeBuffer {
+    /// Stream index of the newest sample in the trace.
+    pub sample_index: u64,
+    /// Simulated time of that sample (s).
+    pub t: f64,
+    /// Unix time (ns) at which that sample was synthesised.
+    pub t_synth_ns: u64,
+    /// Unix time (ns) at which the DSP finished this frame.
+    pub t_dsp_ns: u64,
+    /// Time between trace samples (s): decimation / sample rate.
+    pub dt: f64,
+    /// Drive phase θ (rad, cosine reference) at the first trace sample.
+    pub start_phase: f64,
+    /// Drive phase advance per trace sample (rad).
+    pub phase_step: f64,
+    /// The samples (m, nominal photodiode deflection), oldest first.
+    pub samples: Vec<f32>,
+}

@@ -17,6 +17,7 @@ mod counters;
 mod dsp_plan;
 mod dsp_worker;
 mod frames;
+mod scope;
 mod synth_worker;
 
 use std::sync::Arc;
@@ -29,7 +30,8 @@ use ringbuf::{HeapCons, HeapProd, HeapRb};
 pub use block::{BlockHeader, unix_ns};
 pub use counters::{Counters, CountersSnapshot};
 pub use dsp_plan::DspPlan;
-pub use frames::{DemodFrame, DemodValue, SpectrumBuffer};
+pub use frames::{DemodFrame, DemodValue, ScopeBuffer, SpectrumBuffer};
+pub use scope::MAX_SCOPE_SAMPLES;
 pub use synth_worker::BLOCK_SAMPLES;
 
 use crate::config::Settings;
@@ -75,6 +77,10 @@ pub struct PipelineOutput {
     /// Spectrum frames, in time order; return each buffer with [`recycle`](Self::recycle).
     pub spectra: HeapCons<SpectrumBuffer>,
     free_spectra: HeapProd<SpectrumBuffer>,
+    /// Scope traces, in time order; return each buffer with
+    /// [`recycle_scope`](Self::recycle_scope).
+    pub scopes: HeapCons<ScopeBuffer>,
+    free_scopes: HeapProd<ScopeBuffer>,
 }
 
 impl PipelineOutput {
@@ -83,15 +89,26 @@ impl PipelineOutput {
         let _ = self.free_spectra.try_push(buffer);
     }
 
-    /// Drains every queued frame (recycling spectra); returns (demod, spectrum) counts.
-    pub fn drain(&mut self) -> (usize, usize) {
+    /// Gives a scope buffer back to the pool.
+    pub fn recycle_scope(&mut self, buffer: ScopeBuffer) {
+        let _ = self.free_scopes.try_push(buffer);
+    }
+
+    /// Drains every queued frame (recycling buffers); returns (demod, spectrum, scope)
+    /// counts.
+    pub fn drain(&mut self) -> (usize, usize, usize) {
         let demods = self.demods.skip(usize::MAX);
         let mut spectra = 0;
         while let Some(b) = self.spectra.try_pop() {
             self.recycle(b);
             spectra += 1;
         }
-        (demods, spectra)
+        let mut scopes = 0;
+        while let Some(b) = self.scopes.try_pop() {
+            self.recycle_scope(b);
+            scopes += 1;
+        }
+        (demods, spectra, scopes)
     }
 }
 
@@ -166,6 +183,21 @@ impl Pipeline {
                 magnitudes: Vec::with_capacity(bins),
             });
         }
+        let (scopes_in, scopes_out) = HeapRb::<ScopeBuffer>::new(SPECTRUM_POOL).split();
+        let (mut free_scopes_in, free_scopes_out) =
+            HeapRb::<ScopeBuffer>::new(SPECTRUM_POOL).split();
+        for _ in 0..SPECTRUM_POOL {
+            let _ = free_scopes_in.try_push(ScopeBuffer {
+                sample_index: 0,
+                t: 0.0,
+                t_synth_ns: 0,
+                t_dsp_ns: 0,
+                dt: 0.0,
+                start_phase: 0.0,
+                phase_step: 0.0,
+                samples: Vec::with_capacity(MAX_SCOPE_SAMPLES),
+            });
+        }
         let (synth_link, synth_plans_in, synth_plans_out) = plan_link();
         let (dsp_link, dsp_plans_in, dsp_plans_out) = plan_link();
 
@@ -196,6 +228,10 @@ impl Pipeline {
             counters: counters.clone(),
             stop: stop_dsp.clone(),
             spare: None,
+            scopes: scopes_in,
+            free_scopes: free_scopes_out,
+            scope_current: None,
+            scope_spare: None,
         };
         let mut pipeline = Self {
             settings: settings.clone(),
@@ -220,6 +256,8 @@ impl Pipeline {
             demods: demods_out,
             spectra: spectra_out,
             free_spectra: free_in,
+            scopes: scopes_out,
+            free_scopes: free_scopes_in,
         };
         Ok((pipeline, output))
     }

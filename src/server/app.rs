@@ -1,0 +1,212 @@
+//! The HTTP side: routes, the WebSocket handshake (origin and capacity checks), and
+//! [`run`], which serves until a shutdown future resolves.
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use axum::Router;
+use axum::extract::State;
+use axum::extract::ws::WebSocketUpgrade;
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::get;
+use tokio::net::TcpListener;
+use tokio::sync::watch;
+
+use super::protocol::MAX_MESSAGE_BYTES;
+use super::state::{AppState, Control};
+use super::{hub, metrics, session};
+use crate::config::Settings;
+use crate::pipeline::{Pipeline, PipelineError};
+
+/// The dashboard page (`web/index.html`), compiled in.
+const INDEX_HTML: &str = include_str!("../../web/index.html");
+
+/// Why the daemon stopped with an error.
+#[derive(Debug, thiserror::Error)]
+pub enum ServerError {
+    /// The pipeline could not start.
+    #[error(transparent)]
+    Pipeline(#[from] PipelineError),
+    /// Serving failed.
+    #[error("server: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// Runs the daemon on `listener` with `settings` until `shutdown` resolves; then closes
+/// every WebSocket (1001), stops the pipeline's threads and returns. Bind the listener to
+/// `127.0.0.1:0` in tests.
+pub async fn run(
+    listener: TcpListener,
+    settings: Settings,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), ServerError> {
+    let (pipeline, output) = Pipeline::start(&settings)?;
+    let (shutdown_tx, shutdown_rx) = watch::channel(false);
+    let state = Arc::new(AppState {
+        sample_rate: settings.synth.sample_rate,
+        control: Mutex::new(Control {
+            settings,
+            pipeline: Some(pipeline),
+        }),
+        clients: Mutex::new(Vec::new()),
+        next_client: AtomicU64::new(1),
+        streams: Default::default(),
+        shutdown: shutdown_rx,
+        started: Instant::now(),
+        refused_origin: AtomicU64::new(0),
+        refused_capacity: AtomicU64::new(0),
+        closed_stalled: AtomicU64::new(0),
+        latency_totals: Mutex::new(Default::default()),
+    });
+    let hub = tokio::spawn(hub::run(state.clone(), output));
+    let app = Router::new()
+        .route("/", get(index))
+        .route("/ws", get(websocket))
+        .route("/metrics", get(metrics_text))
+        .route("/healthz", get(healthz))
+        .with_state(state.clone());
+    let signal = async move {
+        shutdown.await;
+        tracing::info!("shutting down");
+        let _ = shutdown_tx.send(true);
+    };
+    let served = axum::serve(
+        listener,
+        app.into_make_service_with_connect_info::<SocketAddr>(),
+    )
+    .with_graceful_shutdown(signal)
+    .await;
+    // Sessions close themselves on the signal; give them a moment to say goodbye.
+    let deadline = Instant::now() + Duration::from_millis(1500);
+    while state.client_count() > 0 && Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    let _ = hub.await;
+    let pipeline = state
+        .control
+        .lock()
+        .ok()
+        .and_then(|mut c| c.pipeline.take());
+    if let Some(p) = pipeline {
+        let counters = tokio::task::spawn_blocking(move || p.stop())
+            .await
+            .unwrap_or_default();
+        tracing::info!(
+            samples = counters.samples_processed,
+            overruns = counters.overrun_samples,
+            "pipeline stopped"
+        );
+    }
+    served.map_err(ServerError::Io)
+}
+
+async fn index() -> Html<&'static str> {
+    Html(INDEX_HTML)
+}
+
+async fn healthz(State(state): State<Arc<AppState>>) -> Response {
+    let processed = state
+        .control
+        .lock()
+        .map(|c| c.counters().samples_processed)
+        .unwrap_or(0);
+    if processed > 0 {
+        (StatusCode::OK, "ok\n").into_response()
+    } else {
+        (StatusCode::SERVICE_UNAVAILABLE, "starting\n").into_response()
+    }
+}
+
+async fn metrics_text(State(state): State<Arc<AppState>>) -> Response {
+    (
+        [(
+            header::CONTENT_TYPE,
+            "text/plain; version=0.0.4; charset=utf-8",
+        )],
+        metrics::render(&state),
+    )
+        .into_response()
+}
+
+/// Whether a browser page from `origin` may open the WebSocket: the server's own origin
+/// (same host as the request) or one listed in `/server/allowed_origins`.
+fn origin_allowed(origin: &str, host: Option<&str>, allowed: &[String]) -> bool {
+    let own =
+        host.is_some_and(|h| origin == format!("http://{h}") || origin == format!("https://{h}"));
+    own || allowed.iter().any(|a| a == origin)
+}
+
+async fn websocket(
+    State(state): State<Arc<AppState>>,
+    headers: HeaderMap,
+    upgrade: WebSocketUpgrade,
+) -> Response {
+    let (allowed, max_clients, queue) = match state.control.lock() {
+        Ok(c) => (
+            c.settings.server.allowed_origins.clone(),
+            c.settings.server.max_clients as usize,
+            c.settings.server.client_queue as usize,
+        ),
+        Err(_) => return StatusCode::INTERNAL_SERVER_ERROR.into_response(),
+    };
+    if let Some(origin) = headers.get(header::ORIGIN) {
+        let origin = origin.to_str().unwrap_or("");
+        let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());
+        if !origin_allowed(origin, host, &allowed) {
+            state.refused_origin.fetch_add(1, Ordering::Relaxed);
+            tracing::warn!(origin, "WebSocket refused: origin not allowed");
+            return (
+                StatusCode::FORBIDDEN,
+                format!("origin {origin} may not open the WebSocket; add it to /server/allowed_origins\n"),
+            )
+                .into_response();
+        }
+    }
+    if state.client_count() >= max_clients {
+        state.refused_capacity.fetch_add(1, Ordering::Relaxed);
+        return (
+            StatusCode::SERVICE_UNAVAILABLE,
+            format!("too many clients: at most {max_clients} (/server/max_clients)\n"),
+        )
+            .into_response();
+    }
+    upgrade
+        .max_message_size(MAX_MESSAGE_BYTES)
+        .max_frame_size(MAX_MESSAGE_BYTES)
+        .on_upgrade(move |socket| session::run(socket, state, queue))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::origin_allowed;
+
+    #[test]
+    fn origins() {
+        let allowed = vec!["http://lab.example:3000".to_string()];
+        assert!(origin_allowed(
+            "http://127.0.0.1:8700",
+            Some("127.0.0.1:8700"),
+            &[]
+        ));
+        assert!(origin_allowed(
+            "http://lab.example:3000",
+            Some("127.0.0.1:8700"),
+            &allowed
+        ));
+        assert!(!origin_allowed(
+            "http://evil.example",
+            Some("127.0.0.1:8700"),
+            &allowed
+        ));
+        assert!(!origin_allowed(
+            "http://127.0.0.1:8701",
+            Some("127.0.0.1:8700"),
+            &[]
+        ));
+        assert!(!origin_allowed("null", None, &[]));
+    }
+}

@@ -1,0 +1,149 @@
+//! Fan-out: takes frames from the pipeline, serialises each once per format that someone
+//! subscribed to, and offers the shared bytes to every subscriber's bounded queue. A full
+//! queue drops that client's copy (counted; the client sees a seq gap) and never holds up
+//! the others or the pipeline.
+
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use axum::extract::ws::{Message, Utf8Bytes};
+use bytes::Bytes;
+use ringbuf::traits::Consumer;
+use tokio::sync::mpsc::error::TrySendError;
+
+use super::latency::Latency;
+use super::protocol::{self, Format, StreamKind};
+use super::state::{AppState, stream_index};
+use super::status::StatusReport;
+use crate::pipeline::{CountersSnapshot, PipelineOutput, SAMPLE_RING, unix_ns};
+
+/// How often the hub looks for frames: the demodulators' 1 kHz output period.
+const TICK: Duration = Duration::from_millis(1);
+/// How often a `status` message goes out.
+const STATUS_PERIOD: Duration = Duration::from_millis(500);
+
+/// Offers one message of `stream` to its subscribers; `json` and `binary` build the two
+/// encodings, each at most once.
+fn distribute(
+    state: &AppState,
+    stream: StreamKind,
+    json: impl FnOnce(u64) -> String,
+    binary: impl FnOnce(u64) -> Vec<u8>,
+) {
+    let s = stream_index(stream);
+    let seq = state.streams[s].produced.fetch_add(1, Ordering::Relaxed);
+    let clients = match state.clients.lock() {
+        Ok(c) => c.clone(),
+        Err(_) => return,
+    };
+    let (mut json, mut binary) = (Some(json), Some(binary));
+    let (mut text_msg, mut bin_msg): (Option<Message>, Option<Message>) = (None, None);
+    for client in clients.iter() {
+        let Some(format) = client.format(s) else {
+            continue;
+        };
+        let msg = match format {
+            Format::Json => text_msg
+                .get_or_insert_with(|| {
+                    let text = json.take().map(|f| f(seq)).unwrap_or_default();
+                    Message::Text(Utf8Bytes::from(text))
+                })
+                .clone(),
+            Format::Binary => bin_msg
+                .get_or_insert_with(|| {
+                    let bytes = binary.take().map(|f| f(seq)).unwrap_or_default();
+                    Message::Binary(Bytes::from(bytes))
+                })
+                .clone(),
+        };
+        match client.data.try_send(msg) {
+            Ok(()) => {
+                state.streams[s].sent.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(TrySendError::Full(_)) => {
+                client.dropped.fetch_add(1, Ordering::Relaxed);
+                state.streams[s].dropped.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(TrySendError::Closed(_)) => {}
+        }
+    }
+}
+
+/// Runs until shutdown: frames in, messages out, a status message every 0.5 s.
+pub(crate) async fn run(state: Arc<AppState>, mut output: PipelineOutput) {
+    let mut tick = tokio::time::interval(TICK);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut shutdown = state.shutdown.clone();
+    let mut synth_to_dsp = Latency::new();
+    let mut synth_to_send = Latency::new();
+    let mut last_status = Instant::now();
+    let mut last_counters = CountersSnapshot::default();
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            _ = shutdown.changed() => return,
+        }
+        while let Some(frame) = output.demods.try_pop() {
+            synth_to_dsp.record(frame.t_dsp_ns as i64 - frame.t_synth_ns as i64);
+            distribute(
+                &state,
+                StreamKind::Demods,
+                |seq| protocol::demods_json(seq, &frame),
+                |seq| protocol::demods_binary(seq, &frame),
+            );
+            synth_to_send.record(unix_ns() as i64 - frame.t_synth_ns as i64);
+        }
+        while let Some(buffer) = output.spectra.try_pop() {
+            distribute(
+                &state,
+                StreamKind::Spectrum,
+                |seq| protocol::spectrum_json(seq, &buffer),
+                |seq| protocol::spectrum_binary(seq, &buffer),
+            );
+            output.recycle(buffer);
+        }
+        while let Some(buffer) = output.scopes.try_pop() {
+            distribute(
+                &state,
+                StreamKind::Scope,
+                |seq| protocol::scope_json(seq, &buffer),
+                |seq| protocol::scope_binary(seq, &buffer),
+            );
+            output.recycle_scope(buffer);
+        }
+        let elapsed = last_status.elapsed();
+        if elapsed >= STATUS_PERIOD {
+            let (counters, realtime) = match state.control.lock() {
+                Ok(c) => (c.counters(), c.settings.synth.realtime),
+                Err(_) => continue,
+            };
+            let processed = counters.samples_processed - last_counters.samples_processed;
+            let report = StatusReport {
+                sample_rate: state.sample_rate,
+                realtime_factor: processed as f64 / elapsed.as_secs_f64() / state.sample_rate,
+                realtime,
+                ring_fill: counters.ring_fill,
+                ring_capacity: SAMPLE_RING as u64,
+                clients: state.client_count() as u64,
+                messages_dropped: state.dropped_total(),
+                latency_synth_to_dsp: synth_to_dsp.take_interval(),
+                latency_synth_to_send: synth_to_send.take_interval(),
+                counters,
+            };
+            if let Ok(mut totals) = state.latency_totals.lock() {
+                *totals = [synth_to_dsp.total(), synth_to_send.total()];
+            }
+            let t = counters.samples_processed as f64 / state.sample_rate;
+            let t_synth = unix_ns();
+            distribute(
+                &state,
+                StreamKind::Status,
+                |seq| protocol::status_json(seq, t, t_synth, &report),
+                |seq| protocol::status_binary(seq, t, t_synth, &report),
+            );
+            last_counters = counters;
+            last_status = Instant::now();
+        }
+    }
+}

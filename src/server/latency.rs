@@ -1,0 +1,57 @@
+//! Latency histograms (HDR, ns): one for the current status interval, one since start.
+
+use hdrhistogram::Histogram;
+
+use super::status::LatencySummary;
+
+/// Highest latency recorded exactly: 60 s; larger values are clamped to it.
+const MAX_NS: u64 = 60_000_000_000;
+
+/// Interval and total histograms of one latency path.
+pub(crate) struct Latency {
+    interval: Histogram<u64>,
+    total: Histogram<u64>,
+}
+
+impl Latency {
+    pub fn new() -> Self {
+        let h = || Histogram::new_with_bounds(1, MAX_NS, 3).expect("static bounds are valid");
+        Self {
+            interval: h(),
+            total: h(),
+        }
+    }
+
+    /// Records one latency (ns); values ≤ 0 (clock steps) count as 1 ns.
+    pub fn record(&mut self, ns: i64) {
+        let v = (ns.max(1) as u64).min(MAX_NS);
+        let _ = self.interval.record(v);
+        let _ = self.total.record(v);
+    }
+
+    /// Percentiles of the interval, which then starts afresh.
+    pub fn take_interval(&mut self) -> LatencySummary {
+        let s = summary(&self.interval);
+        self.interval.reset();
+        s
+    }
+
+    /// Percentiles since start.
+    pub fn total(&self) -> LatencySummary {
+        summary(&self.total)
+    }
+}
+
+fn summary(h: &Histogram<u64>) -> LatencySummary {
+    if h.is_empty() {
+        return LatencySummary::default();
+    }
+    LatencySummary {
+        count: h.len(),
+        p50: h.value_at_quantile(0.5),
+        p90: h.value_at_quantile(0.9),
+        p99: h.value_at_quantile(0.99),
+        p999: h.value_at_quantile(0.999),
+        max: h.max(),
+    }
+}

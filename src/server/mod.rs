@@ -1,0 +1,13 @@
+//! The daemon: HTTP, static files, WebSocket sessions, the protocol and the node tree.
+//! It only reads frames and sends settings; it never runs DSP.
+
+mod app;
+mod hub;
+mod latency;
+mod metrics;
+pub mod protocol;
+mod session;
+mod state;
+pub mod status;
+
+pub use app::{ServerError, run};

@@ -1,0 +1,240 @@
+//! The WebSocket protocol, version 1, as pure functions: no sockets, no tasks.
+//!
+//! - [`parse_request`] turns one text frame into a [`Request`] (or the error reply's id and a
+//!   [`ProtocolError`]).
+//! - [`ok_reply`] and [`error_reply`] build the reply envelope.
+//! - [`demods_json`], [`spectrum_json`], [`scope_json`], [`status_json`] and their `_binary`
+//!   twins encode data messages; [`decode_header`] reads a binary message's header back.
+//!
+//! Everything a client sees is documented in `docs/protocol.md`; the WebSocket section of
+//! the design contract is the promise this module keeps.
+
+mod data;
+mod json;
+mod reply;
+mod request;
+
+use std::fmt;
+
+use crate::config::NodeError;
+
+pub use data::{
+    BINARY_HEADER_BYTES, BINARY_MAGIC, BINARY_VERSION, BinaryHeader, DEMOD_RECORD_BYTES,
+    decode_header, demods_binary, demods_json, scope_binary, scope_json, spectrum_binary,
+    spectrum_json, status_binary, status_json,
+};
+pub use reply::{error_reply, ok_reply};
+pub use request::{Op, Request, parse_request};
+
+/// The protocol version `hello` reports (`protocol`).
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// Largest text frame the server accepts (bytes); larger → close with 1009.
+pub const MAX_MESSAGE_BYTES: usize = 64 * 1024;
+
+/// A data stream a client can subscribe to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum StreamKind {
+    /// Lock-in outputs, one message per output time point of the bank.
+    Demods,
+    /// Sliding-FFT magnitudes.
+    Spectrum,
+    /// Raw photodiode samples (decimated).
+    Scope,
+    /// Pipeline health and counters.
+    Status,
+}
+
+impl StreamKind {
+    /// Every stream, in the order of their binary codes.
+    pub const ALL: [StreamKind; 4] = [
+        StreamKind::Demods,
+        StreamKind::Spectrum,
+        StreamKind::Scope,
+        StreamKind::Status,
+    ];
+
+    /// The name used in requests and in the `stream` field of data messages.
+    pub const fn name(self) -> &'static str {
+        match self {
+            StreamKind::Demods => "demods",
+            StreamKind::Spectrum => "spectrum",
+            StreamKind::Scope => "scope",
+            StreamKind::Status => "status",
+        }
+    }
+
+    /// The stream with this name (exact, case-sensitive).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|s| s.name() == name)
+    }
+
+    /// The stable code in byte 6 of the binary header: demods 1, spectrum 2, scope 3,
+    /// status 4.
+    pub const fn code(self) -> u8 {
+        match self {
+            StreamKind::Demods => 1,
+            StreamKind::Spectrum => 2,
+            StreamKind::Scope => 3,
+            StreamKind::Status => 4,
+        }
+    }
+
+    /// The stream with this binary code.
+    pub fn from_code(code: u8) -> Option<Self> {
+        Self::ALL.into_iter().find(|s| s.code() == code)
+    }
+
+    /// `"demods, spectrum, scope, status"`, for error messages.
+    pub(crate) fn name_list() -> String {
+        let names: Vec<&str> = Self::ALL.iter().map(|s| s.name()).collect();
+        names.join(", ")
+    }
+}
+
+impl fmt::Display for StreamKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// How a subscription's data messages are framed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Format {
+    /// Text frames with one JSON object each (the default).
+    #[default]
+    Json,
+    /// Binary frames: a 40-byte header and a little-endian payload.
+    Binary,
+}
+
+impl Format {
+    /// Every format.
+    pub const ALL: [Format; 2] = [Format::Json, Format::Binary];
+
+    /// `"json"` or `"binary"`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Format::Json => "json",
+            Format::Binary => "binary",
+        }
+    }
+
+    /// The format with this name (exact, case-sensitive).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|f| f.name() == name)
+    }
+}
+
+impl fmt::Display for Format {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// The `error.code` of a failed request.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ErrorCode {
+    /// Not JSON, not an object, no `op`, or a field of the wrong type or form.
+    BadRequest,
+    /// `op` is not one of the protocol's ops.
+    UnknownOp,
+    /// No node has this path.
+    UnknownPath,
+    /// The node cannot be set at runtime.
+    ReadOnly,
+    /// The node refuses the value (type, range, relation with other nodes).
+    InvalidValue,
+    /// No stream has this name.
+    UnknownStream,
+    /// The client sends requests faster than the server's limit.
+    RateLimited,
+    /// The server cannot do it now (e.g. a settings change is in progress); retry.
+    Busy,
+    /// A bug or an unexpected failure in the server.
+    Internal,
+}
+
+impl ErrorCode {
+    /// Every code.
+    pub const ALL: [ErrorCode; 9] = [
+        ErrorCode::BadRequest,
+        ErrorCode::UnknownOp,
+        ErrorCode::UnknownPath,
+        ErrorCode::ReadOnly,
+        ErrorCode::InvalidValue,
+        ErrorCode::UnknownStream,
+        ErrorCode::RateLimited,
+        ErrorCode::Busy,
+        ErrorCode::Internal,
+    ];
+
+    /// The code as it appears on the wire, e.g. `"bad_request"`.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            ErrorCode::BadRequest => "bad_request",
+            ErrorCode::UnknownOp => "unknown_op",
+            ErrorCode::UnknownPath => "unknown_path",
+            ErrorCode::ReadOnly => "read_only",
+            ErrorCode::InvalidValue => "invalid_value",
+            ErrorCode::UnknownStream => "unknown_stream",
+            ErrorCode::RateLimited => "rate_limited",
+            ErrorCode::Busy => "busy",
+            ErrorCode::Internal => "internal",
+        }
+    }
+
+    /// The code with this wire name.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|c| c.as_str() == name)
+    }
+}
+
+impl fmt::Display for ErrorCode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// A failed request: the code and a sentence naming the field, what was given and what is
+/// allowed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ProtocolError {
+    /// What kind of failure.
+    pub code: ErrorCode,
+    /// The human-readable sentence.
+    pub message: String,
+}
+
+impl ProtocolError {
+    /// An error with this code and message.
+    pub fn new(code: ErrorCode, message: impl Into<String>) -> Self {
+        Self {
+            code,
+            message: message.into(),
+        }
+    }
+}
+
+impl fmt::Display for ProtocolError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}", self.code, self.message)
+    }
+}
+
+impl std::error::Error for ProtocolError {}
+
+impl From<&NodeError> for ProtocolError {
+    /// Maps by [`NodeError::code`] (a code this protocol does not know becomes `internal`);
+    /// the message is the error's `Display`.
+    fn from(error: &NodeError) -> Self {
+        let code = ErrorCode::from_name(error.code()).unwrap_or(ErrorCode::Internal);
+        Self::new(code, error.to_string())
+    }
+}
+
+impl From<NodeError> for ProtocolError {
+    fn from(error: NodeError) -> Self {
+        Self::from(&error)
+    }
+}

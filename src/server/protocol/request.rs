@@ -1,0 +1,261 @@
+//! Parsing one text frame into a [`Request`].
+
+use serde_json::{Map, Value};
+
+use super::{ErrorCode, Format, ProtocolError, StreamKind};
+
+/// What a request asks for.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Op {
+    /// Server name, versions and sample rate.
+    Hello,
+    /// The nodes under `path` (all nodes when `None`).
+    List {
+        /// Path prefix, starting with `/`.
+        path: Option<String>,
+    },
+    /// One node's value.
+    Get {
+        /// Node path, starting with `/`.
+        path: String,
+    },
+    /// Change one node.
+    Set {
+        /// Node path, starting with `/`.
+        path: String,
+        /// The new value, unchecked (the node tree validates it).
+        value: Value,
+    },
+    /// Start (or re-format) a stream for this client.
+    Subscribe {
+        /// Which stream.
+        stream: StreamKind,
+        /// JSON text frames (default) or binary frames.
+        format: Format,
+    },
+    /// Stop a stream for this client.
+    Unsubscribe {
+        /// Which stream.
+        stream: StreamKind,
+    },
+}
+
+impl Op {
+    /// Every op's name, as a request spells it.
+    pub const NAMES: [&'static str; 6] =
+        ["hello", "list", "get", "set", "subscribe", "unsubscribe"];
+
+    /// This op's name, as a request spells it.
+    pub const fn name(&self) -> &'static str {
+        match self {
+            Op::Hello => "hello",
+            Op::List { .. } => "list",
+            Op::Get { .. } => "get",
+            Op::Set { .. } => "set",
+            Op::Subscribe { .. } => "subscribe",
+            Op::Unsubscribe { .. } => "unsubscribe",
+        }
+    }
+}
+
+/// One parsed request.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Request {
+    /// The client's `id`, echoed in the reply; `Null` when absent.
+    pub id: Value,
+    /// What it asks for.
+    pub op: Op,
+}
+
+/// An example request for error messages.
+const EXAMPLE: &str = r#"{"id":1,"op":"hello"}"#;
+
+/// Longest rendering of a client's value quoted back in an error message (bytes).
+const MAX_QUOTED: usize = 60;
+
+/// Parses one text frame. On failure returns the request's id if it could be read (else
+/// `Null`) and the error.
+///
+/// Rules: the frame is one JSON object; `id` is any JSON value (absent → `Null`); `op` is a
+/// string naming an op; fields the op does not use are ignored (forward compatibility);
+/// optional fields (`path` of `list`, `format`) that are `null` count as absent. Paths must
+/// start with `/`; whether the node exists and accepts the value is the node tree's job.
+pub fn parse_request(text: &str) -> Result<Request, (Value, ProtocolError)> {
+    let parsed: Value = serde_json::from_str(text).map_err(|e| {
+        (
+            Value::Null,
+            bad(format!(
+                "request is not valid JSON ({e}); send one object such as {EXAMPLE}"
+            )),
+        )
+    })?;
+    let Value::Object(fields) = parsed else {
+        return Err((
+            Value::Null,
+            bad(format!(
+                "a request must be a JSON object such as {EXAMPLE}, got {}",
+                describe(&parsed)
+            )),
+        ));
+    };
+    let id = fields.get("id").cloned().unwrap_or(Value::Null);
+    match parse_op(&fields) {
+        Ok(op) => Ok(Request { id, op }),
+        Err(error) => Err((id, error)),
+    }
+}
+
+fn parse_op(fields: &Map<String, Value>) -> Result<Op, ProtocolError> {
+    let op = match fields.get("op") {
+        None => {
+            return Err(bad(format!(
+                "request has no \"op\" field; ops: {}",
+                op_list()
+            )));
+        }
+        Some(Value::String(op)) => op.as_str(),
+        Some(other) => {
+            return Err(bad(format!(
+                "field \"op\" must be a string, one of {}; got {}",
+                op_list(),
+                describe(other)
+            )));
+        }
+    };
+    match op {
+        "hello" => Ok(Op::Hello),
+        "list" => Ok(Op::List {
+            path: optional_path(fields, op)?,
+        }),
+        "get" => Ok(Op::Get {
+            path: required_path(fields, op)?,
+        }),
+        "set" => {
+            let path = required_path(fields, op)?;
+            let value = fields.get("value").cloned().ok_or_else(|| {
+                bad(format!(
+                    "op \"set\" needs field \"value\", the new value of {path}"
+                ))
+            })?;
+            Ok(Op::Set { path, value })
+        }
+        "subscribe" => Ok(Op::Subscribe {
+            stream: stream(fields, op)?,
+            format: format(fields)?,
+        }),
+        "unsubscribe" => Ok(Op::Unsubscribe {
+            stream: stream(fields, op)?,
+        }),
+        unknown => Err(ProtocolError::new(
+            ErrorCode::UnknownOp,
+            format!("unknown op {}; ops: {}", quote(unknown), op_list()),
+        )),
+    }
+}
+
+fn required_path(fields: &Map<String, Value>, op: &str) -> Result<String, ProtocolError> {
+    match fields.get("path") {
+        None | Some(Value::Null) => Err(bad(format!(
+            "op \"{op}\" needs field \"path\", a node path starting with \"/\" such as \
+             \"/drive/frequency\""
+        ))),
+        Some(value) => check_path(value, op),
+    }
+}
+
+fn optional_path(fields: &Map<String, Value>, op: &str) -> Result<Option<String>, ProtocolError> {
+    match fields.get("path") {
+        None | Some(Value::Null) => Ok(None),
+        Some(value) => check_path(value, op).map(Some),
+    }
+}
+
+fn check_path(value: &Value, op: &str) -> Result<String, ProtocolError> {
+    match value {
+        Value::String(path) if path.starts_with('/') => Ok(path.clone()),
+        Value::String(path) => Err(bad(format!(
+            "field \"path\" of op \"{op}\" must start with \"/\" (such as \"/drive/frequency\"), \
+             got {}",
+            quote(path)
+        ))),
+        other => Err(bad(format!(
+            "field \"path\" of op \"{op}\" must be a string starting with \"/\", got {}",
+            describe(other)
+        ))),
+    }
+}
+
+fn stream(fields: &Map<String, Value>, op: &str) -> Result<StreamKind, ProtocolError> {
+    match fields.get("stream") {
+        None | Some(Value::Null) => Err(bad(format!(
+            "op \"{op}\" needs field \"stream\", one of {}",
+            StreamKind::name_list()
+        ))),
+        Some(Value::String(name)) => StreamKind::from_name(name).ok_or_else(|| {
+            ProtocolError::new(
+                ErrorCode::UnknownStream,
+                format!(
+                    "unknown stream {}; streams: {}",
+                    quote(name),
+                    StreamKind::name_list()
+                ),
+            )
+        }),
+        Some(other) => Err(bad(format!(
+            "field \"stream\" of op \"{op}\" must be a string, one of {}; got {}",
+            StreamKind::name_list(),
+            describe(other)
+        ))),
+    }
+}
+
+fn format(fields: &Map<String, Value>) -> Result<Format, ProtocolError> {
+    let allowed = "must be \"json\" (the default) or \"binary\"";
+    match fields.get("format") {
+        None | Some(Value::Null) => Ok(Format::Json),
+        Some(Value::String(name)) => Format::from_name(name)
+            .ok_or_else(|| bad(format!("field \"format\" {allowed}, got {}", quote(name)))),
+        Some(other) => Err(bad(format!(
+            "field \"format\" {allowed}, got {}",
+            describe(other)
+        ))),
+    }
+}
+
+fn bad(message: String) -> ProtocolError {
+    ProtocolError::new(ErrorCode::BadRequest, message)
+}
+
+fn op_list() -> String {
+    Op::NAMES.join(", ")
+}
+
+/// `a number (3)`, `an array ([1,2])`, `null`…, shortened for long values.
+fn describe(value: &Value) -> String {
+    let kind = match value {
+        Value::Null => return "null".to_owned(),
+        Value::Bool(_) => "a boolean",
+        Value::Number(_) => "a number",
+        Value::String(_) => "a string",
+        Value::Array(_) => "an array",
+        Value::Object(_) => "an object",
+    };
+    let text = value.to_string();
+    format!("{kind} ({})", shorten(&text))
+}
+
+/// A client's string quoted as JSON, shortened for long strings.
+fn quote(text: &str) -> String {
+    shorten(&Value::from(text).to_string())
+}
+
+fn shorten(text: &str) -> String {
+    if text.len() <= MAX_QUOTED {
+        return text.to_owned();
+    }
+    let mut end = MAX_QUOTED;
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!("{}…", &text[..end])
+}

@@ -1,0 +1,275 @@
+//! One WebSocket connection: requests in, exactly one reply each; data messages out.
+//!
+//! Replies and data share the socket through a writer task that sends replies first. A
+//! peer that accepts nothing for `/server/stall_timeout` is disconnected (1008 "stalled");
+//! at shutdown every client gets a close frame (1001).
+
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket};
+use futures_util::{SinkExt, StreamExt};
+use serde_json::{Map, Value, json};
+use tokio::sync::mpsc;
+
+use super::protocol::{self, ErrorCode, Op, ProtocolError, Request};
+use super::state::{AppState, ClientHandle};
+
+/// Requests a client may make per second on average, and in a burst.
+const REQUESTS_PER_SECOND: f64 = 200.0;
+const REQUEST_BURST: f64 = 400.0;
+/// Close codes.
+const GOING_AWAY: u16 = 1001;
+const POLICY: u16 = 1008;
+const TOO_BIG: u16 = 1009;
+
+fn close(code: u16, reason: &'static str) -> Message {
+    Message::Close(Some(CloseFrame {
+        code,
+        reason: Utf8Bytes::from_static(reason),
+    }))
+}
+
+/// Token bucket for a connection's requests.
+struct RateLimit {
+    tokens: f64,
+    at: Instant,
+}
+
+impl RateLimit {
+    fn new() -> Self {
+        Self {
+            tokens: REQUEST_BURST,
+            at: Instant::now(),
+        }
+    }
+
+    fn allow(&mut self) -> bool {
+        let now = Instant::now();
+        let refill = (now - self.at).as_secs_f64() * REQUESTS_PER_SECOND;
+        self.tokens = (self.tokens + refill).min(REQUEST_BURST);
+        self.at = now;
+        if self.tokens >= 1.0 {
+            self.tokens -= 1.0;
+            true
+        } else {
+            false
+        }
+    }
+}
+
+/// Serves one upgraded connection until either side closes it.
+pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
+    let id = state.next_client.fetch_add(1, Ordering::Relaxed);
+    let (data_tx, data_rx) = mpsc::channel(queue);
+    let client = Arc::new(ClientHandle::new(id, data_tx));
+    if let Ok(mut clients) = state.clients.lock() {
+        clients.push(client.clone());
+    }
+    tracing::debug!(client = id, "connected");
+    let (sink, mut stream) = socket.split();
+    let (reply_tx, reply_rx) = mpsc::channel::<Message>(64);
+    let stall = stall_timeout(&state);
+    let writer = tokio::spawn(write(sink, reply_rx, data_rx, state.clone(), stall));
+
+    let mut limit = RateLimit::new();
+    while let Some(incoming) = stream.next().await {
+        let reply = match incoming {
+            Ok(Message::Text(text)) => {
+                if limit.allow() {
+                    handle(text.as_str(), &state, &client).await
+                } else {
+                    let id =
+                        protocol::parse_request(text.as_str()).map_or_else(|(id, _)| id, |r| r.id);
+                    let err = ProtocolError {
+                        code: ErrorCode::RateLimited,
+                        message: format!(
+                            "more than {REQUESTS_PER_SECOND} requests per second (burst {REQUEST_BURST}); slow down"
+                        ),
+                    };
+                    Message::Text(protocol::error_reply(&id, &err).into())
+                }
+            }
+            Ok(Message::Binary(_)) => {
+                let err = ProtocolError {
+                    code: ErrorCode::BadRequest,
+                    message: "requests are JSON text frames; binary frames are not accepted".into(),
+                };
+                Message::Text(protocol::error_reply(&Value::Null, &err).into())
+            }
+            Ok(Message::Close(_)) => break,
+            Ok(_) => continue, // ping/pong are answered by the library
+            Err(e) => {
+                let too_big = e.to_string().to_lowercase().contains("too long")
+                    || e.to_string().to_lowercase().contains("too big")
+                    || e.to_string().to_lowercase().contains("capacity");
+                if too_big {
+                    let _ = reply_tx
+                        .send(close(TOO_BIG, "message too big (limit 64 KiB)"))
+                        .await;
+                }
+                tracing::debug!(client = id, error = %e, "receive failed");
+                break;
+            }
+        };
+        if reply_tx.send(reply).await.is_err() {
+            break; // the writer ended (stalled peer or shutdown)
+        }
+    }
+    drop(reply_tx);
+    if let Ok(mut clients) = state.clients.lock() {
+        clients.retain(|c| c.id != id);
+    }
+    // Let the writer flush a final close frame, but not forever.
+    let _ = tokio::time::timeout(Duration::from_secs(1), writer).await;
+    tracing::debug!(
+        client = id,
+        dropped = client.dropped.load(Ordering::Relaxed),
+        "disconnected"
+    );
+}
+
+fn stall_timeout(state: &AppState) -> Duration {
+    let seconds = state
+        .control
+        .lock()
+        .map(|c| c.settings.server.stall_timeout)
+        .unwrap_or(10.0);
+    Duration::from_secs_f64(seconds)
+}
+
+/// Sends replies (first) and data until the peer stalls, the session ends or the server
+/// shuts down.
+async fn write(
+    mut sink: futures_util::stream::SplitSink<WebSocket, Message>,
+    mut replies: mpsc::Receiver<Message>,
+    mut data: mpsc::Receiver<Message>,
+    state: Arc<AppState>,
+    stall: Duration,
+) {
+    let mut shutdown = state.shutdown.clone();
+    loop {
+        let msg = tokio::select! {
+            biased;
+            _ = shutdown.changed() => {
+                let _ = tokio::time::timeout(Duration::from_millis(500), sink.send(close(GOING_AWAY, "server shutting down"))).await;
+                return;
+            }
+            r = replies.recv() => match r {
+                Some(m) => m,
+                None => return,
+            },
+            Some(m) = data.recv() => m,
+        };
+        let closing = matches!(msg, Message::Close(_));
+        match tokio::time::timeout(stall, sink.send(msg)).await {
+            Ok(Ok(())) if !closing => {}
+            Ok(Ok(())) => return,
+            Ok(Err(_)) => return,
+            Err(_) => {
+                state.closed_stalled.fetch_add(1, Ordering::Relaxed);
+                let _ = tokio::time::timeout(
+                    Duration::from_millis(200),
+                    sink.send(close(POLICY, "stalled")),
+                )
+                .await;
+                return;
+            }
+        }
+    }
+}
+
+/// One request → one reply.
+async fn handle(text: &str, state: &Arc<AppState>, client: &ClientHandle) -> Message {
+    let reply = match protocol::parse_request(text) {
+        Err((id, err)) => protocol::error_reply(&id, &err),
+        Ok(Request { id, op }) => match respond(op, state, client).await {
+            Ok(fields) => protocol::ok_reply(&id, fields),
+            Err(err) => protocol::error_reply(&id, &err),
+        },
+    };
+    Message::Text(reply.into())
+}
+
+fn fields(v: Value) -> Map<String, Value> {
+    match v {
+        Value::Object(m) => m,
+        _ => Map::new(),
+    }
+}
+
+async fn respond(
+    op: Op,
+    state: &Arc<AppState>,
+    client: &ClientHandle,
+) -> Result<Map<String, Value>, ProtocolError> {
+    let internal = |m: &str| ProtocolError {
+        code: ErrorCode::Internal,
+        message: m.to_string(),
+    };
+    match op {
+        Op::Hello => Ok(fields(json!({
+            "server": "ftafm",
+            "version": env!("CARGO_PKG_VERSION"),
+            "protocol": protocol::PROTOCOL_VERSION,
+            "sample_rate": state.sample_rate,
+        }))),
+        Op::List { path } => {
+            let control = state
+                .control
+                .lock()
+                .map_err(|_| internal("control lock poisoned"))?;
+            let nodes = match &path {
+                Some(p) => control.settings.nodes_under(p),
+                None => control.settings.nodes(),
+            };
+            if nodes.is_empty() {
+                return Err(ProtocolError {
+                    code: ErrorCode::UnknownPath,
+                    message: format!("no node at or under {}", path.unwrap_or_default()),
+                });
+            }
+            Ok(fields(json!({ "nodes": nodes })))
+        }
+        Op::Get { path } => {
+            let control = state
+                .control
+                .lock()
+                .map_err(|_| internal("control lock poisoned"))?;
+            let value = control
+                .settings
+                .get(&path)
+                .map_err(|e| ProtocolError::from(&e))?;
+            Ok(fields(json!({ "path": path, "value": value })))
+        }
+        Op::Set { path, value } => {
+            let state = state.clone();
+            // The 1-DOF solve of a physics change takes milliseconds: off the async workers.
+            let result = tokio::task::spawn_blocking(move || {
+                let mut control = state
+                    .control
+                    .lock()
+                    .map_err(|_| internal("control lock poisoned"))?;
+                control.set(&path, &value).map(|applied| (path, applied))
+            })
+            .await
+            .map_err(|_| internal("the settings task failed"))?;
+            let (path, applied) = result?;
+            Ok(fields(json!({ "path": path, "value": applied })))
+        }
+        Op::Subscribe { stream, format } => {
+            client.subscribe(stream, format);
+            let next_seq = state.streams[super::state::stream_index(stream)]
+                .produced
+                .load(Ordering::Relaxed);
+            Ok(fields(
+                json!({ "stream": stream.name(), "next_seq": next_seq }),
+            ))
+        }
+        Op::Unsubscribe { stream } => {
+            client.unsubscribe(stream);
+            Ok(fields(json!({ "stream": stream.name() })))
+        }
+    }
+}
