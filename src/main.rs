@@ -19,22 +19,28 @@ struct Cli {
     command: Option<Command>,
 }
 
+/// The configuration file flag every command shares.
+#[derive(clap::Args)]
+struct ConfigArg {
+    /// TOML file overlaid on the embedded default configuration.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Run the instrument daemon: dashboard at /, WebSocket at /ws, /metrics, /healthz.
     Serve {
-        /// TOML file overlaid on the embedded default configuration.
-        #[arg(long, value_name = "FILE")]
-        config: Option<PathBuf>,
+        #[command(flatten)]
+        config: ConfigArg,
         /// Address to listen on (loopback by default; other hosts only if you mean it).
         #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:8700")]
         bind: String,
     },
     /// Compute the paper's Table 1 and Fig. 3 offline for the configured instrument.
     Paper {
-        /// TOML file overlaid on the embedded default configuration.
-        #[arg(long, value_name = "FILE")]
-        config: Option<PathBuf>,
+        #[command(flatten)]
+        config: ConfigArg,
         /// Young's modulus of the inhomogeneity relative to the sample's (0 < F, F·E ≤ 10 TPa).
         #[arg(
             long,
@@ -50,9 +56,8 @@ enum Command {
     /// Run the whole signal chain on its threads and measure throughput (or, with
     /// --realtime, soak it at the wall-clock rate and count overruns).
     Bench {
-        /// TOML file overlaid on the embedded default configuration.
-        #[arg(long, value_name = "FILE")]
-        config: Option<PathBuf>,
+        #[command(flatten)]
+        config: ConfigArg,
         /// Duration of the run in seconds (0 < S ≤ 86400).
         #[arg(
             long,
@@ -70,9 +75,8 @@ enum Command {
     },
     /// Print the configured instrument: its modes and the 1-DOF tapping solution.
     Info {
-        /// TOML file overlaid on the embedded default configuration.
-        #[arg(long, value_name = "FILE")]
-        config: Option<PathBuf>,
+        #[command(flatten)]
+        config: ConfigArg,
     },
 }
 
@@ -89,23 +93,23 @@ fn load(path: Option<&PathBuf>) -> Result<Settings, ExitCode> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let command = cli.command.unwrap_or(Command::Serve {
-        config: None,
+        config: ConfigArg { config: None },
         bind: "127.0.0.1:8700".into(),
     });
     let result = match command {
-        Command::Serve { config, bind } => run_serve(config.as_ref(), &bind),
+        Command::Serve { config, bind } => run_serve(config.config.as_ref(), &bind),
         Command::Paper {
             config,
             inhomogeneity_factor,
             json,
-        } => run_paper(config.as_ref(), inhomogeneity_factor, json),
-        Command::Info { config } => run_info(config.as_ref()),
+        } => run_paper(config.config.as_ref(), inhomogeneity_factor, json),
+        Command::Info { config } => run_info(config.config.as_ref()),
         Command::Bench {
             config,
             seconds,
             realtime,
             json,
-        } => run_bench(config.as_ref(), seconds, realtime, json),
+        } => run_bench(config.config.as_ref(), seconds, realtime, json),
     };
     result.unwrap_or_else(|code| code)
 }

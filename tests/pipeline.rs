@@ -221,3 +221,34 @@ fn scope_traces_are_the_synthesised_samples_with_their_drive_phase() {
         assert_eq!(first % 100_000, 0, "trace starts on the rate grid: {first}");
     }
 }
+
+#[test]
+fn a_live_change_of_spectrum_size_gives_whole_spectra() {
+    let mut settings = free_running_quiet();
+    settings.spectrum.size = 1024;
+    settings.spectrum.rate = 200.0;
+    let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    let mut bigger = settings.clone();
+    bigger.spectrum.size = 1 << 18;
+    pipeline.apply(&bigger).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut lengths = std::collections::BTreeSet::new();
+    while !lengths.contains(&((1 << 17) + 1)) {
+        output.demods.skip(usize::MAX);
+        while let Some(b) = output.spectra.try_pop() {
+            lengths.insert(b.magnitudes.len());
+            output.recycle(b);
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no full-size spectrum after the change: {lengths:?}"
+        );
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    // Every spectrum is whole: N/2 + 1 bins of the size in force.
+    assert!(
+        lengths.iter().all(|&n| n == 513 || n == (1 << 17) + 1),
+        "{lengths:?}"
+    );
+    pipeline.stop();
+}

@@ -128,32 +128,33 @@ impl ImpactSolution {
     /// Fourier coefficients c_k = (1/T)∫F(t)e^{−ikΩt}dt (N) of the simulated force,
     /// k = 0..=kmax, from an FFT of the orbit (Eq. 18 with the Dirac comb folded in).
     pub fn force_coefficients(&self, kmax: usize) -> Vec<Complex64> {
-        let n = self.force.len();
-        let mut planner = realfft::RealFftPlanner::<f64>::new();
-        let fft = planner.plan_fft_forward(n);
-        let mut input = self.force.clone();
-        let mut spectrum = fft.make_output_vec();
-        fft.process(&mut input, &mut spectrum)
-            .expect("buffer sizes come from the plan");
-        (0..=kmax.min(n / 2))
-            .map(|k| spectrum[k] / n as f64)
-            .collect()
+        two_sided_coefficients(&self.force, kmax)
     }
 
     /// Complex Fourier coefficients Z_k (m) of z, with z = Re Σ Z_k e^{ikΩt} (peak
     /// amplitudes |Z_k| for k ≥ 1; Z_0 is the mean).
     pub fn position_harmonics(&self, kmax: usize) -> Vec<Complex64> {
-        let n = self.position.len();
-        let mut planner = realfft::RealFftPlanner::<f64>::new();
-        let fft = planner.plan_fft_forward(n);
-        let mut input = self.position.clone();
-        let mut spectrum = fft.make_output_vec();
-        fft.process(&mut input, &mut spectrum)
-            .expect("buffer sizes come from the plan");
-        (0..=kmax.min(n / 2))
-            .map(|k| spectrum[k] * if k == 0 { 1.0 } else { 2.0 } / n as f64)
-            .collect()
+        let mut z = two_sided_coefficients(&self.position, kmax);
+        for c in z.iter_mut().skip(1) {
+            *c *= 2.0;
+        }
+        z
     }
+}
+
+/// (1/N)·DFT of one period of samples: the two-sided coefficients c_0..=c_kmax.
+fn two_sided_coefficients(samples: &[f64], kmax: usize) -> Vec<Complex64> {
+    let n = samples.len();
+    let fft = realfft::RealFftPlanner::<f64>::new().plan_fft_forward(n);
+    let mut input = samples.to_vec();
+    let mut spectrum = fft.make_output_vec();
+    fft.process(&mut input, &mut spectrum)
+        .expect("buffer sizes come from the plan");
+    spectrum
+        .iter()
+        .take(kmax.min(n / 2) + 1)
+        .map(|c| c / n as f64)
+        .collect()
 }
 
 /// Dimensionless form used by the integrator: phase s = Ωt, x = z/A_free.

@@ -34,7 +34,7 @@ pub use frames::{DemodFrame, DemodValue, ScopeBuffer, SpectrumBuffer};
 pub use scope::MAX_SCOPE_SAMPLES;
 pub use synth_worker::BLOCK_SAMPLES;
 
-use crate::config::Settings;
+use crate::config::{MAX_SPECTRUM_SIZE, Settings};
 use crate::dsp::DspError;
 use crate::synth::{PlanError, SynthPlan, SynthState};
 use dsp_worker::DspWorker;
@@ -47,8 +47,8 @@ pub const SAMPLE_RING: usize = 1 << 21;
 const PLAN_SLOTS: usize = 4;
 /// Demodulator frames queued for the consumer: 4 s at 1 kHz.
 const DEMOD_QUEUE: usize = 4096;
-/// Spectrum buffers in the pool.
-const SPECTRUM_POOL: usize = 8;
+/// Buffers in each pool (spectra, scope traces).
+const POOL_BUFFERS: usize = 8;
 
 /// Why the pipeline could not start or take new settings.
 #[derive(Debug, thiserror::Error)]
@@ -133,6 +133,17 @@ impl<P> PlanLink<P> {
     }
 }
 
+/// A pool of `POOL_BUFFERS` buffers: the queue to the consumer (producer, consumer) and the
+/// free list back (producer, consumer), the free list filled by `make`.
+fn pool<T>(make: impl Fn() -> T) -> (HeapProd<T>, HeapCons<T>, HeapProd<T>, HeapCons<T>) {
+    let (full_in, full_out) = HeapRb::<T>::new(POOL_BUFFERS).split();
+    let (mut free_in, free_out) = HeapRb::<T>::new(POOL_BUFFERS).split();
+    for _ in 0..POOL_BUFFERS {
+        let _ = free_in.try_push(make());
+    }
+    (full_in, full_out, free_in, free_out)
+}
+
 fn plan_link<P>() -> (PlanLink<P>, HeapCons<Box<P>>, HeapProd<Box<P>>) {
     let (to_thread, thread_in) = HeapRb::new(PLAN_SLOTS).split();
     let (thread_out, from_thread) = HeapRb::new(PLAN_SLOTS).split();
@@ -165,39 +176,31 @@ impl Pipeline {
         let synth_plan = Box::new(SynthPlan::new(settings)?);
         let dsp_plan = Box::new(DspPlan::new(settings)?);
         let state = SynthState::steady(&synth_plan, settings.synth.seed);
-        let bins = dsp_plan.spectrum_bins();
 
         let (samples_in, samples_out) = HeapRb::<f64>::new(SAMPLE_RING).split();
         let (headers_in, headers_out) =
             HeapRb::<BlockHeader>::new(SAMPLE_RING / BLOCK_SAMPLES + 1).split();
         let (demods_in, demods_out) = HeapRb::<DemodFrame>::new(DEMOD_QUEUE).split();
-        let (spectra_in, spectra_out) = HeapRb::<SpectrumBuffer>::new(SPECTRUM_POOL).split();
-        let (mut free_in, free_out) = HeapRb::<SpectrumBuffer>::new(SPECTRUM_POOL).split();
-        for _ in 0..SPECTRUM_POOL {
-            let _ = free_in.try_push(SpectrumBuffer {
-                sample_index: 0,
-                t: 0.0,
-                t_synth_ns: 0,
-                t_dsp_ns: 0,
-                bin_width: 0.0,
-                magnitudes: Vec::with_capacity(bins),
-            });
-        }
-        let (scopes_in, scopes_out) = HeapRb::<ScopeBuffer>::new(SPECTRUM_POOL).split();
-        let (mut free_scopes_in, free_scopes_out) =
-            HeapRb::<ScopeBuffer>::new(SPECTRUM_POOL).split();
-        for _ in 0..SPECTRUM_POOL {
-            let _ = free_scopes_in.try_push(ScopeBuffer {
-                sample_index: 0,
-                t: 0.0,
-                t_synth_ns: 0,
-                t_dsp_ns: 0,
-                dt: 0.0,
-                start_phase: 0.0,
-                phase_step: 0.0,
-                samples: Vec::with_capacity(MAX_SCOPE_SAMPLES),
-            });
-        }
+        // Pools sized for the largest spectrum and trace the settings allow, so a live change
+        // of /spectrum/size or /scope/length never needs a bigger buffer on the DSP thread.
+        let (spectra_in, spectra_out, free_in, free_out) = pool(|| SpectrumBuffer {
+            sample_index: 0,
+            t: 0.0,
+            t_synth_ns: 0,
+            t_dsp_ns: 0,
+            bin_width: 0.0,
+            magnitudes: Vec::with_capacity(MAX_SPECTRUM_SIZE as usize / 2 + 1),
+        });
+        let (scopes_in, scopes_out, free_scopes_in, free_scopes_out) = pool(|| ScopeBuffer {
+            sample_index: 0,
+            t: 0.0,
+            t_synth_ns: 0,
+            t_dsp_ns: 0,
+            dt: 0.0,
+            start_phase: 0.0,
+            phase_step: 0.0,
+            samples: Vec::with_capacity(MAX_SCOPE_SAMPLES),
+        });
         let (synth_link, synth_plans_in, synth_plans_out) = plan_link();
         let (dsp_link, dsp_plans_in, dsp_plans_out) = plan_link();
 
