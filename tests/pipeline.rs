@@ -230,14 +230,20 @@ fn a_live_change_of_spectrum_size_gives_whole_spectra() {
     let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
     let mut bigger = settings.clone();
     bigger.spectrum.size = 1 << 18;
+    bigger.scope.length = 700; // a scope change reaches the DSP too
     pipeline.apply(&bigger).unwrap();
     let deadline = Instant::now() + Duration::from_secs(30);
     let mut lengths = std::collections::BTreeSet::new();
-    while !lengths.contains(&((1 << 17) + 1)) {
+    let mut traces = std::collections::BTreeSet::new();
+    while !lengths.contains(&((1 << 17) + 1)) || !traces.contains(&700) {
         output.demods.skip(usize::MAX);
         while let Some(b) = output.spectra.try_pop() {
             lengths.insert(b.magnitudes.len());
             output.recycle(b);
+        }
+        while let Some(b) = output.scopes.try_pop() {
+            traces.insert(b.samples.len());
+            output.recycle_scope(b);
         }
         assert!(
             Instant::now() < deadline,

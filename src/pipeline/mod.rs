@@ -289,8 +289,11 @@ impl Pipeline {
             || settings.drive != old.drive
             || settings.surface != old.surface
             || settings.noise != old.noise
-            || settings.synth.engine != old.synth.engine;
-        let dsp_changed = settings.demods != old.demods || settings.spectrum != old.spectrum;
+            || settings.synth.engine != old.synth.engine
+            || settings.synth.seed != old.synth.seed;
+        let dsp_changed = settings.demods != old.demods
+            || settings.spectrum != old.spectrum
+            || settings.scope != old.scope;
         // Build both and check both links before sending either, so a failure changes
         // nothing.
         let synth = synth_changed

@@ -106,6 +106,8 @@ pub struct SynthPlan {
     pub adc: Option<Adc>,
     /// Per-mode constants laid out for the hot loop.
     pub(crate) lanes: Lanes,
+    /// Seed of the noise generator (`/synth/seed`).
+    pub seed: u64,
 }
 
 /// Per-mode constants as structure of arrays, zero past the plan's modes.
@@ -215,6 +217,7 @@ impl SynthPlan {
         let lanes = Lanes::new(&modes, &thermal_sigma);
         Ok(Self {
             lanes,
+            seed: settings.synth.seed,
             sample_rate,
             h,
             frequency_word: word,

@@ -110,8 +110,12 @@ impl SynthState {
 
     /// Moves from `old` to `new` without a jump: the modal displacements and velocities
     /// stay continuous, so a change of drive, sample or cantilever shows as a physical
-    /// transient. Modes that `new` adds start at rest; modes it drops are gone.
+    /// transient. Modes that `new` adds start at rest; modes it drops are gone. A new seed
+    /// restarts the noise generator from it (the stream from then on is that seed's).
     pub fn retarget(&mut self, old: &SynthPlan, new: &SynthPlan) {
+        if new.seed != old.seed {
+            self.rng = Xoshiro256PlusPlus::seed_from_u64(new.seed);
+        }
         let theta = phase_to_radians(self.phase);
         let rho = Complex64::from_polar(1.0, theta);
         let particular = |plan: &SynthPlan, m: usize| -> (f64, f64) {
