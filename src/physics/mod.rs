@@ -4,6 +4,7 @@
 pub mod beam;
 pub mod contact;
 pub mod impact;
+pub mod inversion;
 pub mod spectrum;
 
 pub use beam::{Cantilever, Mode};
