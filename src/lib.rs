@@ -6,6 +6,7 @@
 pub mod bench;
 pub mod config;
 pub mod dsp;
+pub mod inversion;
 pub mod model;
 pub mod paper;
 pub mod physics;

@@ -4,8 +4,8 @@
 use std::collections::BTreeSet;
 
 use ftafm::config::{
-    ConfigError, DEFAULT_TOML, Engine, NodeError, Settings, SpectrumWindow, default_settings, load,
-    load_str, registry,
+    ConfigError, DEFAULT_TOML, Engine, InversionMethod, InversionSettings, NodeError, Settings,
+    SpectrumWindow, default_settings, load, load_str, registry,
 };
 use proptest::prelude::*;
 use serde_json::{Value, json};
@@ -65,6 +65,17 @@ fn default_is_the_papers_silicon_case() {
     assert_eq!(s.server.max_clients, 128);
     assert_eq!(s.server.client_queue, 1024);
     assert_eq!(s.server.stall_timeout, 10.0);
+    assert_eq!(
+        s.inversion,
+        InversionSettings {
+            enable: true,
+            method: InversionMethod::Full,
+            harmonic_a: 6,
+            harmonic_b: 17,
+            averaging: 1,
+            points: 256,
+        }
+    );
     assert_eq!(s.demods.len(), 32);
     for (n, demod) in s.demods.iter().enumerate() {
         assert!(demod.enable);
@@ -97,6 +108,19 @@ fn settings_serialise_to_toml_that_loads_back() {
     let json = serde_json::to_value(default_settings()).unwrap();
     assert_eq!(json["demods"]["3"]["harmonic"], json!(4));
     assert_eq!(json["server"]["allowed_origins"], json!([]));
+    assert_eq!(json["inversion"]["method"], json!("full"));
+    assert_eq!(json["inversion"]["harmonic_b"], json!(17));
+    // Tables keep the tree's order: [inversion] after [server], before the bank.
+    let at = |table: &str| {
+        text.find(table)
+            .unwrap_or_else(|| panic!("{table}: {text}"))
+    };
+    assert!(at("[server]") < at("[inversion]") && at("[inversion]") < at("[demods.0]"));
+    let mut s = default_settings();
+    s.inversion.method = InversionMethod::TwoHarmonic;
+    let text = toml::to_string(&s).unwrap();
+    assert!(text.contains("method = \"two_harmonic\""), "{text}");
+    assert_eq!(load_str(&text, "roundtrip.toml").unwrap(), s);
     // A list of origins is a TOML array of strings, and comes back the same.
     let mut s = default_settings();
     s.server.allowed_origins = vec!["http://localhost:3000".into(), "https://lab.example".into()];
@@ -126,10 +150,11 @@ fn partial_overlay_changes_only_what_it_names() {
 
 #[test]
 fn inline_demod_tables_change_only_their_keys() {
-    let s = load_str("[demods]\n5 = { order = 2, enable = false }\n", "t.toml").unwrap();
+    // Demodulator 4 (harmonic 5): not one the inversion needs (6 and 17).
+    let s = load_str("[demods]\n4 = { order = 2, enable = false }\n", "t.toml").unwrap();
     let mut expected = default_settings();
-    expected.demods[5].order = 2;
-    expected.demods[5].enable = false;
+    expected.demods[4].order = 2;
+    expected.demods[4].enable = false;
     assert_eq!(s, expected);
 }
 
@@ -796,6 +821,271 @@ fn server_ranges_name_the_key() {
     );
 }
 
+const HARMONIC_NOT_MEASURED: &str = "/inversion/harmonic_b = 40 is not measured by any enabled \
+                                     demodulator: while /inversion/enable = true, \
+                                     /inversion/harmonic_a and /inversion/harmonic_b must each \
+                                     be the harmonic of an enabled demodulator \
+                                     (/demods/N/harmonic with /demods/N/enable = true), and \
+                                     enabled demodulators cover harmonics 1–32";
+
+const SAME_HARMONICS: &str = "/inversion/harmonic_a = 17 and /inversion/harmonic_b = 17 must \
+                              differ: the inversion needs two distinct harmonics";
+
+#[test]
+fn inversion_ranges_name_the_key() {
+    assert_eq!(
+        error_of("[inversion]\nmethod = \"magic\"\n"),
+        "test.toml: /inversion/method = \"magic\" is not allowed: choose one of \"full\", \
+         \"two_harmonic\""
+    );
+    assert_eq!(
+        error_of("[inversion]\nharmonic_a = 1\n"),
+        "test.toml: /inversion/harmonic_a = 1 is out of range: allowed 2 ≤ value ≤ 10000"
+    );
+    assert_mentions(
+        &error_of("[inversion]\nharmonic_b = 10001\n"),
+        &["/inversion/harmonic_b = 10001", "out of range"],
+    );
+    assert_mentions(
+        &error_of("[inversion]\nharmonic_b = 0\n"),
+        &["/inversion/harmonic_b = 0", "2 ≤ value ≤ 10000"],
+    );
+    assert_eq!(
+        error_of("[inversion]\naveraging = 0\n"),
+        "test.toml: /inversion/averaging = 0 is out of range: allowed 1 ≤ value ≤ 10000"
+    );
+    assert_mentions(
+        &error_of("[inversion]\naveraging = 10001\n"),
+        &["/inversion/averaging = 10001", "out of range"],
+    );
+    assert_eq!(
+        error_of("[inversion]\npoints = 8\n"),
+        "test.toml: /inversion/points = 8 is out of range: allowed 16 ≤ value ≤ 4096"
+    );
+    assert_mentions(
+        &error_of("[inversion]\npoints = 4097\n"),
+        &["/inversion/points = 4097", "out of range"],
+    );
+    assert_mentions(
+        &error_of("[inversion]\npoints = 100.5\n"),
+        &["/inversion/points = 100.5", "not an integer"],
+    );
+    assert_mentions(
+        &error_of("[inversion]\nenable = \"yes\"\n"),
+        &["/inversion/enable = \"yes\"", "true or false"],
+    );
+    assert_mentions(
+        &error_of("[inversion]\nmethd = \"full\"\n"),
+        &["/inversion/methd", "[inversion]", "harmonic_a", "points"],
+    );
+    for (overlay, path) in [
+        ("[inversion]\nmethod = \"magic\"\n", "/inversion/method"),
+        ("[inversion]\nharmonic_a = 1\n", "/inversion/harmonic_a"),
+        ("[inversion]\nharmonic_b = 40\n", "/inversion/harmonic_b"),
+        ("[inversion]\nharmonic_a = 17\n", "/inversion/harmonic_b"),
+        ("[inversion]\naveraging = 0\n", "/inversion/averaging"),
+        ("[inversion]\npoints = 8\n", "/inversion/points"),
+    ] {
+        assert_eq!(load_str(overlay, "t.toml").unwrap_err().path(), Some(path));
+    }
+    // The ends themselves are allowed (a harmonic at the end needs a demodulator there).
+    let s = load_str(
+        "[inversion]\nmethod = \"two_harmonic\"\nharmonic_a = 2\naveraging = 10000\n\
+         points = 16\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!(
+        (
+            s.inversion.method,
+            s.inversion.harmonic_a,
+            s.inversion.averaging,
+            s.inversion.points
+        ),
+        (InversionMethod::TwoHarmonic, 2, 10000, 16)
+    );
+    let s = load_str(
+        "[inversion]\nharmonic_b = 10000\npoints = 4096\naveraging = 1\n\
+         [synth]\nsample_rate = 1e9\n[drive]\nfrequency = 1e4\n[demods.31]\nharmonic = 10000\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!((s.inversion.harmonic_b, s.inversion.points), (10000, 4096));
+}
+
+#[test]
+fn inversion_method_names() {
+    assert_eq!(InversionMethod::NAMES, ["full", "two_harmonic"]);
+    for (method, name) in InversionMethod::ALL.into_iter().zip(InversionMethod::NAMES) {
+        assert_eq!(method.name(), *name);
+        assert_eq!(InversionMethod::from_name(name), Some(method));
+        let text = format!("[inversion]\nmethod = \"{name}\"\n");
+        assert_eq!(load_str(&text, "t.toml").unwrap().inversion.method, method);
+    }
+    assert_eq!(InversionMethod::from_name("magic"), None);
+    assert_eq!(InversionMethod::from_name("two-harmonic"), None);
+    let mut s = default_settings();
+    assert_eq!(
+        s.set("/inversion/method", &json!("two_harmonic")).unwrap(),
+        json!("two_harmonic")
+    );
+    assert_eq!(s.inversion.method, InversionMethod::TwoHarmonic);
+    assert_eq!(
+        serde_json::to_value(InversionMethod::TwoHarmonic).unwrap(),
+        json!("two_harmonic")
+    );
+}
+
+#[test]
+fn inversion_harmonics_differ_and_are_measured() {
+    // Harmonic 40 lies beyond the default bank (harmonics 1–32).
+    assert_eq!(
+        error_of("[inversion]\nharmonic_b = 40\n"),
+        format!("test.toml: {HARMONIC_NOT_MEASURED}")
+    );
+    // With the inversion off, nothing needs to measure it.
+    let s = load_str("[inversion]\nharmonic_b = 40\nenable = false\n", "t.toml").unwrap();
+    assert_eq!((s.inversion.harmonic_b, s.inversion.enable), (40, false));
+    // Or a demodulator moved there, in the same file, in either order.
+    let s = load_str(
+        "[inversion]\nharmonic_b = 40\n[demods.31]\nharmonic = 40\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!(s.inversion.harmonic_b, 40);
+    // A disabled demodulator does not count.
+    assert_mentions(
+        &error_of("[demods.5]\nenable = false\n"),
+        &[
+            "test.toml: /inversion/harmonic_a = 6 is not measured",
+            "/inversion/enable = true",
+            "/demods/N/harmonic",
+            "/demods/N/enable",
+            "enabled demodulators cover harmonics 1–5, 7–32",
+        ],
+    );
+    // Equal harmonics are refused, enabled or not.
+    assert_eq!(
+        error_of("[inversion]\nharmonic_a = 17\n"),
+        format!("test.toml: {SAME_HARMONICS}")
+    );
+    assert_eq!(
+        error_of("[inversion]\nharmonic_a = 17\nenable = false\n"),
+        format!("test.toml: {SAME_HARMONICS}")
+    );
+
+    // By `set`: the node set is named first, then the relation.
+    let mut s = default_settings();
+    let before = s.clone();
+    let error = s.set("/inversion/harmonic_b", &json!(40)).unwrap_err();
+    assert_eq!(error.code(), "invalid_value");
+    assert_eq!(error.path(), "/inversion/harmonic_b");
+    assert_eq!(error.to_string(), HARMONIC_NOT_MEASURED);
+    let error = s.set("/inversion/harmonic_a", &json!(17)).unwrap_err();
+    assert_eq!(error.path(), "/inversion/harmonic_a");
+    assert_eq!(
+        error.to_string(),
+        format!("cannot set /inversion/harmonic_a = 17: {SAME_HARMONICS}")
+    );
+    let error = s.set("/demods/16/enable", &json!(false)).unwrap_err();
+    assert_eq!(error.path(), "/demods/16/enable");
+    assert_mentions(
+        &error.to_string(),
+        &[
+            "cannot set /demods/16/enable = false: /inversion/harmonic_b = 17 is not measured",
+            "enabled demodulators cover harmonics 1–16, 18–32",
+        ],
+    );
+    let error = s.set("/demods/16/harmonic", &json!(40)).unwrap_err();
+    assert_mentions(
+        &error.to_string(),
+        &[
+            "cannot set /demods/16/harmonic = 40: /inversion/harmonic_b = 17",
+            "harmonics 1–16, 18–32, 40",
+        ],
+    );
+    assert_eq!(s, before);
+    // Disable the inversion, and the same sets succeed; enabling it again then fails.
+    s.set("/inversion/enable", &json!(false)).unwrap();
+    assert_eq!(
+        s.set("/inversion/harmonic_b", &json!(40)).unwrap(),
+        json!(40)
+    );
+    s.set("/demods/16/enable", &json!(false)).unwrap();
+    let disabled = s.clone();
+    let error = s.set("/inversion/enable", &json!(true)).unwrap_err();
+    assert_eq!(error.path(), "/inversion/enable");
+    assert_mentions(
+        &error.to_string(),
+        &[
+            "cannot set /inversion/enable = true: /inversion/harmonic_b = 40 is not measured",
+            "harmonics 1–16, 18–32",
+        ],
+    );
+    assert_eq!(s, disabled);
+    // Measure harmonic 40 and the inversion may run on it.
+    s.set("/demods/16/harmonic", &json!(40)).unwrap();
+    s.set("/demods/16/enable", &json!(true)).unwrap();
+    assert_eq!(
+        s.set("/inversion/enable", &json!(true)).unwrap(),
+        json!(true)
+    );
+    // Moving the inversion to another measured harmonic frees the old one's demodulator.
+    let mut s = default_settings();
+    assert_eq!(
+        s.set("/inversion/harmonic_b", &json!(30.0)).unwrap(),
+        json!(30)
+    );
+    s.set("/demods/16/enable", &json!(false)).unwrap();
+    // And `list` narrows the harmonics to what the enabled demodulators measure.
+    let info = |s: &Settings, path: &str| s.nodes_under(path).into_iter().next().unwrap();
+    let a = info(&s, "/inversion/harmonic_a");
+    assert_eq!((&a.min, &a.max), (&json!(2), &json!(32)));
+    // Without harmonics 31 and 32, the highest left is 30, which harmonic_b uses.
+    s.set("/demods/30/enable", &json!(false)).unwrap();
+    s.set("/demods/31/enable", &json!(false)).unwrap();
+    let a = info(&s, "/inversion/harmonic_a");
+    assert_eq!((&a.min, &a.max), (&json!(2), &json!(29)));
+    let b = info(&s, "/inversion/harmonic_b");
+    assert_eq!((&b.min, &b.max), (&json!(2), &json!(30)));
+    s.set("/inversion/enable", &json!(false)).unwrap();
+    let a = info(&s, "/inversion/harmonic_a");
+    assert_eq!((&a.min, &a.max), (&json!(2), &json!(10000)));
+}
+
+#[test]
+fn inversion_nodes_change_at_runtime() {
+    let mut s = default_settings();
+    for (path, value, applied) in [
+        ("/inversion/enable", json!(false), json!(false)),
+        (
+            "/inversion/method",
+            json!("two_harmonic"),
+            json!("two_harmonic"),
+        ),
+        ("/inversion/harmonic_a", json!(2), json!(2)),
+        ("/inversion/harmonic_b", json!(32.0), json!(32)),
+        ("/inversion/averaging", json!(10), json!(10)),
+        ("/inversion/points", json!(4096), json!(4096)),
+        ("/inversion/enable", json!(true), json!(true)),
+    ] {
+        assert_eq!(s.set(path, &value).unwrap(), applied, "{path}");
+        assert_eq!(s.get(path).unwrap(), applied, "{path}");
+    }
+    assert_eq!(
+        s.inversion,
+        InversionSettings {
+            enable: true,
+            method: InversionMethod::TwoHarmonic,
+            harmonic_a: 2,
+            harmonic_b: 32,
+            averaging: 10,
+            points: 4096,
+        }
+    );
+    s.validate().unwrap();
+}
+
 const COUPLED_REFUSED: &str = "/synth/engine = \"coupled\" is not available yet (the coupled \
                                engine is a later piece of work); allowed: \"paper\"";
 
@@ -1011,6 +1301,22 @@ fn failed_set_changes_nothing() {
         ("/server/max_clients", json!(0)),
         ("/server/client_queue", json!(8)),
         ("/server/stall_timeout", json!(0.5)),
+        ("/inversion/enable", json!("yes")),
+        ("/inversion/method", json!("magic")),
+        ("/inversion/method", json!(1)),
+        ("/inversion/harmonic_a", json!(1)),
+        ("/inversion/harmonic_a", json!(17)),
+        ("/inversion/harmonic_a", json!(10001)),
+        ("/inversion/harmonic_a", json!(6.5)),
+        ("/inversion/harmonic_b", json!(40)),
+        ("/inversion/harmonic_b", json!(6)),
+        ("/inversion/averaging", json!(0)),
+        ("/inversion/averaging", json!(10001)),
+        ("/inversion/points", json!(8)),
+        ("/inversion/points", json!(4097)),
+        // The demodulators that measure the inversion's harmonics 6 and 17.
+        ("/demods/5/enable", json!(false)),
+        ("/demods/16/harmonic", json!(40)),
     ];
     for (path, value) in attempts {
         let error = s.set(path, &value).unwrap_err();
@@ -1035,8 +1341,9 @@ fn a_set_that_conflicts_names_the_other_node() {
             "Nyquist",
         ],
     );
-    // With the upper half of the bank off, the same drive is fine.
-    for n in 16..32 {
+    // With demodulators 24 … 31 off, the same drive is fine. (The upper half of the bank
+    // could not all go: demodulator 16 measures the inversion's harmonic 17.)
+    for n in 24..32 {
         s.set(&format!("/demods/{n}/enable"), &json!(false))
             .unwrap();
     }
@@ -1070,7 +1377,7 @@ fn every_node_round_trips_through_set() {
 fn list_entries_have_the_protocol_fields() {
     let nodes = default_settings().nodes();
     assert_eq!(nodes.len(), registry().len());
-    assert_eq!(nodes.len(), 33 + 32 * 5);
+    assert_eq!(nodes.len(), 39 + 32 * 5);
     let entry = serde_json::to_value(&nodes[0]).unwrap();
     let keys: BTreeSet<&str> = entry
         .as_object()
@@ -1130,6 +1437,13 @@ fn list_entries_have_the_protocol_fields() {
         ("/server/max_clients", "clients", json!(1), json!(4096)),
         ("/server/client_queue", "messages", json!(16), json!(65536)),
         ("/server/stall_timeout", "s", json!(1.0), json!(600.0)),
+        ("/inversion/enable", "", Value::Null, Value::Null),
+        ("/inversion/method", "", Value::Null, Value::Null),
+        // While enabled, the harmonics the enabled demodulators measure (2 … 32 by default).
+        ("/inversion/harmonic_a", "", json!(2), json!(32)),
+        ("/inversion/harmonic_b", "", json!(2), json!(32)),
+        ("/inversion/averaging", "frames", json!(1), json!(10000)),
+        ("/inversion/points", "samples", json!(16), json!(4096)),
     ] {
         let info = find(path);
         assert_eq!(
@@ -1175,6 +1489,22 @@ fn nodes_under_matches_whole_segments() {
     assert_eq!(s.nodes_under("/spectrum").len(), 4);
     assert_eq!(s.nodes_under("/scope").len(), 4);
     assert_eq!(s.nodes_under("/server").len(), 4);
+    let paths: Vec<String> = s
+        .nodes_under("/inversion")
+        .into_iter()
+        .map(|n| n.path)
+        .collect();
+    assert_eq!(
+        paths,
+        [
+            "/inversion/enable",
+            "/inversion/method",
+            "/inversion/harmonic_a",
+            "/inversion/harmonic_b",
+            "/inversion/averaging",
+            "/inversion/points"
+        ]
+    );
     assert_eq!(s.nodes_under("/sample/poisson").len(), 1);
     assert_eq!(s.nodes_under("/").len(), s.nodes().len());
     assert!(s.nodes_under("/samp").is_empty());
@@ -1276,7 +1606,12 @@ fn docs_quote_the_scope_and_origin_errors() {
         "/docs/configuration.md"
     ))
     .unwrap();
-    for message in [OVERLAPPING_TRACES, WILDCARD_REFUSED] {
+    for message in [
+        OVERLAPPING_TRACES,
+        WILDCARD_REFUSED,
+        HARMONIC_NOT_MEASURED,
+        SAME_HARMONICS,
+    ] {
         assert!(
             docs.contains(&format!("`{message}`")),
             "docs lack {message:?}"
@@ -1337,6 +1672,17 @@ fn any_json() -> impl Strategy<Value = Value> {
             "https://lab.example",
             "ftp://x",
             "http://x/path",
+            "full",
+            "two_harmonic",
+            "two-harmonic",
+            "magic",
+        ])
+        .prop_map(Value::from),
+        // Inversion harmonics, averaging and points near their limits, and harmonics the
+        // default bank does and does not measure.
+        prop::sample::select(vec![
+            0u64, 1, 2, 3, 5, 6, 7, 8, 15, 16, 17, 18, 31, 32, 33, 40, 4095, 4096, 4097, 9999,
+            10000, 10001,
         ])
         .prop_map(Value::from),
         // Scope and server values near their limits.
@@ -1388,8 +1734,26 @@ fn any_origin() -> impl Strategy<Value = Value> {
 
 fn any_path() -> impl Strategy<Value = String> {
     let known: Vec<String> = registry().iter().map(|s| s.path.clone()).collect();
+    // The inversion's nodes, and the demodulator nodes its relation ties them to, more often
+    // than one path in ~200 would give.
+    let inversion: Vec<String> = registry()
+        .iter()
+        .map(|s| s.path.clone())
+        .filter(|p| p.starts_with("/inversion/"))
+        .chain(
+            [
+                "/demods/5/enable",
+                "/demods/5/harmonic",
+                "/demods/16/enable",
+                "/demods/16/harmonic",
+                "/demods/31/harmonic",
+            ]
+            .map(String::from),
+        )
+        .collect();
     prop_oneof![
         9 => prop::sample::select(known),
+        3 => prop::sample::select(inversion),
         1 => prop::sample::select(vec!["", "/", "/sample", "/demods/32/rate", "/demods/-1/rate"])
             .prop_map(String::from),
     ]
@@ -1412,6 +1776,24 @@ proptest! {
                 }
             }
             prop_assert!(s.validate().is_ok(), "{:?}", s.validate());
+            // The inversion's invariants, checked independently of `validate`.
+            let inv = &s.inversion;
+            prop_assert!(inv.harmonic_a != inv.harmonic_b);
+            for k in [inv.harmonic_a, inv.harmonic_b] {
+                prop_assert!((2..=10_000).contains(&k));
+                if inv.enable {
+                    prop_assert!(
+                        s.demods.iter().any(|d| d.enable && d.harmonic == k),
+                        "harmonic {} unmeasured", k
+                    );
+                }
+            }
+            prop_assert!((1..=10_000).contains(&inv.averaging));
+            prop_assert!((16..=4096).contains(&inv.points));
+            prop_assert_eq!(
+                InversionMethod::from_name(inv.method.name()),
+                Some(inv.method)
+            );
         }
     }
 }

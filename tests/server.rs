@@ -58,6 +58,8 @@ fn light() -> Settings {
     }
     s.demods[16].harmonic = 9; // stays valid below Nyquist
     s.spectrum.size = 4096;
+    // Its harmonic 17 is not measured here; the force stream has its own test.
+    s.inversion.enable = false;
     s
 }
 
@@ -715,4 +717,83 @@ async fn a_request_flood_is_answered_and_limited_not_dropped() {
     tokio::time::sleep(Duration::from_millis(100)).await;
     assert_eq!(call(&mut ws, json!({"op": "hello"})).await["ok"], true);
     d.shutdown().await;
+}
+
+/// Mean of `n` force estimates' field.
+async fn force_mean(ws: &mut Ws, n: usize, field: &str) -> f64 {
+    let mut sum = 0.0;
+    for _ in 0..n {
+        sum += next_of(ws, "force").await[field].as_f64().unwrap();
+    }
+    sum / n as f64
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_force_stream_recovers_contact_time_force_and_modulus() {
+    // Noise off, the paper's case: the FT-AFM inversion of the live lock-in outputs must
+    // give back the τ and F that `ftafm paper` computes and the modulus that was set.
+    let mut settings = default_settings();
+    settings.noise.enable = false;
+    for d in &mut settings.demods {
+        d.rate = 200.0;
+    }
+    for method in ["full", "two_harmonic"] {
+        let d = Daemon::start(settings.clone()).await;
+        let mut ws = connect(d.addr).await;
+        assert_eq!(
+            call(
+                &mut ws,
+                json!({"op": "set", "path": "/inversion/method", "value": method})
+            )
+            .await["ok"],
+            true
+        );
+        assert_eq!(
+            call(&mut ws, json!({"op": "subscribe", "stream": "force"})).await["ok"],
+            true
+        );
+        for modulus in [129e9, 50e9, 200e9] {
+            let r = call(
+                &mut ws,
+                json!({"op": "set", "path": "/sample/youngs_modulus", "value": modulus}),
+            )
+            .await;
+            assert_eq!(r["ok"], true);
+            // Let the mode transients and the 4th-order filters settle (≈ 30 ms), then skip
+            // what was queued meanwhile.
+            tokio::time::sleep(Duration::from_millis(300)).await;
+            for _ in 0..60 {
+                next_of(&mut ws, "force").await;
+            }
+            let first = next_of(&mut ws, "force").await;
+            assert_eq!(first["method"], method);
+            assert_eq!(first["waveform"].as_array().unwrap().len(), 256);
+            let tau = force_mean(&mut ws, 10, "contact_time_ratio").await;
+            let force = force_mean(&mut ws, 10, "max_force").await;
+            let e = force_mean(&mut ws, 10, "youngs_modulus").await;
+            let mut s = settings.clone();
+            s.sample.youngs_modulus = modulus;
+            let paper = &ftafm::paper::compute(&s, 1.0).unwrap().materials[0];
+            assert!(
+                (tau / paper.contact_time_ratio - 1.0).abs() < 0.01,
+                "{method} at {modulus:e}: τ {tau} vs {}",
+                paper.contact_time_ratio
+            );
+            assert!(
+                (force / paper.max_force - 1.0).abs() < 0.01,
+                "{method} at {modulus:e}: F {force:e} vs {:e}",
+                paper.max_force
+            );
+            assert!(
+                (e / modulus - 1.0).abs() < 0.02,
+                "{method}: E {e:e} vs {modulus:e}"
+            );
+        }
+        let (_, metrics) = http_get(d.addr, "/metrics").await;
+        assert!(
+            metrics.contains("ftafm_force_estimates_total{outcome=\"failed\"} 0"),
+            "{metrics}"
+        );
+        d.shutdown().await;
+    }
 }

@@ -7,7 +7,7 @@ use serde_json::Value;
 use super::nodes::show_json;
 use super::quantity::number;
 use super::range::Range;
-use super::settings::{Engine, Settings, SpectrumWindow};
+use super::settings::{Engine, InversionMethod, Settings, SpectrumWindow};
 
 /// Most cantilever modes simulated: entries of `/cantilever/q` plus `/cantilever/extra_modes`.
 pub const MAX_MODES: usize = 16;
@@ -40,6 +40,16 @@ pub const MAX_CLIENTS: u32 = 4096;
 pub const MIN_CLIENT_QUEUE: u32 = 16;
 /// Longest per-client outgoing queue, in messages (`/server/client_queue`): 2^16.
 pub const MAX_CLIENT_QUEUE: u32 = 1 << 16;
+/// Lowest harmonic the inversion may use (`/inversion/harmonic_a`, `/inversion/harmonic_b`):
+/// the mean (0) and the drive itself (1) carry the cantilever's own motion, not the pulse's
+/// shape. The highest is [`MAX_HARMONIC`].
+pub const MIN_INVERSION_HARMONIC: u32 = 2;
+/// Most demodulator frames averaged per force estimate (`/inversion/averaging`).
+pub const MAX_INVERSION_AVERAGING: u32 = 10_000;
+/// Fewest points of the reconstructed force waveform over one period (`/inversion/points`).
+pub const MIN_INVERSION_POINTS: u32 = 16;
+/// Most points of the reconstructed force waveform over one period (`/inversion/points`).
+pub const MAX_INVERSION_POINTS: u32 = 4096;
 
 // Static ranges. Limits that depend on another node (the Nyquist frequency, one sample
 // period) are checked in `relations`, after a whole file or a `set` has been applied, so the
@@ -148,6 +158,18 @@ pub enum Field {
     ServerClientQueue,
     /// `/server/stall_timeout` (s).
     ServerStallTimeout,
+    /// `/inversion/enable` (bool).
+    InversionEnable,
+    /// `/inversion/method` (text).
+    InversionMethod,
+    /// `/inversion/harmonic_a` (harmonic number).
+    InversionHarmonicA,
+    /// `/inversion/harmonic_b` (harmonic number).
+    InversionHarmonicB,
+    /// `/inversion/averaging` (frames).
+    InversionAveraging,
+    /// `/inversion/points` (samples).
+    InversionPoints,
     /// `/demods/N/enable` (bool).
     DemodEnable(usize),
     /// `/demods/N/harmonic` (integer).
@@ -342,7 +364,7 @@ impl Typed {
 
 impl Field {
     /// Nodes outside the demodulator bank, in tree order.
-    pub(crate) const SCALARS: [Field; 33] = [
+    pub(crate) const SCALARS: [Field; 39] = [
         Field::CantileverF1,
         Field::CantileverK,
         Field::CantileverQ,
@@ -376,6 +398,12 @@ impl Field {
         Field::ServerMaxClients,
         Field::ServerClientQueue,
         Field::ServerStallTimeout,
+        Field::InversionEnable,
+        Field::InversionMethod,
+        Field::InversionHarmonicA,
+        Field::InversionHarmonicB,
+        Field::InversionAveraging,
+        Field::InversionPoints,
     ];
 
     /// The nodes of demodulator `index`, in tree order.
@@ -425,6 +453,12 @@ impl Field {
             Field::ServerMaxClients => "/server/max_clients",
             Field::ServerClientQueue => "/server/client_queue",
             Field::ServerStallTimeout => "/server/stall_timeout",
+            Field::InversionEnable => "/inversion/enable",
+            Field::InversionMethod => "/inversion/method",
+            Field::InversionHarmonicA => "/inversion/harmonic_a",
+            Field::InversionHarmonicB => "/inversion/harmonic_b",
+            Field::InversionAveraging => "/inversion/averaging",
+            Field::InversionPoints => "/inversion/points",
             Field::DemodEnable(i) => return format!("/demods/{i}/enable"),
             Field::DemodHarmonic(i) => return format!("/demods/{i}/harmonic"),
             Field::DemodOrder(i) => return format!("/demods/{i}/order"),
@@ -435,8 +469,10 @@ impl Field {
     }
 
     /// SI unit: `Hz`, `N/m`, `m`, `Pa`, `s`, `K`, `m/√Hz`, `1` (dimensionless numbers and
-    /// counts), `bit` (ADC resolution), `samples` (FFT and trace lengths, decimation),
-    /// `clients`, `messages`, or empty for text, lists of text and booleans.
+    /// counts), `bit` (ADC resolution), `samples` (FFT and trace lengths, decimation, points
+    /// of the force waveform), `frames` (demodulator frames averaged), `clients`,
+    /// `messages`, or empty for text, lists of text, booleans and the inversion's harmonic
+    /// numbers.
     pub fn unit(self) -> &'static str {
         match self {
             Field::CantileverF1
@@ -453,7 +489,11 @@ impl Field {
             Field::NoiseTemperature => "K",
             Field::NoiseDetectorDensity => "m/√Hz",
             Field::NoiseAdcBits => "bit",
-            Field::SpectrumSize | Field::ScopeLength | Field::ScopeDecimation => "samples",
+            Field::SpectrumSize
+            | Field::ScopeLength
+            | Field::ScopeDecimation
+            | Field::InversionPoints => "samples",
+            Field::InversionAveraging => "frames",
             Field::ServerMaxClients => "clients",
             Field::ServerClientQueue => "messages",
             Field::TipYoungsModulus | Field::SampleYoungsModulus => "Pa",
@@ -472,6 +512,10 @@ impl Field {
             | Field::SpectrumWindow
             | Field::ScopeEnable
             | Field::ServerAllowedOrigins
+            | Field::InversionEnable
+            | Field::InversionMethod
+            | Field::InversionHarmonicA
+            | Field::InversionHarmonicB
             | Field::DemodEnable(_) => "",
         }
     }
@@ -509,6 +553,7 @@ impl Field {
             | Field::NoiseEnable
             | Field::SpectrumEnable
             | Field::ScopeEnable
+            | Field::InversionEnable
             | Field::DemodEnable(_) => Kind::Bool,
             Field::NoiseTemperature => Kind::Float(TEMPERATURE),
             Field::NoiseDetectorDensity => Kind::Float(DETECTOR_DENSITY),
@@ -546,6 +591,19 @@ impl Field {
                 max: MAX_CLIENT_QUEUE.into(),
             },
             Field::ServerStallTimeout => Kind::Float(STALL_TIMEOUT),
+            Field::InversionMethod => Kind::Text(InversionMethod::NAMES),
+            Field::InversionHarmonicA | Field::InversionHarmonicB => Kind::Integer {
+                min: MIN_INVERSION_HARMONIC.into(),
+                max: MAX_HARMONIC.into(),
+            },
+            Field::InversionAveraging => Kind::Integer {
+                min: 1,
+                max: MAX_INVERSION_AVERAGING.into(),
+            },
+            Field::InversionPoints => Kind::Integer {
+                min: MIN_INVERSION_POINTS.into(),
+                max: MAX_INVERSION_POINTS.into(),
+            },
             Field::DemodHarmonic(_) => Kind::Integer {
                 min: 0,
                 max: MAX_HARMONIC.into(),
@@ -649,6 +707,24 @@ impl Field {
             Field::ServerStallTimeout => {
                 "A client whose socket accepts nothing for this long, in s, is disconnected (close 1008 \"stalled\"). A change applies from then on."
             }
+            Field::InversionEnable => {
+                "Reconstructs the tip–sample force live from the demodulator outputs and sends it, the force stream (true), or not (false)."
+            }
+            Field::InversionMethod => {
+                "Force reconstruction: \"full\" divides every usable harmonic by the cantilever's transfer function (Stark et al. 2002); \"two_harmonic\" takes the width τ and peak F of the cut cosine from two harmonics (the paper's Sec. 3)."
+            }
+            Field::InversionHarmonicA => {
+                "First of the two harmonics of the two-harmonic method, and an anchor of the full method's fit of missing harmonics (a harmonic number, 2 to 10000); while the inversion is enabled an enabled demodulator must measure it."
+            }
+            Field::InversionHarmonicB => {
+                "Second of the two harmonics of the two-harmonic method, and an anchor of the full method's fit of missing harmonics (a harmonic number, 2 to 10000, not harmonic_a); while the inversion is enabled an enabled demodulator must measure it."
+            }
+            Field::InversionAveraging => {
+                "Demodulator frames averaged per force estimate, in frames; 1 gives one estimate per demodulator frame."
+            }
+            Field::InversionPoints => {
+                "Points of the reconstructed force waveform over one drive period, in samples: 16 to 4096."
+            }
             Field::DemodEnable(i) => {
                 return format!("Demodulator {i} produces output (true) or is idle (false).");
             }
@@ -710,6 +786,12 @@ impl Field {
             Field::ServerMaxClients => Typed::Integer(s.server.max_clients.into()),
             Field::ServerClientQueue => Typed::Integer(s.server.client_queue.into()),
             Field::ServerStallTimeout => Typed::Float(s.server.stall_timeout),
+            Field::InversionEnable => Typed::Bool(s.inversion.enable),
+            Field::InversionMethod => Typed::Text(s.inversion.method.name()),
+            Field::InversionHarmonicA => Typed::Integer(s.inversion.harmonic_a.into()),
+            Field::InversionHarmonicB => Typed::Integer(s.inversion.harmonic_b.into()),
+            Field::InversionAveraging => Typed::Integer(s.inversion.averaging.into()),
+            Field::InversionPoints => Typed::Integer(s.inversion.points.into()),
             Field::DemodEnable(i) => Typed::Bool(s.demods.get(i)?.enable),
             Field::DemodHarmonic(i) => Typed::Integer(s.demods.get(i)?.harmonic.into()),
             Field::DemodOrder(i) => Typed::Integer(s.demods.get(i)?.order.into()),
@@ -772,6 +854,22 @@ impl Field {
                 s.server.client_queue = u32::try_from(n).ok()?;
             }
             (Field::ServerStallTimeout, Typed::Float(x)) => s.server.stall_timeout = x,
+            (Field::InversionEnable, Typed::Bool(b)) => s.inversion.enable = b,
+            (Field::InversionMethod, Typed::Text(name)) => {
+                s.inversion.method = InversionMethod::from_name(name)?;
+            }
+            (Field::InversionHarmonicA, Typed::Integer(n)) => {
+                s.inversion.harmonic_a = u32::try_from(n).ok()?;
+            }
+            (Field::InversionHarmonicB, Typed::Integer(n)) => {
+                s.inversion.harmonic_b = u32::try_from(n).ok()?;
+            }
+            (Field::InversionAveraging, Typed::Integer(n)) => {
+                s.inversion.averaging = u32::try_from(n).ok()?;
+            }
+            (Field::InversionPoints, Typed::Integer(n)) => {
+                s.inversion.points = u32::try_from(n).ok()?;
+            }
             (Field::DemodEnable(i), Typed::Bool(b)) => s.demods.get_mut(i)?.enable = b,
             (Field::DemodHarmonic(i), Typed::Integer(n)) => {
                 s.demods.get_mut(i)?.harmonic = u32::try_from(n).ok()?;

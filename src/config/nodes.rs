@@ -362,11 +362,21 @@ impl NodeSpec {
                 }
                 (Value::from(low), Value::from(high))
             }
-            Kind::Integer { min, mut max } => {
+            Kind::Integer { mut min, mut max } => {
                 let enabled = |i: usize| s.demods.get(i).is_some_and(|d| d.enable);
                 match self.field {
                     Field::DemodHarmonic(i) if enabled(i) => {
                         max = max.min(relations::highest_harmonic(s));
+                    }
+                    Field::InversionHarmonicA | Field::InversionHarmonicB => {
+                        let other = if self.field == Field::InversionHarmonicA {
+                            s.inversion.harmonic_b
+                        } else {
+                            s.inversion.harmonic_a
+                        };
+                        if let Some((low, high)) = relations::inversion_harmonic_bounds(s, other) {
+                            (min, max) = (low, high);
+                        }
                     }
                     Field::ScopeLength => {
                         max = max.min(
@@ -395,7 +405,8 @@ pub struct NodeInfo {
     pub path: String,
     /// Current value (number, integer, bool, string, or list of numbers or of strings).
     pub value: Value,
-    /// SI unit; `1` for dimensionless, empty for text and bool.
+    /// SI unit; `1` for dimensionless, empty for text, bool and the inversion's harmonic
+    /// numbers.
     pub unit: String,
     /// Whether `set` may change it at runtime.
     pub writable: bool,

@@ -1,11 +1,14 @@
 //! Whole-settings validation: every node inside its own range, the limits that tie nodes
-//! together (the Nyquist frequency, one sample period, the number of modes), and the values a
+//! together (the Nyquist frequency, one sample period, the number of modes, the inversion's
+//! harmonics and the demodulators that measure them), and the values a
 //! node knows but the instrument cannot run yet (the `"coupled"` engine). These run after a
 //! whole config file or a whole `set`, never per key, so the order of keys never matters.
 //! Every message about a relation names every node it involves.
 
 use super::error::NodeError;
-use super::field::{MAX_HARMONIC, MAX_MODES, MAX_SCOPE_DECIMATION, MAX_SCOPE_LENGTH};
+use super::field::{
+    MAX_HARMONIC, MAX_MODES, MAX_SCOPE_DECIMATION, MAX_SCOPE_LENGTH, MIN_INVERSION_HARMONIC,
+};
 use super::quantity::quantity;
 use super::registry::registry;
 use super::settings::{DEMODULATOR_COUNT, Engine, Settings};
@@ -43,7 +46,8 @@ impl Settings {
         check_drive(self)?;
         check_spectrum(self)?;
         check_scope(self)?;
-        check_demods(self)
+        check_demods(self)?;
+        check_inversion(self)
     }
 }
 
@@ -270,6 +274,96 @@ fn check_demods(s: &Settings) -> Result<(), NodeError> {
     Ok(())
 }
 
+/// The harmonics of the enabled demodulators, ascending, each once.
+fn enabled_harmonics(s: &Settings) -> Vec<u32> {
+    let mut harmonics: Vec<u32> = s
+        .demods
+        .iter()
+        .filter(|demod| demod.enable)
+        .map(|demod| demod.harmonic)
+        .collect();
+    harmonics.sort_unstable();
+    harmonics.dedup();
+    harmonics
+}
+
+/// What the enabled demodulators measure, for messages: "enabled demodulators cover
+/// harmonics 1–5, 7, 9–32", or "no demodulator is enabled".
+fn describe_enabled_harmonics(s: &Settings) -> String {
+    let harmonics = enabled_harmonics(s);
+    let mut runs: Vec<(u32, u32)> = Vec::new();
+    for &k in &harmonics {
+        match runs.last_mut() {
+            Some((_, last)) if *last + 1 == k => *last = k,
+            _ => runs.push((k, k)),
+        }
+    }
+    let shown: Vec<String> = runs
+        .iter()
+        .map(|&(first, last)| match last - first {
+            0 => first.to_string(),
+            1 => format!("{first}, {last}"),
+            _ => format!("{first}–{last}"),
+        })
+        .collect();
+    match harmonics.len() {
+        0 => "no demodulator is enabled".to_owned(),
+        1 => format!("enabled demodulators cover harmonic {}", shown[0]),
+        _ => format!("enabled demodulators cover harmonics {}", shown.join(", ")),
+    }
+}
+
+/// The lowest and highest value `/inversion/harmonic_a` (or `_b`, with `other` the value of
+/// the other one) may take now, as `list` reports it: while the inversion is enabled, the
+/// harmonics of enabled demodulators within 2 … [`MAX_HARMONIC`] other than `other`. `None`
+/// when the inversion is disabled or no such demodulator exists (then the static range
+/// stands).
+pub(crate) fn inversion_harmonic_bounds(s: &Settings, other: u32) -> Option<(u64, u64)> {
+    if !s.inversion.enable {
+        return None;
+    }
+    let usable: Vec<u32> = enabled_harmonics(s)
+        .into_iter()
+        .filter(|&k| (MIN_INVERSION_HARMONIC..=MAX_HARMONIC).contains(&k) && k != other)
+        .collect();
+    Some((u64::from(*usable.first()?), u64::from(*usable.last()?)))
+}
+
+/// The inversion's two harmonics differ (always, so enabling the inversion never fails on
+/// it), and while it is enabled each is measured by an enabled demodulator.
+fn check_inversion(s: &Settings) -> Result<(), NodeError> {
+    let inversion = &s.inversion;
+    let (a, b) = (inversion.harmonic_a, inversion.harmonic_b);
+    if a == b {
+        return Err(invalid(
+            "/inversion/harmonic_b",
+            format!(
+                "/inversion/harmonic_a = {a} and /inversion/harmonic_b = {b} must differ: the \
+                 inversion needs two distinct harmonics"
+            ),
+        ));
+    }
+    if !inversion.enable {
+        return Ok(());
+    }
+    let measured = |k: u32| s.demods.iter().any(|d| d.enable && d.harmonic == k);
+    for (path, k) in [("/inversion/harmonic_a", a), ("/inversion/harmonic_b", b)] {
+        if !measured(k) {
+            return Err(invalid(
+                path,
+                format!(
+                    "{path} = {k} is not measured by any enabled demodulator: while \
+                     /inversion/enable = true, /inversion/harmonic_a and /inversion/harmonic_b \
+                     must each be the harmonic of an enabled demodulator (/demods/N/harmonic \
+                     with /demods/N/enable = true), and {}",
+                    describe_enabled_harmonics(s)
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -361,6 +455,74 @@ mod tests {
         );
         s.scope.decimation = 1;
         assert!(s.validate().is_ok());
+    }
+
+    #[test]
+    fn enabled_harmonics_read_as_runs() {
+        let mut s = default_settings();
+        assert_eq!(
+            describe_enabled_harmonics(&s),
+            "enabled demodulators cover harmonics 1–32"
+        );
+        s.demods[5].enable = false;
+        s.demods[7].enable = false;
+        s.demods[8].enable = false;
+        s.demods[30].harmonic = 400;
+        s.demods[31].harmonic = 3;
+        assert_eq!(
+            describe_enabled_harmonics(&s),
+            "enabled demodulators cover harmonics 1–5, 7, 10–30, 400"
+        );
+        for demod in &mut s.demods {
+            demod.enable = false;
+        }
+        assert_eq!(describe_enabled_harmonics(&s), "no demodulator is enabled");
+        s.demods[2].enable = true;
+        assert_eq!(
+            describe_enabled_harmonics(&s),
+            "enabled demodulators cover harmonic 3"
+        );
+        s.demods[3].enable = true;
+        assert_eq!(
+            describe_enabled_harmonics(&s),
+            "enabled demodulators cover harmonics 3, 4"
+        );
+    }
+
+    #[test]
+    fn inversion_harmonics_are_measured_while_enabled() {
+        let mut s = default_settings();
+        assert_eq!(inversion_harmonic_bounds(&s, 17), Some((2, 32)));
+        s.inversion.harmonic_b = 40;
+        let error = s.validate().unwrap_err();
+        assert_eq!(error.path(), "/inversion/harmonic_b");
+        assert_eq!(
+            error.to_string(),
+            "/inversion/harmonic_b = 40 is not measured by any enabled demodulator: while \
+             /inversion/enable = true, /inversion/harmonic_a and /inversion/harmonic_b must \
+             each be the harmonic of an enabled demodulator (/demods/N/harmonic with \
+             /demods/N/enable = true), and enabled demodulators cover harmonics 1–32"
+        );
+        s.inversion.enable = false;
+        assert!(s.validate().is_ok());
+        assert_eq!(inversion_harmonic_bounds(&s, 6), None);
+        s.inversion.harmonic_a = 40;
+        let error = s.validate().unwrap_err();
+        assert_eq!(error.path(), "/inversion/harmonic_b");
+        assert_eq!(
+            error.to_string(),
+            "/inversion/harmonic_a = 40 and /inversion/harmonic_b = 40 must differ: the \
+             inversion needs two distinct harmonics"
+        );
+        // Only the fundamental and the mean measured: nothing the inversion may use.
+        let mut s = default_settings();
+        for demod in &mut s.demods[2..] {
+            demod.enable = false;
+        }
+        s.demods[0].harmonic = 0;
+        assert_eq!(inversion_harmonic_bounds(&s, 17), Some((2, 2)));
+        s.demods[1].harmonic = 1;
+        assert_eq!(inversion_harmonic_bounds(&s, 17), None);
     }
 
     #[test]

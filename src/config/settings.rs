@@ -20,6 +20,7 @@ pub struct Settings {
     pub spectrum: SpectrumSettings,
     pub scope: ScopeSettings,
     pub server: ServerSettings,
+    pub inversion: InversionSettings,
     /// Demodulator bank; always [`DEMODULATOR_COUNT`] entries, index = N of `/demods/N`.
     /// (De)serialised as a table keyed by index (`[demods]` with keys `"0"` … `"31"`), so
     /// TOML and JSON paths mirror the node tree.
@@ -226,6 +227,63 @@ pub struct ServerSettings {
     /// A client whose socket accepts nothing for this long is disconnected (s); close code
     /// 1008, reason `"stalled"`.
     pub stall_timeout: f64,
+}
+
+/// How the live inversion turns demodulator outputs into a force (`/inversion/method`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InversionMethod {
+    /// Divide every usable harmonic by the cantilever's transfer function and sum the Fourier
+    /// series of the force (Stark et al. 2002); missing harmonics are fitted, anchored at the
+    /// two harmonics of [`InversionSettings`].
+    Full,
+    /// Width τ and peak F of the cut-cosine pulse from the amplitudes of two harmonics (the
+    /// paper's Sec. 3).
+    TwoHarmonic,
+}
+
+impl InversionMethod {
+    /// Every method, in the order of [`InversionMethod::NAMES`].
+    pub const ALL: [InversionMethod; 2] = [InversionMethod::Full, InversionMethod::TwoHarmonic];
+    /// The names used in config files and the protocol (`/inversion/method`).
+    pub const NAMES: &'static [&'static str] = &["full", "two_harmonic"];
+
+    /// The config/protocol name of this method (`"full"`, `"two_harmonic"`).
+    pub fn name(self) -> &'static str {
+        match self {
+            InversionMethod::Full => "full",
+            InversionMethod::TwoHarmonic => "two_harmonic",
+        }
+    }
+
+    /// The method called `name`, if there is one.
+    pub fn from_name(name: &str) -> Option<InversionMethod> {
+        InversionMethod::ALL
+            .into_iter()
+            .find(|method| method.name() == name)
+    }
+}
+
+/// `[inversion]`: live FT-AFM force reconstruction from the demodulator outputs (the `force`
+/// stream). Every key may change at runtime. While enabled, both harmonics must be measured
+/// by an enabled demodulator; they must always differ.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InversionSettings {
+    /// Force estimates are computed and sent.
+    pub enable: bool,
+    /// How the force is reconstructed.
+    pub method: InversionMethod,
+    /// First harmonic of the two-harmonic method, and anchor of the full method's fit of
+    /// missing harmonics (a harmonic number k of the drive): 2 to 10000.
+    pub harmonic_a: u32,
+    /// Second harmonic, as `harmonic_a`: 2 to 10000, never equal to `harmonic_a`.
+    pub harmonic_b: u32,
+    /// Demodulator frames averaged per force estimate (frames): 1 to 10000.
+    pub averaging: u32,
+    /// Points of the reconstructed force waveform over one drive period (samples): 16 to
+    /// 4096.
+    pub points: u32,
 }
 
 /// `[demods.N]`: one lock-in demodulator.

@@ -8,22 +8,19 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use axum::Router;
-use axum::extract::State;
 use axum::extract::ws::WebSocketUpgrade;
+use axum::extract::{OriginalUri, State};
 use axum::http::{HeaderMap, StatusCode, header};
-use axum::response::{Html, IntoResponse, Response};
+use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 
 use super::protocol::MAX_MESSAGE_BYTES;
 use super::state::{AppState, Control};
-use super::{hub, metrics, session};
+use super::{assets, hub, metrics, session};
 use crate::config::Settings;
 use crate::pipeline::{Pipeline, PipelineError};
-
-/// The dashboard page (`web/index.html`), compiled in.
-const INDEX_HTML: &str = include_str!("../../web/index.html");
 
 /// Why the daemon stopped with an error.
 #[derive(Debug, thiserror::Error)]
@@ -46,6 +43,8 @@ pub async fn run(
 ) -> Result<(), ServerError> {
     let (pipeline, output) = Pipeline::start(&settings)?;
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
+    let (force, estimates) = super::force::ForceLink::start();
+    force.rebuild(settings.clone());
     let state = Arc::new(AppState {
         sample_rate: settings.synth.sample_rate,
         control: Mutex::new(Control {
@@ -53,6 +52,7 @@ pub async fn run(
             pipeline: Some(pipeline),
         }),
         clients: Mutex::new(Vec::new()),
+        connections: std::sync::atomic::AtomicUsize::new(0),
         next_client: AtomicU64::new(1),
         streams: Default::default(),
         shutdown: shutdown_rx,
@@ -61,13 +61,14 @@ pub async fn run(
         refused_capacity: AtomicU64::new(0),
         closed_stalled: AtomicU64::new(0),
         latency_totals: Mutex::new(Default::default()),
+        force,
     });
-    let hub = tokio::spawn(hub::run(state.clone(), output));
+    let hub = tokio::spawn(hub::run(state.clone(), output, estimates));
     let app = Router::new()
-        .route("/", get(index))
         .route("/ws", get(websocket))
         .route("/metrics", get(metrics_text))
         .route("/healthz", get(healthz))
+        .fallback(get(asset))
         .with_state(state.clone());
     let signal = async move {
         shutdown.await;
@@ -104,8 +105,16 @@ pub async fn run(
     served.map_err(ServerError::Io)
 }
 
-async fn index() -> Html<&'static str> {
-    Html(INDEX_HTML)
+/// The dashboard's files (`web/`, embedded); 404 for anything else.
+async fn asset(OriginalUri(uri): OriginalUri) -> Response {
+    match assets::find(uri.path()) {
+        Some(a) => ([(header::CONTENT_TYPE, a.content_type)], a.body).into_response(),
+        None => (
+            StatusCode::NOT_FOUND,
+            format!("no such page: {}\n", uri.path()),
+        )
+            .into_response(),
+    }
 }
 
 async fn healthz(State(state): State<Arc<AppState>>) -> Response {
@@ -166,7 +175,13 @@ async fn websocket(
                 .into_response();
         }
     }
-    if state.client_count() >= max_clients {
+    let reserved = state
+        .connections
+        .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| {
+            (n < max_clients).then_some(n + 1)
+        })
+        .is_ok();
+    if !reserved {
         state.refused_capacity.fetch_add(1, Ordering::Relaxed);
         return (
             StatusCode::SERVICE_UNAVAILABLE,
@@ -174,10 +189,17 @@ async fn websocket(
         )
             .into_response();
     }
+    let failed = state.clone();
     upgrade
         .max_message_size(MAX_MESSAGE_BYTES)
         .max_frame_size(MAX_MESSAGE_BYTES)
-        .on_upgrade(move |socket| session::run(socket, state, queue))
+        .on_failed_upgrade(move |_| {
+            failed.connections.fetch_sub(1, Ordering::SeqCst);
+        })
+        .on_upgrade(move |socket| async move {
+            session::run(socket, state.clone(), queue).await;
+            state.connections.fetch_sub(1, Ordering::SeqCst);
+        })
 }
 
 #[cfg(test)]

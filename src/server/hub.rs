@@ -71,7 +71,11 @@ fn distribute(
 }
 
 /// Runs until shutdown: frames in, messages out, a status message every 0.5 s.
-pub(crate) async fn run(state: Arc<AppState>, mut output: PipelineOutput) {
+pub(crate) async fn run(
+    state: Arc<AppState>,
+    mut output: PipelineOutput,
+    estimates: std::sync::mpsc::Receiver<crate::inversion::ForceEstimate>,
+) {
     let mut tick = tokio::time::interval(TICK);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     let mut shutdown = state.shutdown.clone();
@@ -84,7 +88,11 @@ pub(crate) async fn run(state: Arc<AppState>, mut output: PipelineOutput) {
             _ = tick.tick() => {}
             _ = shutdown.changed() => return,
         }
+        let force_wanted = state.subscribed(StreamKind::Force);
         while let Some(frame) = output.demods.try_pop() {
+            if force_wanted {
+                state.force.offer(&frame);
+            }
             synth_to_dsp.record(frame.t_dsp_ns as i64 - frame.t_synth_ns as i64);
             distribute(
                 &state,
@@ -93,6 +101,14 @@ pub(crate) async fn run(state: Arc<AppState>, mut output: PipelineOutput) {
                 |seq| protocol::demods_binary(seq, &frame),
             );
             synth_to_send.record(unix_ns() as i64 - frame.t_synth_ns as i64);
+        }
+        while let Ok(estimate) = estimates.try_recv() {
+            distribute(
+                &state,
+                StreamKind::Force,
+                |seq| protocol::force_json(seq, &estimate),
+                |seq| protocol::force_binary(seq, &estimate),
+            );
         }
         while let Some(buffer) = output.spectra.try_pop() {
             distribute(

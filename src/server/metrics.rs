@@ -158,6 +158,26 @@ pub(crate) fn render(state: &AppState) -> String {
         "Clients disconnected for not reading.",
         &one(state.closed_stalled.load(Ordering::Relaxed)),
     );
+    let f = &state.force.counters;
+    metric(
+        "force_estimates_total",
+        "counter",
+        "FT-AFM force estimates, by outcome (dropped: frames the inversion could not take in time).",
+        &[
+            (
+                "{outcome=\"ok\"}".into(),
+                f.estimates.load(Ordering::Relaxed) as f64,
+            ),
+            (
+                "{outcome=\"failed\"}".into(),
+                f.failed.load(Ordering::Relaxed) as f64,
+            ),
+            (
+                "{outcome=\"dropped\"}".into(),
+                f.dropped.load(Ordering::Relaxed) as f64,
+            ),
+        ],
+    );
     let totals = state.latency_totals.lock().map(|t| *t).unwrap_or_default();
     let mut latency = Vec::new();
     for (path, s) in [("synth_to_dsp", totals[0]), ("synth_to_send", totals[1])] {

@@ -2,6 +2,8 @@
 //! It only reads frames and sends settings; it never runs DSP.
 
 mod app;
+mod assets;
+mod force;
 mod hub;
 mod latency;
 mod metrics;

@@ -251,7 +251,11 @@ async fn respond(
                     .control
                     .lock()
                     .map_err(|_| internal("control lock poisoned"))?;
-                control.set(&path, &value).map(|applied| (path, applied))
+                let applied = control.set(&path, &value)?;
+                if super::force::affects_estimator(&path) {
+                    state.force.rebuild(control.settings.clone());
+                }
+                Ok::<_, ProtocolError>((path, applied))
             })
             .await
             .map_err(|_| internal("the settings task failed"))?;

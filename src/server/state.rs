@@ -14,7 +14,7 @@ use crate::config::Settings;
 use crate::pipeline::{CountersSnapshot, Pipeline, PipelineError};
 
 /// Streams in the order of [`StreamKind::ALL`]; indexes per-stream arrays.
-pub(crate) const STREAMS: usize = 4;
+pub(crate) const STREAMS: usize = 5;
 
 pub(crate) fn stream_index(s: StreamKind) -> usize {
     match s {
@@ -22,6 +22,7 @@ pub(crate) fn stream_index(s: StreamKind) -> usize {
         StreamKind::Spectrum => 1,
         StreamKind::Scope => 2,
         StreamKind::Status => 3,
+        StreamKind::Force => 4,
     }
 }
 
@@ -117,6 +118,9 @@ pub(crate) struct StreamStats {
 pub(crate) struct AppState {
     pub control: Mutex<Control>,
     pub clients: Mutex<Vec<Arc<ClientHandle>>>,
+    /// WebSocket connections holding a slot: reserved at the handshake, released when the
+    /// session ends, so handshakes in flight count against `/server/max_clients`.
+    pub connections: std::sync::atomic::AtomicUsize,
     pub next_client: AtomicU64,
     pub streams: [StreamStats; STREAMS],
     pub shutdown: watch::Receiver<bool>,
@@ -128,11 +132,22 @@ pub(crate) struct AppState {
     pub closed_stalled: AtomicU64,
     /// Latency summaries since start (ns), refreshed by the hub for `/metrics`.
     pub latency_totals: Mutex<[super::status::LatencySummary; 2]>,
+    /// The `force` stream's worker.
+    pub force: super::force::ForceLink,
 }
 
 impl AppState {
     pub fn client_count(&self) -> usize {
         self.clients.lock().map(|c| c.len()).unwrap_or(0)
+    }
+
+    /// Whether any client is subscribed to `stream`.
+    pub fn subscribed(&self, stream: StreamKind) -> bool {
+        let s = stream_index(stream);
+        self.clients
+            .lock()
+            .map(|c| c.iter().any(|c| c.format(s).is_some()))
+            .unwrap_or(false)
     }
 
     pub fn dropped_total(&self) -> u64 {

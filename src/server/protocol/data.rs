@@ -1,5 +1,6 @@
 //! Data messages: JSON text and the binary framing (see `docs/protocol.md`, "Binary frames").
 
+use crate::inversion::ForceEstimate;
 use crate::pipeline::{DemodFrame, ScopeBuffer, SpectrumBuffer};
 use crate::server::status::StatusReport;
 
@@ -43,7 +44,7 @@ impl BinaryHeader {
             StreamKind::Demods => count * DEMOD_RECORD_BYTES,
             StreamKind::Spectrum => 8 + 4 * count,
             StreamKind::Scope => 24 + 4 * count,
-            StreamKind::Status => count,
+            StreamKind::Status | StreamKind::Force => count,
         }
     }
 }
@@ -221,6 +222,41 @@ pub fn status_binary(seq: u64, t: f64, t_synth_ns: u64, status: &StatusReport) -
     let json = &json.as_bytes()[..count as usize];
     let mut out = Vec::with_capacity(BINARY_HEADER_BYTES + json.len());
     binary_header(&mut out, StreamKind::Status, seq, t, t_synth_ns, count);
+    out.extend_from_slice(json);
+    out
+}
+
+/// `{"stream":"force","seq":n,"t":s,"t_synth_ns":ns,…}` with every field of the
+/// [`ForceEstimate`] at the top level.
+pub fn force_json(seq: u64, estimate: &ForceEstimate) -> String {
+    let mut out = JsonBuf::with_capacity(256 + estimate.waveform.len() * 24);
+    json_header(
+        &mut out,
+        StreamKind::Force,
+        seq,
+        estimate.t,
+        estimate.t_synth_ns,
+    );
+    let start = out.len();
+    out.serialize(estimate);
+    out.set_ascii(start, b',');
+    out.into_string()
+}
+
+/// Header, then `count` bytes of UTF-8: the same JSON object as [`force_json`].
+pub fn force_binary(seq: u64, estimate: &ForceEstimate) -> Vec<u8> {
+    let json = force_json(seq, estimate);
+    let count = count_of(json.len());
+    let json = &json.as_bytes()[..count as usize];
+    let mut out = Vec::with_capacity(BINARY_HEADER_BYTES + json.len());
+    binary_header(
+        &mut out,
+        StreamKind::Force,
+        seq,
+        estimate.t,
+        estimate.t_synth_ns,
+        count,
+    );
     out.extend_from_slice(json);
     out
 }

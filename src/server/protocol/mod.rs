@@ -20,8 +20,8 @@ use crate::config::NodeError;
 
 pub use data::{
     BINARY_HEADER_BYTES, BINARY_MAGIC, BINARY_VERSION, BinaryHeader, DEMOD_RECORD_BYTES,
-    decode_header, demods_binary, demods_json, scope_binary, scope_json, spectrum_binary,
-    spectrum_json, status_binary, status_json,
+    decode_header, demods_binary, demods_json, force_binary, force_json, scope_binary, scope_json,
+    spectrum_binary, spectrum_json, status_binary, status_json,
 };
 pub use reply::{error_reply, ok_reply};
 pub use request::{Op, Request, parse_request};
@@ -43,15 +43,18 @@ pub enum StreamKind {
     Scope,
     /// Pipeline health and counters.
     Status,
+    /// FT-AFM force estimates (τ, F, modulus, waveform).
+    Force,
 }
 
 impl StreamKind {
     /// Every stream, in the order of their binary codes.
-    pub const ALL: [StreamKind; 4] = [
+    pub const ALL: [StreamKind; 5] = [
         StreamKind::Demods,
         StreamKind::Spectrum,
         StreamKind::Scope,
         StreamKind::Status,
+        StreamKind::Force,
     ];
 
     /// The name used in requests and in the `stream` field of data messages.
@@ -61,6 +64,7 @@ impl StreamKind {
             StreamKind::Spectrum => "spectrum",
             StreamKind::Scope => "scope",
             StreamKind::Status => "status",
+            StreamKind::Force => "force",
         }
     }
 
@@ -70,13 +74,14 @@ impl StreamKind {
     }
 
     /// The stable code in byte 6 of the binary header: demods 1, spectrum 2, scope 3,
-    /// status 4.
+    /// status 4, force 5.
     pub const fn code(self) -> u8 {
         match self {
             StreamKind::Demods => 1,
             StreamKind::Spectrum => 2,
             StreamKind::Scope => 3,
             StreamKind::Status => 4,
+            StreamKind::Force => 5,
         }
     }
 
@@ -85,7 +90,7 @@ impl StreamKind {
         Self::ALL.into_iter().find(|s| s.code() == code)
     }
 
-    /// `"demods, spectrum, scope, status"`, for error messages.
+    /// `"demods, spectrum, scope, status, force"`, for error messages.
     pub(crate) fn name_list() -> String {
         let names: Vec<&str> = Self::ALL.iter().map(|s| s.name()).collect();
         names.join(", ")
