@@ -162,9 +162,9 @@ fn constants_and_names() {
     assert_eq!(BINARY_VERSION, 1);
 
     let names: Vec<_> = StreamKind::ALL.iter().map(|s| s.name()).collect();
-    assert_eq!(names, ["demods", "spectrum", "scope", "status"]);
+    assert_eq!(names, ["demods", "spectrum", "scope", "status", "force"]);
     let codes: Vec<_> = StreamKind::ALL.iter().map(|s| s.code()).collect();
-    assert_eq!(codes, [1, 2, 3, 4]);
+    assert_eq!(codes, [1, 2, 3, 4, 5]);
     for s in StreamKind::ALL {
         assert_eq!(StreamKind::from_name(s.name()), Some(s));
         assert_eq!(StreamKind::from_code(s.code()), Some(s));
@@ -172,7 +172,7 @@ fn constants_and_names() {
     }
     assert_eq!(StreamKind::from_name("Demods"), None);
     assert_eq!(StreamKind::from_code(0), None);
-    assert_eq!(StreamKind::from_code(5), None);
+    assert_eq!(StreamKind::from_code(6), None);
 
     assert_eq!(Format::default(), Format::Json);
     assert_eq!(Format::from_name("json"), Some(Format::Json));
@@ -962,7 +962,7 @@ fn decode_header_rejects_what_is_not_a_header() {
     let mut bad_magic = good.clone();
     bad_magic[0] = b'X';
     assert_eq!(decode_header(&bad_magic), None);
-    for code in [0u8, 5, 255] {
+    for code in [0u8, 6, 255] {
         let mut bad_stream = good.clone();
         bad_stream[6] = code;
         assert_eq!(decode_header(&bad_stream), None, "code {code}");
@@ -1149,4 +1149,48 @@ proptest! {
         sc.samples = mags;
         json(&scope_json(seq, &sc));
     }
+}
+
+#[test]
+fn force_messages_carry_the_estimate_in_both_formats() {
+    use ftafm::inversion::ForceEstimate;
+    use ftafm::physics::inversion::TableRange;
+    use ftafm::server::protocol::{force_binary, force_json};
+    let estimate = ForceEstimate {
+        sample_index: 10_000,
+        t: 1e-3,
+        t_synth_ns: 1_700_000_000_000_000_000,
+        method: "full",
+        contact_time_ratio: 0.0518,
+        contact_time_ratio_sigma: 1e-4,
+        max_force: 66e-9,
+        max_force_sigma: 1e-9,
+        youngs_modulus: 129e9,
+        youngs_modulus_sigma: 3e9,
+        table_range: TableRange::Inside,
+        pulse_phase: 5.46,
+        waveform: vec![0.0, 1e-9, f64::NAN],
+    };
+    let v: serde_json::Value = serde_json::from_str(&force_json(7, &estimate)).unwrap();
+    assert_eq!(v["stream"], "force");
+    assert_eq!(v["seq"], 7);
+    assert_eq!(v["t"], 1e-3);
+    assert_eq!(v["t_synth_ns"], 1_700_000_000_000_000_000u64);
+    assert_eq!(v["method"], "full");
+    assert_eq!(v["youngs_modulus"], 129e9);
+    assert_eq!(v["table_range"], "inside");
+    assert_eq!(
+        v["waveform"],
+        serde_json::json!([0.0, 1e-9, null]),
+        "NaN is null"
+    );
+    assert!(v.get("sample_index").is_none());
+    let bin = force_binary(7, &estimate);
+    let h = decode_header(&bin).unwrap();
+    assert_eq!(
+        (h.stream, h.seq, h.count as usize),
+        (StreamKind::Force, 7, bin.len() - BINARY_HEADER_BYTES)
+    );
+    let payload: serde_json::Value = serde_json::from_slice(&bin[BINARY_HEADER_BYTES..]).unwrap();
+    assert_eq!(payload, v, "the binary payload is the same JSON object");
 }
