@@ -13,6 +13,7 @@ use axum::extract::{OriginalUri, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
+use axum::serve::ListenerExt;
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 
@@ -75,6 +76,11 @@ pub async fn run(
         tracing::info!("shutting down");
         let _ = shutdown_tx.send(true);
     };
+    // Small data frames must not wait for the peer's delayed ACK (Nagle): 12–40 ms of
+    // latency otherwise.
+    let listener = listener.tap_io(|tcp| {
+        let _ = tcp.set_nodelay(true);
+    });
     let served = axum::serve(
         listener,
         app.into_make_service_with_connect_info::<SocketAddr>(),
@@ -108,7 +114,15 @@ pub async fn run(
 /// The dashboard's files (`web/`, embedded); 404 for anything else.
 async fn asset(OriginalUri(uri): OriginalUri) -> Response {
     match assets::find(uri.path()) {
-        Some(a) => ([(header::CONTENT_TYPE, a.content_type)], a.body).into_response(),
+        // no-cache: a page left open across a daemon upgrade revalidates its scripts.
+        Some(a) => (
+            [
+                (header::CONTENT_TYPE, a.content_type),
+                (header::CACHE_CONTROL, "no-cache"),
+            ],
+            a.body,
+        )
+            .into_response(),
         None => (
             StatusCode::NOT_FOUND,
             format!("no such page: {}\n", uri.path()),

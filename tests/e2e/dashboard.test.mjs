@@ -1,0 +1,247 @@
+// Browser test of the dashboard: a real headless Chromium (Debian's /usr/bin/chromium,
+// driven by playwright-core) against a real daemon (target/release/ftafm, started here on a
+// free port and stopped at the end, also on failure).
+//
+//   cargo build --release && (cd tests/e2e && npm ci) && node --test tests/e2e/
+//
+// FTAFM_BIN and CHROMIUM override the binary paths. Writes tests/e2e/screenshot.png.
+
+import { after, before, test } from "node:test";
+import assert from "node:assert/strict";
+import { spawn } from "node:child_process";
+import { mkdtempSync, rmSync } from "node:fs";
+import { tmpdir } from "node:os";
+import path from "node:path";
+import { fileURLToPath } from "node:url";
+import { chromium } from "playwright-core";
+
+const here = path.dirname(fileURLToPath(import.meta.url));
+const root = path.resolve(here, "../..");
+const BIN = process.env.FTAFM_BIN ?? path.join(root, "target/release/ftafm");
+const CHROMIUM = process.env.CHROMIUM ?? "/usr/bin/chromium";
+const SCREENSHOT = path.join(here, "screenshot.png");
+const ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+  "--disable-background-networking", "--disable-component-update", "--disable-sync"];
+const MODULUS = "/sample/youngs_modulus";
+
+const daemons = new Set();
+let daemon, url, context, page, profile;
+const consoleErrors = [];
+const pageErrors = [];
+let restarting = false;
+
+// If the runner dies some other way, do not leave a daemon behind.
+process.on("exit", () => { for (const d of daemons) d.kill("SIGKILL"); });
+
+/** Starts `ftafm serve --bind bind`; resolves with the process and its dashboard URL (first stdout line). */
+function startDaemon(bind) {
+  return new Promise((resolve, reject) => {
+    const proc = spawn(BIN, ["serve", "--bind", bind], { stdio: ["ignore", "pipe", "pipe"] });
+    daemons.add(proc);
+    let out = "", err = "";
+    const timer = setTimeout(() => { proc.kill("SIGKILL"); reject(new Error(`daemon did not print its URL within 20 s; stderr:\n${err}`)); }, 20000);
+    proc.stdout.setEncoding("utf8");
+    proc.stderr.setEncoding("utf8");
+    proc.stderr.on("data", (s) => { err += s; });
+    proc.stdout.on("data", (s) => {
+      out += s;
+      const nl = out.indexOf("\n");
+      if (nl < 0) return;
+      const m = /http:\/\/[^\s]+\//.exec(out.slice(0, nl));
+      clearTimeout(timer);
+      if (m) resolve({ proc, url: m[0], stderr: () => err });
+      else { proc.kill("SIGKILL"); reject(new Error(`no URL in the daemon's first line: ${out.slice(0, nl)}`)); }
+    });
+    proc.on("error", (e) => { clearTimeout(timer); reject(e); });
+    proc.on("exit", (code, sig) => {
+      daemons.delete(proc);
+      clearTimeout(timer);
+      reject(new Error(`daemon exited (${code ?? sig}) before printing its URL; stderr:\n${err}`));
+    });
+  });
+}
+
+/** SIGTERM (the daemon closes its clients with 1001), SIGKILL after 5 s. */
+async function stopDaemon(d) {
+  if (!d || d.proc.exitCode !== null || d.proc.signalCode !== null) return;
+  const exited = new Promise((r) => d.proc.once("exit", r));
+  d.proc.kill("SIGTERM");
+  const timer = setTimeout(() => d.proc.kill("SIGKILL"), 5000);
+  await exited;
+  clearTimeout(timer);
+}
+
+/** Polls fn in the page until it returns a truthy value. */
+async function until(fn, arg, what, timeout = 10000) {
+  try {
+    await page.waitForFunction(fn, arg, { timeout, polling: 100 });
+  } catch (e) {
+    const stats = await page.evaluate(() => JSON.stringify({ ...window.ftafm?.stats, latency: undefined })).catch(() => "?");
+    throw new Error(`timed out after ${timeout} ms waiting for ${what}; page stats: ${stats}`);
+  }
+}
+
+const stats = () => page.evaluate(() => {
+  const s = window.ftafm.stats;
+  return { messages: { ...s.messages }, gaps: { ...s.gaps }, draws: { ...s.draws }, connects: s.connects, state: s.state, fps: s.fps, rafFps: s.rafFps };
+});
+
+/** The H17 amplitude readout of the harmonics table: its value (m) and its text. */
+const readH17 = () => page.$eval('#harm-table tr[data-harmonic="17"] td.r', (td) => ({ value: Number(td.dataset.value), text: td.textContent }));
+
+async function meanH17(samples = 5, gapMs = 220) {
+  let sum = 0;
+  for (let i = 0; i < samples; i++) {
+    sum += (await readH17()).value;
+    await page.waitForTimeout(gapMs);
+  }
+  return sum / samples;
+}
+
+/** Number of pixels in a trace colour (any of `colors`, as "#rrggbb"): proof that something was drawn. */
+const inked = (id, colors) => page.evaluate(([id, colors]) => {
+  const rgbs = colors.map((c) => [1, 3, 5].map((i) => parseInt(c.slice(i, i + 2), 16)));
+  const c = document.getElementById(id);
+  const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+  let n = 0;
+  for (let i = 0; i < d.length; i += 4) {
+    if (rgbs.some((rgb) => Math.abs(d[i] - rgb[0]) < 40 && Math.abs(d[i + 1] - rgb[1]) < 40 && Math.abs(d[i + 2] - rgb[2]) < 40)) n++;
+  }
+  return n;
+}, [id, colors]);
+
+before(async () => {
+  daemon = await startDaemon("127.0.0.1:0");
+  url = daemon.url;
+  profile = mkdtempSync(path.join(tmpdir(), "ftafm-e2e-"));
+  context = await chromium.launchPersistentContext(profile, {
+    executablePath: CHROMIUM,
+    headless: true,
+    args: ARGS,
+    viewport: { width: 1600, height: 1000 },
+  });
+  page = context.pages()[0] ?? (await context.newPage());
+  page.on("console", (m) => {
+    if (m.type() !== "error") return;
+    // While the daemon is down on purpose, the browser logs the refused reconnection attempts.
+    if (restarting && /WebSocket connection to .* failed/.test(m.text())) return;
+    consoleErrors.push(m.text());
+  });
+  page.on("pageerror", (e) => pageErrors.push(String(e)));
+});
+
+after(async () => {
+  await context?.close().catch(() => {});
+  for (const d of [...daemons]) await stopDaemon({ proc: d });
+  if (profile) rmSync(profile, { recursive: true, force: true });
+});
+
+test("the page loads and connects without console or page errors", { timeout: 30000 }, async () => {
+  const res = await page.goto(url);
+  assert.equal(res.status(), 200);
+  await page.waitForSelector('#conn[data-state="open"]', { timeout: 10000 });
+  assert.match(await page.textContent("#conn-text"), /connected/);
+  await until(() => window.ftafm.stats.messages.status >= 2, null, "two status messages");
+  assert.deepEqual(consoleErrors, [], "console errors");
+  assert.deepEqual(pageErrors, [], "page errors");
+});
+
+test("spectrum, harmonics and scope plots receive data and draw it", { timeout: 30000 }, async (t) => {
+  await until(() => {
+    const s = window.ftafm.stats;
+    return s.messages.spectrum >= 5 && s.messages.scope >= 5 && s.messages.demods >= 2000 &&
+      s.draws.spectrum >= 3 && s.draws.scope >= 3 && s.draws.harmonics >= 10 && s.draws.contrast >= 3;
+  }, null, "data on every stream and drawn plots");
+  const s = await stats();
+  t.diagnostic(`messages ${JSON.stringify(s.messages)}, gaps ${JSON.stringify(s.gaps)}, draws ${JSON.stringify(s.draws)}, time plot ${s.fps.toFixed(1)} fps, animation frames ${s.rafFps.toFixed(1)}/s`);
+  const blue = "#0b62a4", orange = "#d55e00";
+  const selected = await page.evaluate(() => [...window.ftafm.panels.harmonics.selected.values()]);
+  for (const [id, colors] of [["spec-canvas", [blue]], ["harm-r", selected], ["harm-phase", selected], ["scope-raw", [blue]], ["scope-res", [orange]], ["amp-canvas", [blue]]]) {
+    const n = await inked(id, colors);
+    assert.ok(n > 150, `${id} shows a trace (${n} pixels in its colours)`);
+  }
+  // the default demodulator selection: harmonics 1, 6, 17, 18 with readouts in SI units
+  const rows = await page.$$eval("#harm-table tbody tr", (trs) => trs.map((tr) => Number(tr.dataset.harmonic)));
+  assert.deepEqual(rows, [1, 6, 17, 18]);
+  const h1 = await page.$eval('#harm-table tr[data-harmonic="1"] td.r', (td) => td.textContent);
+  assert.match(h1, /^1\d\.\d\d nm$/, "H1 readout ≈ 19 nm");
+  assert.match((await readH17()).text, /^\d+\.\d+ pm$/, "H17 readout in pm");
+  // status panel
+  assert.match(await page.textContent("#status"), /10\.00 MHz/);
+});
+
+test("controls are built from list, with units, ranges and descriptions", { timeout: 15000 }, async () => {
+  const input = page.locator(`input[data-path="${MODULUS}"]`);
+  await input.waitFor({ timeout: 10000 });
+  assert.equal(await input.inputValue(), "129 GPa");
+  assert.equal(await page.inputValue('input[data-path="/surface/distance"]'), "20 nm");
+  assert.equal(await page.inputValue('input[data-path="/drive/frequency"]'), "100 kHz");
+  assert.equal(await page.inputValue('input[data-path="/demods/0/timeconstant"]'), "500 µs");
+  const title = await page.getAttribute(`.ctl[data-path="${MODULUS}"]`, "title");
+  assert.match(title, /Young's modulus/);
+  for (const p of ["/noise/enable", "/synth/engine", "/drive/free_amplitude", "/demods/0/harmonic", "/demods/0/order"]) {
+    assert.equal(await page.locator(`[data-path="${p}"]`).count() >= 1, true, `control for ${p}`);
+  }
+});
+
+test("a softer sample (60 GPa) lowers the harmonic-17 amplitude and shows contrast", { timeout: 30000 }, async (t) => {
+  await until(() => window.ftafm.app.history.len >= 600, null, "0.6 s of demodulator history");
+  await page.click("#ref-set");
+  const before = await meanH17();
+  const input = page.locator(`input[data-path="${MODULUS}"]`);
+  await input.fill("60 GPa");
+  await input.press("Enter");
+  await until((p) => window.ftafm.app.nodes.get(p)?.value === 60e9, MODULUS, "the set reply");
+  assert.equal(await input.inputValue(), "60 GPa");
+  // the lock-in's filters settle within a few ms; the readout is a 0.2 s mean shown at 5 Hz
+  await until((b) => Number(document.querySelector('#harm-table tr[data-harmonic="17"] td.r').dataset.value) < 0.9 * b, before, "H17 to drop", 5000);
+  await page.waitForTimeout(600);
+  const afterValue = await meanH17();
+  t.diagnostic(`H17: ${(before * 1e12).toFixed(2)} pm at 129 GPa → ${(afterValue * 1e12).toFixed(2)} pm at 60 GPa (${((afterValue / before - 1) * 100).toFixed(1)} %)`);
+  assert.ok(afterValue < 0.9 * before, `H17 ${afterValue} should be well below ${before}`);
+  assert.ok(afterValue > 0.5 * before, `H17 ${afterValue} dropped implausibly far from ${before}`);
+  const c = await page.evaluate(() => window.ftafm.contrast());
+  t.diagnostic(`c_rel(6) = ${(c[6] * 100).toFixed(1)} %, c_rel(17) = ${(c[17] * 100).toFixed(1)} %, c_rel(18) = ${(c[18] * 100).toFixed(1)} %`);
+  assert.ok(c[17] > 0.1 && c[18] > 0.1, "relative contrast at harmonics 17 and 18 is positive (weaker than on silicon)");
+  assert.ok(Math.abs(c[1]) < 0.03, "hardly any contrast at the fundamental");
+});
+
+test("an invalid value shows the server's error message and the control reverts", { timeout: 15000 }, async () => {
+  const input = page.locator(`input[data-path="${MODULUS}"]`);
+  await input.fill("-5 GPa");
+  await input.press("Enter");
+  const err = page.locator(`.error[data-for="${MODULUS}"]`);
+  await until((p) => document.querySelector(`.error[data-for="${p}"]`)?.textContent.length > 0, MODULUS, "the error message");
+  const text = await err.textContent();
+  assert.match(text, /\/sample\/youngs_modulus/);
+  assert.match(text, /-5e9|-5000000000/, "the server's message names the value");
+  assert.equal(await input.inputValue(), "60 GPa", "reverted to the server's value");
+  const server = await page.evaluate((p) => window.ftafm.app.conn.request("get", { path: p }).then((r) => r.value), MODULUS);
+  assert.equal(server, 60e9);
+});
+
+test("screenshot", { timeout: 15000 }, async () => {
+  await page.waitForTimeout(500);
+  await page.screenshot({ path: SCREENSHOT, fullPage: true });
+});
+
+test("the page reconnects by itself after the daemon restarts", { timeout: 40000 }, async () => {
+  const port = new URL(url).port;
+  const before = await stats();
+  restarting = true;
+  await stopDaemon(daemon);
+  await page.waitForSelector('#conn[data-state="closed"]', { timeout: 10000 });
+  assert.match(await page.textContent("#conn-text"), /disconnected/);
+  daemon = await startDaemon(`127.0.0.1:${port}`);
+  await page.waitForSelector('#conn[data-state="open"]', { timeout: 15000 });
+  restarting = false;
+  await until((n) => window.ftafm.stats.connects === 2 && window.ftafm.stats.messages.demods > n + 500 && window.ftafm.stats.messages.spectrum > 0,
+    before.messages.demods, "data after reconnecting");
+  // the new daemon runs the default configuration again: the controls follow it
+  await until((p) => document.querySelector(`input[data-path="${p}"]`).value === "129 GPa", MODULUS, "the control to show the new daemon's value");
+});
+
+test("no console or page errors during the whole session", () => {
+  assert.deepEqual(consoleErrors, [], "console errors");
+  assert.deepEqual(pageErrors, [], "page errors");
+});

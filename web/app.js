@@ -1,0 +1,187 @@
+// The ftafm dashboard: one WebSocket (conn.js), a history of the lock-in outputs
+// (history.js), and panels that each draw their own canvas when they have something new.
+// Messages are only stored when they arrive; drawing happens on requestAnimationFrame.
+//
+// A panel is an object with optional onData(message) and draw(now); to add one (FT-AFM force
+// results, scan images), put its <section class="panel"> in index.html, write its module,
+// and add it to `panels` below.
+
+import { Connection } from "./conn.js";
+import { DemodHistory } from "./history.js";
+import { SpectrumPanel } from "./spectrum.js";
+import { HarmonicsPanel } from "./harmonics.js";
+import { ContrastPanel } from "./contrast.js";
+import { ScopePanel } from "./scope.js";
+import { StatusPanel } from "./status.js";
+import { ControlsPanel } from "./controls.js";
+import { si } from "./units.js";
+
+const STREAMS = ["demods", "spectrum", "scope", "status"];
+const FORMATS = { demods: "binary", spectrum: "binary", scope: "binary", status: "json" };
+const zero = () => Object.fromEntries(STREAMS.map((s) => [s, 0]));
+
+const stats = {
+  messages: zero(), // data messages received per stream, since the page loaded
+  gaps: zero(), // messages lost (seq gaps) per stream
+  draws: { harmonics: 0, contrast: 0, scope: 0, spectrum: 0 },
+  connects: 0,
+  state: "connecting",
+  fps: 0, // redraws per second of the time plot (the page's animation rate)
+  rafFps: 0, // animation frames per second offered by the browser
+  latency: new Float64Array(1000), // ms, synthesis → this page, of the last demods messages (a ring)
+  latencyCount: 0,
+  sets: 0,
+  rejects: 0,
+  references: 0,
+};
+
+const app = {
+  stats,
+  hello: null,
+  nodes: new Map(), // path → node as in `list`
+  params: { f1: 0, modes: 0, fDrive: 0 },
+  history: new DemodHistory(30000),
+  conn: null,
+  onSet(path, value) {
+    const n = app.nodes.get(path);
+    if (n) n.value = value;
+    updateParams();
+    controls.updateDemodOptions();
+  },
+};
+
+const spectrum = new SpectrumPanel(app);
+const harmonics = new HarmonicsPanel(app);
+const contrast = new ContrastPanel(app);
+const scope = new ScopePanel(app);
+const status = new StatusPanel(app);
+const controls = new ControlsPanel(app);
+const panels = [spectrum, harmonics, contrast, scope, status];
+const byStream = { spectrum, scope, status };
+
+function updateParams() {
+  const v = (p) => app.nodes.get(p)?.value;
+  const q = v("/cantilever/q");
+  app.params.f1 = v("/cantilever/f1") ?? 0;
+  app.params.modes = (Array.isArray(q) ? q.length : 0) + (v("/cantilever/extra_modes") ?? 0);
+  app.params.fDrive = v("/drive/frequency") ?? 0;
+  spectrum.dirty = true;
+}
+
+/** The mode markers need f1 and the number of modes: re-read them now and then. */
+async function refreshParams() {
+  if (!app.conn.open) return;
+  try {
+    for (const path of ["/cantilever/f1", "/cantilever/q", "/cantilever/extra_modes", "/drive/frequency"]) {
+      const r = await app.conn.request("get", { path });
+      const n = app.nodes.get(path);
+      if (n) n.value = r.value;
+      else app.nodes.set(path, { path, value: r.value });
+    }
+    updateParams();
+  } catch (e) {
+    if (e.code !== "disconnected") console.warn("ftafm: reading cantilever parameters:", e.message);
+  }
+}
+
+let lastSeq = {};
+const connEl = document.getElementById("conn");
+const connText = document.getElementById("conn-text");
+const facts = document.getElementById("facts");
+
+function onState(state, detail) {
+  stats.state = state;
+  connEl.dataset.state = state;
+  connText.textContent = state === "open" ? "connected" : state === "connecting" ? `connecting…${detail ? " (" + detail + ")" : ""}` : `disconnected: ${detail}`;
+  document.body.classList.toggle("offline", state !== "open");
+}
+
+async function onOpen(conn) {
+  lastSeq = {};
+  stats.connects = conn.connects;
+  try {
+    const subs = Promise.all(STREAMS.map((stream) => conn.request("subscribe", { stream, format: FORMATS[stream] })));
+    subs.catch(() => {}); // reported by the await below
+    app.hello = await conn.request("hello");
+    if (app.hello.protocol !== 1) console.warn(`ftafm: the daemon speaks protocol ${app.hello.protocol}; this page was written for 1`);
+    const list = await conn.request("list");
+    for (const n of list.nodes) app.nodes.set(n.path, n);
+    updateParams();
+    controls.setNodes(app.nodes);
+    await subs;
+  } catch (e) {
+    if (e.code !== "disconnected") console.warn("ftafm: setting up the connection:", e.message);
+  }
+}
+
+function onData(m, recvMs) {
+  const s = m.stream;
+  if (!(s in stats.messages)) return;
+  stats.messages[s]++;
+  const prev = lastSeq[s];
+  if (prev !== undefined && m.seq > prev + 1) stats.gaps[s] += m.seq - prev - 1;
+  lastSeq[s] = m.seq;
+  if (s === "demods") {
+    app.history.push(m.t, m.demods);
+    stats.latency[stats.latencyCount++ % stats.latency.length] = recvMs - Number(m.t_synth_ns) / 1e6;
+  } else {
+    try {
+      byStream[s].onData(m);
+    } catch (e) {
+      console.error(`ftafm: handling a ${s} message failed`, e);
+    }
+  }
+}
+
+app.conn = new Connection(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`, { onState, onOpen, onData });
+
+// Drawing: every animation frame asks each panel to draw; panels skip when nothing changed.
+// ?off=ScopePanel,SpectrumPanel skips drawing those panels: for profiling the page.
+const OFF = new Set((new URLSearchParams(location.search).get("off") || "").split(","));
+let fpsT0 = performance.now(), fpsDraws = 0, fpsFrames = 0, factsT = 0;
+function frame(now) {
+  fpsFrames++;
+  const before = stats.draws.harmonics;
+  for (const p of panels) {
+    if (OFF.has(p.constructor.name)) continue;
+    try {
+      p.draw(now);
+    } catch (e) {
+      console.error("ftafm: drawing failed", e);
+    }
+  }
+  fpsDraws += stats.draws.harmonics - before;
+  if (now - fpsT0 >= 1000) {
+    stats.fps = (fpsDraws * 1000) / (now - fpsT0);
+    stats.rafFps = (fpsFrames * 1000) / (now - fpsT0);
+    fpsT0 = now;
+    fpsDraws = fpsFrames = 0;
+  }
+  if (now - factsT > 250) {
+    factsT = now;
+    const h = app.hello;
+    const t = app.history.tNow;
+    const esc = (v) => String(v).replace(/[&<>]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;" })[c]);
+    facts.innerHTML =
+      (h ? `<span>${esc(h.server)} ${esc(h.version)} · protocol ${esc(h.protocol)}</span><span>f<sub>s</sub> <b>${si(h.sample_rate, "Hz", 3)}</b></span>` : "") +
+      `<span title="simulated time of the newest lock-in output">t <b>${isFinite(t) ? t.toFixed(2) + " s" : "–"}</b></span>`;
+  }
+  requestAnimationFrame(frame);
+}
+requestAnimationFrame(frame);
+setInterval(refreshParams, 3000);
+app.conn.start();
+
+// For tests and the console: live counters, the readouts and the panels.
+window.ftafm = {
+  stats,
+  app,
+  panels: { spectrum, harmonics, contrast, scope, status, controls },
+  /** 0.2 s mean amplitude (m) at harmonic k, or null. */
+  amplitude(k) {
+    const i = app.history.indexOf(k);
+    const m = i >= 0 ? app.history.mean(i, 0.2) : null;
+    return m ? m.r : null;
+  },
+  contrast: () => contrast.values(),
+};

@@ -1,0 +1,141 @@
+// Harmonic amplitudes R (log scale) and phases against time for the chosen demodulators,
+// with a readout table of 0.2 s means. Data accumulate in the history at the demodulators'
+// rate (1 kHz); the plots redraw at most ~30 times a second.
+
+import { COLORS, Plot, decadeRange } from "./plot.js";
+import { si } from "./units.js";
+import { DEMODS } from "./history.js";
+
+const DEFAULT_HARMONICS = [1, 6, 17, 18];
+// ~30 fps: every second frame of a 60 Hz display (a little under 33 ms, so frame-time jitter
+// does not push the draw to every third frame).
+const MIN_FRAME_MS = 26;
+const READOUT_MS = 200;
+
+export class HarmonicsPanel {
+  constructor(app) {
+    this.app = app;
+    this.hist = app.history;
+    this.selected = new Map(); // demod index → colour
+    this.defaulted = false;
+    this.drawn = -1;
+    this.lastDraw = 0;
+    this.lastReadout = 0;
+    this.chipKey = "";
+    this.dirty = true;
+    const redraw = () => { this.dirty = true; };
+    this.rPlot = new Plot(document.getElementById("harm-r"), {
+      x: { label: "time before now", unit: "s" },
+      y: { label: "R", unit: "m", log: true },
+      margin: { b: 30, l: 70 },
+    }, redraw);
+    this.pPlot = new Plot(document.getElementById("harm-phase"), {
+      x: { unit: "s", title: false },
+      y: { label: "phase", unit: "°", ticks: [-180, -90, 0, 90, 180] },
+      margin: { b: 20, l: 70 },
+    }, redraw);
+    this.windowSel = document.getElementById("harm-window");
+    this.windowSel.addEventListener("change", redraw);
+    this.chips = document.getElementById("harm-chips");
+    this.tbody = document.querySelector("#harm-table tbody");
+    this.chips.addEventListener("click", (e) => {
+      const b = e.target.closest(".chip");
+      if (!b) return;
+      this.toggle(Number(b.dataset.index));
+    });
+  }
+
+  toggle(i) {
+    if (this.selected.has(i)) this.selected.delete(i);
+    else {
+      const used = new Set(this.selected.values());
+      this.selected.set(i, COLORS.find((c) => !used.has(c)) ?? COLORS[i % COLORS.length]);
+    }
+    this.chipKey = "";
+    this.dirty = true;
+    this.lastReadout = 0;
+  }
+
+  /** Chips for every demodulator (its harmonic as the label); rebuilt when harmonics change. */
+  updateChips() {
+    const h = this.hist.harmonic;
+    const key = Array.from(h).join(",") + "|" + Array.from(this.selected.entries()).join(";");
+    if (key === this.chipKey) return;
+    this.chipKey = key;
+    const parts = [];
+    for (let i = 0; i < DEMODS; i++) {
+      const on = this.selected.has(i);
+      const style = on ? ` style="background:${this.selected.get(i)}"` : "";
+      const label = h[i] >= 0 ? h[i] : "–";
+      const cls = `chip${on ? " on" : ""}${h[i] < 0 ? " off" : ""}`;
+      const title = h[i] >= 0 ? `demodulator ${i}, harmonic ${h[i]}` : `demodulator ${i} (disabled)`;
+      parts.push(`<button type="button" class="${cls}" data-index="${i}" title="${title}"${style}>${label}</button>`);
+    }
+    this.chips.innerHTML = parts.join("");
+  }
+
+  draw(now) {
+    const hist = this.hist;
+    if (!this.defaulted && hist.len > 0) {
+      this.defaulted = true;
+      for (const k of DEFAULT_HARMONICS) {
+        const i = hist.indexOf(k);
+        if (i >= 0) this.toggle(i);
+      }
+    }
+    if (now - this.lastReadout >= READOUT_MS) {
+      this.lastReadout = now;
+      this.updateChips();
+      this.updateTable();
+    }
+    if (!this.dirty && hist.version === this.drawn) return;
+    if (now - this.lastDraw < MIN_FRAME_MS) return;
+    this.lastDraw = now;
+    this.drawn = hist.version;
+    this.dirty = false;
+    this.app.stats.draws.harmonics++;
+
+    const W = Number(this.windowSel.value);
+    const tNow = hist.tNow;
+    const from = hist.len ? hist.firstSince(tNow - W) : 0;
+    const n = hist.len - from;
+    // amplitude range over the window
+    let lo = Infinity, hi = 0;
+    for (const i of this.selected.keys()) {
+      const R = hist.r[i];
+      for (let j = from; j < hist.len; j++) {
+        const v = R[hist.pos(j)];
+        if (v > 0) { if (v < lo) lo = v; if (v > hi) hi = v; }
+      }
+    }
+    const yr = hi > 0 ? decadeRange(lo, hi, 1, 6) : [1e-12, 1e-7];
+    const xAt = (j) => hist.t[hist.pos(from + j)] - tNow;
+    this.rPlot.begin([-W, 0], yr);
+    this.pPlot.begin([-W, 0], [-180, 180]);
+    const DEG = 180 / Math.PI;
+    for (const [i, color] of this.selected) {
+      const R = hist.r[i], P = hist.p[i];
+      this.rPlot.line(n, xAt, (j) => R[hist.pos(from + j)], color);
+      this.pPlot.line(n, xAt, (j) => P[hist.pos(from + j)] * DEG, color);
+    }
+    if (!hist.len) this.rPlot.message("waiting for demodulator data…");
+    else if (!this.selected.size) this.rPlot.message("choose demodulators above");
+    this.rPlot.end();
+    this.pPlot.end();
+  }
+
+  updateTable() {
+    const rows = [...this.selected.entries()]
+      .map(([i, color]) => ({ i, color, m: this.hist.mean(i, 0.2), k: this.hist.harmonic[i] }))
+      .sort((a, b) => a.k - b.k);
+    const html = rows.map(({ i, color, m, k }) => {
+      const r = m ? m.r : NaN;
+      const ph = m ? (m.phase * 180) / Math.PI : NaN;
+      return `<tr data-index="${i}" data-harmonic="${k}"><td><span class="swatch" style="background:${color}"></span></td>` +
+        `<td>${i}</td><td>${k >= 0 ? k : "off"}</td>` +
+        `<td class="r" data-value="${isFinite(r) ? r : ""}">${si(r, "m", 4)}</td>` +
+        `<td class="phase" data-value="${isFinite(ph) ? ph : ""}">${isFinite(ph) ? ph.toFixed(2).replace("-", "−") + "°" : "–"}</td></tr>`;
+    });
+    this.tbody.innerHTML = html.join("");
+  }
+}
