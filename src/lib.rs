@@ -12,4 +12,5 @@ pub mod paper;
 pub mod physics;
 pub mod pipeline;
 pub mod server;
+pub mod soak;
 pub mod synth;

@@ -12,7 +12,8 @@ use ftafm::paper;
 #[command(
     name = "ftafm",
     version,
-    about = "Real-time virtual instrument for Fourier-transform AFM"
+    about = "Real-time virtual instrument for Fourier-transform AFM",
+    after_help = "Without a command, ftafm runs `serve` on the embedded default configuration."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -73,6 +74,39 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Soak a running daemon with N WebSocket clients: receive latency, seq gaps,
+    /// disconnects, and the server's overruns and drops from /metrics.
+    Soak {
+        /// WebSocket URL of the daemon.
+        #[arg(long, value_name = "URL", default_value = "ws://127.0.0.1:8700/ws")]
+        url: String,
+        /// Number of concurrent clients (1 ≤ N ≤ 1024).
+        #[arg(
+            long,
+            value_name = "N",
+            default_value_t = 16,
+            allow_negative_numbers = true
+        )]
+        clients: i64,
+        /// Duration of the measurement in seconds (0 < S ≤ 86400).
+        #[arg(
+            long,
+            value_name = "S",
+            default_value_t = 10.0,
+            allow_negative_numbers = true
+        )]
+        seconds: f64,
+        /// Comma-separated streams each client subscribes to (demods, spectrum, scope,
+        /// status, force).
+        #[arg(long, value_name = "LIST", default_value = "demods")]
+        streams: String,
+        /// Print exactly one JSON object as the last line of stdout (progress on stderr).
+        #[arg(long)]
+        json: bool,
+        /// Exit with status 1 if any overrun or seq gap occurred (for CI).
+        #[arg(long)]
+        fail_on_loss: bool,
+    },
     /// Print the configured instrument: its modes and the 1-DOF tapping solution.
     Info {
         #[command(flatten)]
@@ -110,6 +144,14 @@ fn main() -> ExitCode {
             realtime,
             json,
         } => run_bench(config.config.as_ref(), seconds, realtime, json),
+        Command::Soak {
+            url,
+            clients,
+            seconds,
+            streams,
+            json,
+            fail_on_loss,
+        } => run_soak(url, clients, seconds, &streams, json, fail_on_loss),
     };
     result.unwrap_or_else(|code| code)
 }
@@ -234,6 +276,81 @@ fn run_bench(
         println!("{}", serde_json::to_string(&report).expect("plain numbers"));
     } else {
         print!("{}", ftafm::bench::render_text(&report));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_soak(
+    url: String,
+    clients: i64,
+    seconds: f64,
+    streams: &str,
+    json: bool,
+    fail_on_loss: bool,
+) -> Result<ExitCode, ExitCode> {
+    let usage = |message: String| {
+        eprintln!("ftafm: {message}");
+        ExitCode::from(EXIT_USAGE)
+    };
+    let clients = usize::try_from(clients)
+        .ok()
+        .filter(|&n| n <= ftafm::soak::MAX_CLIENTS)
+        .ok_or_else(|| {
+            usage(format!(
+                "--clients = {clients} is out of range: allowed 1 ≤ N ≤ {}",
+                ftafm::soak::MAX_CLIENTS
+            ))
+        })?;
+    let options = ftafm::soak::SoakOptions {
+        url,
+        clients,
+        seconds,
+        streams: streams
+            .split(',')
+            .map(str::trim)
+            .filter(|s| !s.is_empty())
+            .map(String::from)
+            .collect(),
+    };
+    options.validate().map_err(|e| usage(e.to_string()))?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .thread_name("ftafm-soak")
+        .build()
+        .map_err(|e| {
+            eprintln!("ftafm: cannot start the async runtime: {e}");
+            ExitCode::FAILURE
+        })?;
+    let report = runtime
+        .block_on(ftafm::soak::run(&options, |p| {
+            eprintln!(
+                "[{:>5.0} s] {} messages, gaps {}, disconnects {}, p99 {:.3} ms",
+                p.elapsed,
+                p.messages,
+                p.gaps,
+                p.disconnects,
+                p.p99_ns as f64 / 1e6
+            );
+        }))
+        .map_err(|e| match e {
+            ftafm::soak::SoakError::InvalidOption { .. } => usage(e.to_string()),
+            _ => {
+                eprintln!("ftafm: {e}");
+                ExitCode::FAILURE
+            }
+        })?;
+    if json {
+        println!("{}", serde_json::to_string(&report).expect("plain numbers"));
+    } else {
+        print!("{}", ftafm::soak::render_text(&report));
+    }
+    if fail_on_loss && report.lost_anything() {
+        eprintln!(
+            "ftafm: loss: {} seq gaps, {} overrun samples in {} blocks",
+            report.gaps, report.server.overruns, report.server.overrun_blocks
+        );
+        return Err(ExitCode::FAILURE);
     }
     Ok(ExitCode::SUCCESS)
 }

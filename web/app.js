@@ -14,16 +14,17 @@ import { ContrastPanel } from "./contrast.js";
 import { ScopePanel } from "./scope.js";
 import { StatusPanel } from "./status.js";
 import { ControlsPanel } from "./controls.js";
+import { ForcePanel } from "./force.js";
 import { si } from "./units.js";
 
-const STREAMS = ["demods", "spectrum", "scope", "status"];
-const FORMATS = { demods: "binary", spectrum: "binary", scope: "binary", status: "json" };
+const STREAMS = ["demods", "spectrum", "scope", "status", "force"];
+const FORMATS = { demods: "binary", spectrum: "binary", scope: "binary", status: "json", force: "binary" };
 const zero = () => Object.fromEntries(STREAMS.map((s) => [s, 0]));
 
 const stats = {
   messages: zero(), // data messages received per stream, since the page loaded
   gaps: zero(), // messages lost (seq gaps) per stream
-  draws: { harmonics: 0, contrast: 0, scope: 0, spectrum: 0 },
+  draws: { harmonics: 0, contrast: 0, scope: 0, spectrum: 0, force: 0 },
   connects: 0,
   state: "connecting",
   fps: 0, // redraws per second of the time plot (the page's animation rate)
@@ -56,8 +57,9 @@ const contrast = new ContrastPanel(app);
 const scope = new ScopePanel(app);
 const status = new StatusPanel(app);
 const controls = new ControlsPanel(app);
-const panels = [spectrum, harmonics, contrast, scope, status];
-const byStream = { spectrum, scope, status };
+const force = new ForcePanel(app);
+const panels = [spectrum, harmonics, contrast, scope, status, force];
+const byStream = { spectrum, scope, status, force };
 
 function updateParams() {
   const v = (p) => app.nodes.get(p)?.value;
@@ -100,7 +102,9 @@ async function onOpen(conn) {
   lastSeq = {};
   stats.connects = conn.connects;
   try {
-    const subs = Promise.all(STREAMS.map((stream) => conn.request("subscribe", { stream, format: FORMATS[stream] })));
+    // `force` (1 kHz) only while its panel is on screen: ForcePanel subscribes and unsubscribes
+    const subs = Promise.all(STREAMS.filter((s) => s !== "force").map((stream) => conn.request("subscribe", { stream, format: FORMATS[stream] })));
+    force.onOpen(conn);
     subs.catch(() => {}); // reported by the await below
     app.hello = await conn.request("hello");
     if (app.hello.protocol !== 1) console.warn(`ftafm: the daemon speaks protocol ${app.hello.protocol}; this page was written for 1`);
@@ -132,6 +136,9 @@ function onData(m, recvMs) {
     }
   }
 }
+
+/** A stream (re)subscribed: its seq starts afresh, so no gap is counted against the old one. */
+app.resetSeq = (stream) => { delete lastSeq[stream]; };
 
 app.conn = new Connection(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`, { onState, onOpen, onData });
 
@@ -176,7 +183,7 @@ app.conn.start();
 window.ftafm = {
   stats,
   app,
-  panels: { spectrum, harmonics, contrast, scope, status, controls },
+  panels: { spectrum, harmonics, contrast, scope, status, controls, force },
   /** 0.2 s mean amplitude (m) at harmonic k, or null. */
   amplitude(k) {
     const i = app.history.indexOf(k);
@@ -184,4 +191,6 @@ window.ftafm = {
     return m ? m.r : null;
   },
   contrast: () => contrast.values(),
+  /** 0.5 s means of the FT-AFM estimates: { E (Pa), F (N), tau, latest message }. */
+  force: () => force.values(),
 };

@@ -55,12 +55,44 @@ export function decodeBinary(buf) {
       m.samples = new Float32Array(buf, 64, count);
       break;
     case "status":
-    case "force":
       return { ...JSON.parse(utf8.decode(new Uint8Array(buf, 40, count))), t_synth_ns: m.t_synth_ns };
+    case "force":
+      return { ...parseForce(utf8.decode(new Uint8Array(buf, 40, count))), t_synth_ns: m.t_synth_ns };
     default:
       throw new Error(`binary frame of unknown stream code ${dv.getUint8(6)}`);
   }
   return m;
+}
+
+const WAVEFORM = ',"waveform":';
+
+/**
+ * A force message (1 kHz by default) with its waveform left unparsed: the waveform (most of
+ * the payload) is only needed for the message that gets drawn, so it stays text in
+ * `waveformText` until `forceWaveform(m)` parses it. Falls back to a full parse.
+ */
+export function parseForce(text) {
+  const i = text.lastIndexOf(WAVEFORM);
+  if (i > 0 && text.endsWith("]}")) {
+    try {
+      const m = JSON.parse(text.slice(0, i) + "}");
+      m.waveformText = text.slice(i + WAVEFORM.length, -1);
+      return m;
+    } catch {
+      // not the expected layout: parse it all
+    }
+  }
+  return JSON.parse(text);
+}
+
+/** The waveform of a force message (array of N values, null for NaN), parsed on first use. */
+export function forceWaveform(m) {
+  if (!m) return null;
+  if (!m.waveform && typeof m.waveformText === "string") {
+    m.waveform = JSON.parse(m.waveformText);
+    m.waveformText = undefined;
+  }
+  return Array.isArray(m.waveform) ? m.waveform : null;
 }
 
 /**

@@ -18,6 +18,14 @@ const GROUPS = [
     { path: "/noise/enable", label: "Noise" },
     { path: "/synth/engine", label: "Tip-force engine", options: ["paper", "coupled"] },
   ] },
+  // shown in the force panel's neighbour (#inversion-controls) rather than in #controls
+  { legend: "FT-AFM inversion", target: "inversion-controls", items: [
+    { path: "/inversion/enable", label: "Force reconstruction" },
+    { path: "/inversion/method", label: "Method", options: ["full", "two_harmonic"] },
+    { path: "/inversion/harmonic_a", label: "Harmonic a" },
+    { path: "/inversion/harmonic_b", label: "Harmonic b" },
+    { path: "/inversion/averaging", label: "Averaging (frames per estimate)" },
+  ] },
 ];
 const DEMOD_ITEMS = [
   { key: "enable", label: "Enabled" },
@@ -206,7 +214,10 @@ export class ControlsPanel {
   build() {
     this.built = true;
     this.root.innerHTML = "";
+    const cleared = new Set();
     for (const g of GROUPS) {
+      const root = (g.target && document.getElementById(g.target)) || this.root;
+      if (root !== this.root && !cleared.has(root)) { cleared.add(root); root.innerHTML = ""; }
       const fs = document.createElement("fieldset");
       fs.innerHTML = `<legend>${esc(g.legend)}</legend>`;
       for (const item of g.items) {
@@ -214,7 +225,7 @@ export class ControlsPanel {
         this.controls.push(c);
         fs.append(c.el);
       }
-      this.root.append(fs);
+      root.append(fs);
     }
     const fs = document.createElement("fieldset");
     fs.innerHTML = `<legend>Demodulator</legend><div class="ctl"><div class="name"><span>Demodulator</span><code>/demods/N</code></div>` +

@@ -84,6 +84,11 @@ pub(crate) const ASSETS: &[Asset] = &[
         content_type: JS,
         body: include_str!("../../web/controls.js"),
     },
+    Asset {
+        path: "/force.js",
+        content_type: JS,
+        body: include_str!("../../web/force.js"),
+    },
 ];
 
 /// The asset at `path`, if any.

@@ -220,7 +220,80 @@ test("an invalid value shows the server's error message and the control reverts"
   assert.equal(server, 60e9);
 });
 
+test("the FT-AFM force panel receives estimates and draws them", { timeout: 30000 }, async (t) => {
+  // the force stream is only subscribed while the panel is on screen
+  await page.locator("#p-force").scrollIntoViewIfNeeded();
+  await until(() => window.ftafm.stats.messages.force >= 2000 && window.ftafm.stats.draws.force >= 5, null, "2 s of force messages and drawn force plots", 15000);
+  const s = await stats();
+  // losses depend on the machine's load (seq gaps: the page read too slowly), so only reported
+  t.diagnostic(`force: ${s.messages.force} messages, ${s.gaps.force} lost, ${s.draws.force} draws; demods ${s.gaps.demods} lost of ${s.messages.demods}`);
+  for (const [id, colors] of [["force-wave", ["#0b62a4"]], ["force-e", ["#0b62a4"]], ["force-f", ["#d55e00"]]]) {
+    const n = await inked(id, colors);
+    assert.ok(n > 100, `${id} shows a trace (${n} pixels in its colours)`);
+  }
+  const text = await page.textContent("#force-readout");
+  assert.match(text, /τ/);
+  assert.match(text, /\d nN ± \d/, "peak force in nN with its σ");
+  assert.match(text, /\d GPa ± \d/, "modulus in GPa with its σ");
+  assert.match(await page.textContent("#force-foot"), /method full/);
+  // the inversion controls, built from list
+  assert.equal(await page.inputValue('input[data-path="/inversion/harmonic_a"]'), "6");
+  assert.equal(await page.inputValue('input[data-path="/inversion/harmonic_b"]'), "17");
+  assert.equal(await page.inputValue('input[data-path="/inversion/averaging"]'), "1 frames");
+  assert.equal(await page.inputValue('select[data-path="/inversion/method"]'), "full");
+  assert.equal(await page.isChecked('input[data-path="/inversion/enable"]'), true);
+});
+
+test("a harmonic no demodulator measures is refused with the server's message", { timeout: 15000 }, async () => {
+  const path = "/inversion/harmonic_b";
+  const input = page.locator(`input[data-path="${path}"]`);
+  await input.fill("40");
+  await input.press("Enter");
+  await until((p) => document.querySelector(`.error[data-for="${p}"]`)?.textContent.length > 0, path, "the error message");
+  assert.match(await page.textContent(`.error[data-for="${path}"]`), /harmonic_b = 40 is not measured/);
+  assert.equal(await input.inputValue(), "17", "reverted to the server's value");
+});
+
+test("with noise off the displayed modulus settles at the sample's (60 GPa)", { timeout: 20000 }, async (t) => {
+  assert.equal(await page.inputValue(`input[data-path="${MODULUS}"]`), "60 GPa");
+  await page.uncheck('input[data-path="/noise/enable"]');
+  await until(() => window.ftafm.app.nodes.get("/noise/enable")?.value === false, null, "noise switched off");
+  await page.locator("#p-force").scrollIntoViewIfNeeded(); // unchecking scrolled the controls into view
+  // ~1 s for the lock-in and the 0.5 s running statistics to leave the noisy estimates behind
+  await page.waitForTimeout(1000);
+  await until(() => {
+    const td = document.querySelector('#force-readout tr[data-key="E"] td.mean');
+    const E = window.ftafm.panels.force.stats(window.ftafm.panels.force.E);
+    return td && E && E.std < 1e-4 * E.mean;
+  }, null, "the modulus estimate to settle (0.5 s std < 0.01 %)", 8000);
+  await page.waitForTimeout(300); // the readout table refreshes at 5 Hz
+  const value = async () => page.$eval('#force-readout tr[data-key="E"] td.mean', (td) => ({ value: Number(td.dataset.value), text: td.textContent }));
+  const E = await value();
+  t.diagnostic(`displayed E (0.5 s mean) ${E.text} with noise off, set 60 GPa (${((E.value / 60e9 - 1) * 100).toFixed(2)} %)`);
+  assert.match(E.text, /^\d+\.\d+ GPa ± /);
+  assert.ok(Math.abs(E.value / 60e9 - 1) < 0.05, `E ${E.value} within 5 % of 60 GPa`);
+  const st = await stats();
+  t.diagnostic(`messages lost (seq gaps) so far: ${JSON.stringify(st.gaps)} of ${JSON.stringify(st.messages)}`);
+  const { tau, F } = await page.evaluate(() => window.ftafm.force());
+  assert.ok(tau > 0 && tau < 1 && F > 0, `τ ${tau} and F ${F} plausible`);
+});
+
+test("the force stream stops while its panel is off screen and resumes after", { timeout: 15000 }, async () => {
+  await page.evaluate(() => window.scrollTo(0, 0));
+  // after the unsubscribe (and what was already on its way) no more force messages arrive
+  await until(() => {
+    const n = window.ftafm.stats.messages.force, now = performance.now();
+    const w = (window.__forceIdle ??= { n, since: now });
+    if (n !== w.n) { w.n = n; w.since = now; }
+    return now - w.since > 700;
+  }, null, "the force stream to stop while its panel is off screen", 6000);
+  const n1 = await page.evaluate(() => window.ftafm.stats.messages.force);
+  await page.locator("#p-force").scrollIntoViewIfNeeded();
+  await until((n) => window.ftafm.stats.messages.force > n + 100, n1, "force messages again");
+});
+
 test("screenshot", { timeout: 15000 }, async () => {
+  await page.evaluate(() => window.scrollTo(0, 0)); // the sticky header at the top of the image
   await page.waitForTimeout(500);
   await page.screenshot({ path: SCREENSHOT, fullPage: true });
 });
