@@ -11,6 +11,7 @@ use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+use crate::server::status::LatencySummary;
 use futures_util::{SinkExt, StreamExt};
 use hdrhistogram::Histogram;
 use serde::{Deserialize, Serialize};
@@ -185,39 +186,6 @@ pub enum SoakError {
     /// The daemon answered something unexpected (e.g. refused a subscription).
     #[error("protocol error: {0}")]
     Protocol(String),
-}
-
-/// Receive-latency percentiles, in ns.
-#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq)]
-pub struct LatencySummary {
-    /// Messages measured.
-    pub count: u64,
-    /// Median.
-    pub p50: u64,
-    /// 90th percentile.
-    pub p90: u64,
-    /// 99th percentile.
-    pub p99: u64,
-    /// 99.9th percentile.
-    pub p999: u64,
-    /// Largest.
-    pub max: u64,
-}
-
-impl LatencySummary {
-    fn of(h: &Histogram<u64>) -> Self {
-        if h.is_empty() {
-            return Self::default();
-        }
-        Self {
-            count: h.len(),
-            p50: h.value_at_quantile(0.5),
-            p90: h.value_at_quantile(0.9),
-            p99: h.value_at_quantile(0.99),
-            p999: h.value_at_quantile(0.999),
-            max: h.max(),
-        }
-    }
 }
 
 /// Per-stream figures seen by the clients.
@@ -777,7 +745,7 @@ pub async fn run(
         bytes,
         messages_per_s: messages as f64 / seconds,
         bytes_per_s: bytes as f64 / seconds,
-        latency_ns: LatencySummary::of(&histogram),
+        latency_ns: LatencySummary::from_histogram(&histogram),
         per_stream,
         server: server_report(&before, &during, &after),
     })

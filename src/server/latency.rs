@@ -31,27 +31,13 @@ impl Latency {
 
     /// Percentiles of the interval, which then starts afresh.
     pub fn take_interval(&mut self) -> LatencySummary {
-        let s = summary(&self.interval);
+        let s = LatencySummary::from_histogram(&self.interval);
         self.interval.reset();
         s
     }
 
     /// Percentiles since start.
     pub fn total(&self) -> LatencySummary {
-        summary(&self.total)
-    }
-}
-
-fn summary(h: &Histogram<u64>) -> LatencySummary {
-    if h.is_empty() {
-        return LatencySummary::default();
-    }
-    LatencySummary {
-        count: h.len(),
-        p50: h.value_at_quantile(0.5),
-        p90: h.value_at_quantile(0.9),
-        p99: h.value_at_quantile(0.99),
-        p999: h.value_at_quantile(0.999),
-        max: h.max(),
+        LatencySummary::from_histogram(&self.total)
     }
 }

@@ -1,11 +1,13 @@
 //! The instrument's health as clients see it (`status` stream, `/metrics`).
 
-use serde::Serialize;
+use hdrhistogram::Histogram;
+use serde::{Deserialize, Serialize};
 
 use crate::pipeline::CountersSnapshot;
 
-/// Latency percentiles (ns) of one path, over the status interval's histogram.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+/// Latency percentiles (ns) of one path: the daemon's (status interval or since start) and
+/// `ftafm soak`'s receive latency.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct LatencySummary {
     /// Samples in the histogram.
     pub count: u64,
@@ -19,6 +21,23 @@ pub struct LatencySummary {
     pub p999: u64,
     /// Largest (ns).
     pub max: u64,
+}
+
+impl LatencySummary {
+    /// Percentiles of `h` (ns); all zero when it is empty.
+    pub fn from_histogram(h: &Histogram<u64>) -> Self {
+        if h.is_empty() {
+            return Self::default();
+        }
+        Self {
+            count: h.len(),
+            p50: h.value_at_quantile(0.5),
+            p90: h.value_at_quantile(0.9),
+            p99: h.value_at_quantile(0.99),
+            p999: h.value_at_quantile(0.999),
+            max: h.max(),
+        }
+    }
 }
 
 /// One `status` message's content.
