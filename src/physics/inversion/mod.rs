@@ -83,3 +83,35 @@ pub enum InversionError {
     #[error("the reconstructed force has no positive peak")]
     NoPulse,
 }
+
+/// Golden-section search for a minimum of a unimodal `f` on [a, b]: narrows the bracket until
+/// `done(a, b)` (or 200 steps) and returns it.
+fn golden_section(
+    f: &impl Fn(f64) -> f64,
+    mut a: f64,
+    mut b: f64,
+    done: impl Fn(f64, f64) -> bool,
+) -> (f64, f64) {
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
+    let (mut f1, mut f2) = (f(x1), f(x2));
+    for _ in 0..200 {
+        if done(a, b) {
+            break;
+        }
+        if f1 <= f2 {
+            b = x2;
+            x2 = x1;
+            f2 = f1;
+            x1 = b - g * (b - a);
+            f1 = f(x1);
+        } else {
+            a = x1;
+            x1 = x2;
+            f1 = f2;
+            x2 = a + g * (b - a);
+            f2 = f(x2);
+        }
+    }
+    (a, b)
+}

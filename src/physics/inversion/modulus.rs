@@ -478,29 +478,9 @@ fn hermite(xs: &[f64], ys: &[f64], ms: &[f64], i: usize, x: f64) -> (f64, f64) {
 }
 
 /// Minimum of `f` on [a, b] by golden-section search (to ~1e-12 of the bracket).
-fn golden(f: impl Fn(f64) -> f64, mut a: f64, mut b: f64) -> f64 {
-    let g = 0.5 * (5f64.sqrt() - 1.0);
-    let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
-    let (mut f1, mut f2) = (f(x1), f(x2));
+fn golden(f: impl Fn(f64) -> f64, a: f64, b: f64) -> f64 {
     let width = b - a;
-    for _ in 0..200 {
-        if b - a <= 1e-12 * width {
-            break;
-        }
-        if f1 <= f2 {
-            b = x2;
-            x2 = x1;
-            f2 = f1;
-            x1 = b - g * (b - a);
-            f1 = f(x1);
-        } else {
-            a = x1;
-            x1 = x2;
-            f1 = f2;
-            x2 = a + g * (b - a);
-            f2 = f(x2);
-        }
-    }
+    let (a, b) = super::golden_section(&f, a, b, |a, b| b - a <= 1e-12 * width);
     // The ends themselves may be the minimum (a pinned estimate).
     let mid = 0.5 * (a + b);
     [mid, a, b]

@@ -235,30 +235,11 @@ pub fn light_lever_minima(cantilever: &Cantilever, max_frequency: f64) -> Vec<Tr
     minima
 }
 
-/// Minimum of a unimodal `f` on [a, b] by golden-section search.
-fn golden_minimum(f: impl Fn(f64) -> f64, mut a: f64, mut b: f64) -> f64 {
-    let g = 0.5 * (5f64.sqrt() - 1.0);
-    let mut x1 = b - g * (b - a);
-    let mut x2 = a + g * (b - a);
-    let (mut f1, mut f2) = (f(x1), f(x2));
-    for _ in 0..200 {
-        if b - a <= 4.0 * f64::EPSILON * b.abs().max(a.abs()) {
-            break;
-        }
-        if f1 <= f2 {
-            b = x2;
-            x2 = x1;
-            f2 = f1;
-            x1 = b - g * (b - a);
-            f1 = f(x1);
-        } else {
-            a = x1;
-            x1 = x2;
-            f1 = f2;
-            x2 = a + g * (b - a);
-            f2 = f(x2);
-        }
-    }
+/// Minimum of a unimodal `f` on [a, b] by golden-section search, to rounding.
+fn golden_minimum(f: impl Fn(f64) -> f64, a: f64, b: f64) -> f64 {
+    let (a, b) = super::golden_section(&f, a, b, |a, b| {
+        b - a <= 4.0 * f64::EPSILON * b.abs().max(a.abs())
+    });
     0.5 * (a + b)
 }
 
