@@ -1,32 +1,45 @@
 //! Live FT-AFM force reconstruction from the lock-in outputs (`/inversion/...`, the `force`
 //! stream): the maths of [`crate::physics::inversion`] applied to demodulator frames.
 //!
-//! Per estimate (every `/inversion/averaging` frames): the two harmonics' amplitudes give the
-//! cut cosine's τ and F (the paper's method); with `"full"` every demodulated harmonic is
-//! divided by the cantilever's transfer function and the force is rebuilt over one period
-//! (Stark et al. 2002). The modulus follows from (F, τ) through a table of the 1-DOF Hertz
-//! model built when the estimator is. Amplitude noise σ per harmonic is the scatter of the
-//! recent frames, so the uncertainties reflect the lock-in noise actually present.
-
-use std::f64::consts::PI;
+//! Per estimate (every `/inversion/averaging` frames, or one call of
+//! [`ForceEstimator::estimate_frame`] for phasors averaged elsewhere, e.g. over a scan
+//! pixel):
+//!
+//! - every harmonic's noise σ is *predicted* from the instrument's noise settings (thermal
+//!   motion of every mode through the light lever, detector, ADC) and the demodulator's
+//!   equivalent noise bandwidth, including the correlation of the averaged frames
+//!   ([`crate::physics::inversion::NoiseModel`], [`LowPassNoise`]); noise off gives σ = 0;
+//! - what each demodulator reads is modelled with the harmonics that alias onto it (the
+//!   photodiode is sampled without an anti-alias filter; [`LockInModel`]);
+//! - **two-harmonic** (the paper's method): τ and F of the cut cosine from the amplitudes of
+//!   `/inversion/harmonic_a` and `_b`, less their aliases;
+//! - **full**: τ, F and the pulse phase of the cut cosine fitted to *every* demodulated
+//!   harmonic ≥ 2 by weighted least squares (maximum likelihood; [`fit_cut_cosine`]), which
+//!   for the default noise is the Cramér–Rao-efficient estimate (docs/ft-afm.md);
+//! - the modulus: (F, τ) with their covariance through a table of the 1-DOF Hertz model
+//!   ([`ModulusTable`]), built when the estimator is;
+//! - the waveform: every harmonic whose expected signal is above 3σ divided by the transfer
+//!   function (Stark et al. 2002), the rest from the method's cut cosine.
 
 use serde::Serialize;
 
 use crate::config::{InversionMethod, Settings};
+use crate::dsp::PREDECIMATION;
 use crate::model;
-use crate::physics::Cantilever;
 use crate::physics::inversion::{
-    AmplitudeMeasurement, HarmonicSample, InversionOptions, ModulusTable, PulseMeasure, TableRange,
-    fit_two_harmonics, reconstruct_force,
+    CutCosineFit, CutCosinePrior, CutCosineStart, HarmonicSample, InversionOptions, LockInModel,
+    LowPassNoise, ModulusTable, NoiseModel, PulseMeasure, TableRange, cut_cosine_from_coefficients,
+    fit_cut_cosine, lockin_sigma, reconstruct_force_with, two_harmonic_prior,
 };
 use crate::pipeline::DemodFrame;
 use rustfft::num_complex::Complex64;
 
-/// Frames over which the amplitude scatter (σ) is estimated (exponential memory).
-const NOISE_MEMORY: f64 = 50.0;
 /// Range of the modulus table (Pa) and its nodes.
 const TABLE_RANGE: (f64, f64) = (1e9, 1e12);
 const TABLE_POINTS: usize = 64;
+/// Expected signal-to-noise ratio below which a harmonic of the waveform comes from the cut
+/// cosine rather than from its measurement.
+const MIN_SNR: f64 = 3.0;
 
 /// One force estimate, as the `force` stream sends it. SI units.
 #[derive(Clone, Debug, Serialize)]
@@ -70,27 +83,38 @@ pub enum EstimateError {
     Maths(String),
 }
 
+/// Noise of one demodulator.
+#[derive(Clone, Copy, Debug)]
+struct DemodNoise {
+    harmonic: u32,
+    /// One-sided photodiode noise density around its harmonic (m²/Hz).
+    density: f64,
+    /// Equivalent noise bandwidth of one output (Hz).
+    bandwidth: f64,
+    /// Equivalent noise bandwidth of the mean of `averaging` successive outputs (Hz).
+    averaged_bandwidth: f64,
+}
+
 /// Builds estimates from demodulator frames. Construct it off any latency-sensitive path:
-/// the modulus table takes about 0.1 s.
+/// the modulus table takes about 0.1 s. [`Self::push`] keeps the running average of the
+/// live stream; [`Self::estimate_frame`] takes `&self` and estimates from any phasors.
 pub struct ForceEstimator {
-    cantilever: Cantilever,
-    drive_frequency: f64,
+    model: LockInModel,
     method: InversionMethod,
     pair: (usize, usize),
     averaging: usize,
     points: usize,
+    noise: NoiseModel,
+    /// Per demodulator index (`None`: disabled).
+    demods: Vec<Option<DemodNoise>>,
     /// F(E) and τ(E) of the 1-DOF pulse. With the paper engine the tap force *is* the cut
     /// cosine of the 1-DOF (F, τ), so both methods measure exactly these. (A coupled
-    /// engine's Hertz pulse would call for a table of what the two-harmonic fit reads off a
-    /// real pulse: `PulseMeasure::TwoHarmonic`.)
+    /// engine's Hertz pulse would call for a table of what the fit reads off a real pulse:
+    /// `PulseMeasure::TwoHarmonic`.)
     table: ModulusTable,
-    /// Running sums of X and Y per demodulator for averaging.
+    /// Running sums of X + iY per demodulator for averaging.
     sum: Vec<Complex64>,
     summed: usize,
-    /// Exponentially weighted mean and variance of X and Y per demodulator.
-    mean: Vec<Complex64>,
-    variance: Vec<f64>,
-    seen: usize,
 }
 
 impl ForceEstimator {
@@ -116,145 +140,252 @@ impl ForceEstimator {
             PulseMeasure::Shape,
         )
         .map_err(|e| e.to_string())?;
-        let n = settings.demods.len();
+        let fs = settings.synth.sample_rate;
+        let harmonics: Vec<usize> = settings
+            .demods
+            .iter()
+            .filter(|d| d.enable)
+            .map(|d| d.harmonic as usize)
+            .collect();
+        let lockin = LockInModel::new(&cantilever, settings.drive.frequency, Some(fs), &harmonics)
+            .map_err(|e| e.to_string())?;
+        let n = &settings.noise;
+        let noise = if n.enable {
+            NoiseModel {
+                temperature: n.temperature,
+                detector_density: n.detector_density,
+                adc_lsb: if n.adc_bits > 0 {
+                    2.0 * n.adc_range / 2f64.powi(n.adc_bits as i32)
+                } else {
+                    0.0
+                },
+                sample_rate: Some(fs),
+            }
+        } else {
+            NoiseModel::NONE
+        };
+        let averaging = inv.averaging.max(1) as usize;
+        let decimated = fs / PREDECIMATION as f64;
+        let demods = settings
+            .demods
+            .iter()
+            .map(|d| {
+                d.enable.then(|| {
+                    let filter = LowPassNoise {
+                        order: d.order,
+                        time_constant: d.timeconstant,
+                    };
+                    // The bank's realised output period: a whole number of decimated samples.
+                    let period = (decimated / d.rate).round().max(1.0) / decimated;
+                    DemodNoise {
+                        harmonic: d.harmonic,
+                        density: noise
+                            .density(&cantilever, d.harmonic as f64 * settings.drive.frequency),
+                        bandwidth: filter.bandwidth(),
+                        averaged_bandwidth: filter.averaged_bandwidth(averaging, period),
+                    }
+                })
+            })
+            .collect();
         Ok(Some(Self {
-            cantilever,
-            drive_frequency: settings.drive.frequency,
+            model: lockin,
             method: inv.method,
             pair,
-            averaging: inv.averaging.max(1) as usize,
+            averaging,
             points: inv.points as usize,
+            noise,
+            demods,
             table,
-            sum: vec![Complex64::new(0.0, 0.0); n],
+            sum: vec![Complex64::new(0.0, 0.0); settings.demods.len()],
             summed: 0,
-            mean: vec![Complex64::new(0.0, 0.0); n],
-            variance: vec![0.0; n],
-            seen: 0,
         }))
+    }
+
+    /// The noise model the estimator assumes.
+    pub fn noise_model(&self) -> &NoiseModel {
+        &self.noise
+    }
+
+    /// The forward model (transfer and aliases) the estimator fits.
+    pub fn lockin_model(&self) -> &LockInModel {
+        &self.model
+    }
+
+    /// The modulus table.
+    pub fn table(&self) -> &ModulusTable {
+        &self.table
+    }
+
+    /// Standard deviation (m) of each of X and Y of a reading at `harmonic` ≥ 1 whose
+    /// one-sided equivalent noise bandwidth is `bandwidth` (Hz): √(2·G·B) with G the
+    /// photodiode noise density there. For a boxcar average over T seconds (a scan pixel)
+    /// B = 1/(2T).
+    pub fn phasor_sigma(&self, harmonic: u32, bandwidth: f64) -> f64 {
+        let frequency = harmonic as f64 * self.model.drive_frequency();
+        lockin_sigma(
+            self.noise.density(self.model.cantilever(), frequency),
+            bandwidth,
+        )
+    }
+
+    /// One-sided equivalent noise bandwidth (Hz) of one output of demodulator `index`
+    /// (`None` if it is disabled or absent): 156.25 Hz for order 4 and τ = 0.5 ms.
+    pub fn frame_bandwidth(&self, index: usize) -> Option<f64> {
+        self.demods
+            .get(index)
+            .copied()
+            .flatten()
+            .map(|d| d.bandwidth)
     }
 
     /// Takes one demodulator frame; every `averaging` frames returns an estimate.
     pub fn push(&mut self, frame: &DemodFrame) -> Option<Result<ForceEstimate, EstimateError>> {
-        let alpha = 1.0 / NOISE_MEMORY.min(self.seen as f64 + 1.0);
         for v in frame.values() {
-            let i = v.index as usize;
-            if i >= self.sum.len() {
-                continue;
+            if let Some(s) = self.sum.get_mut(v.index as usize) {
+                *s += Complex64::new(v.x, v.y);
             }
-            let z = Complex64::new(v.x, v.y);
-            self.sum[i] += z;
-            // Welford-style exponential update of the scatter of X + iY about its mean.
-            let d = z - self.mean[i];
-            self.mean[i] += d * alpha;
-            self.variance[i] = (1.0 - alpha) * (self.variance[i] + alpha * d.norm_sqr());
         }
-        self.seen += 1;
         self.summed += 1;
         if self.summed < self.averaging {
             return None;
         }
-        let averaged: Vec<(u32, Complex64, f64)> = frame
-            .values()
-            .iter()
-            .filter(|v| (v.index as usize) < self.sum.len())
-            .map(|v| {
-                let i = v.index as usize;
-                // σ of one component of the average: the per-frame scatter of X + iY is
-                // 2σ² for σ per component, and averaging n frames divides it by n.
-                let sigma = (self.variance[i] / 2.0 / self.summed as f64).sqrt();
-                (v.harmonic, self.sum[i] / self.summed as f64, sigma)
-            })
-            .collect();
+        let n = self.summed as f64;
+        let mut samples = Vec::with_capacity(frame.len);
+        for v in frame.values() {
+            let i = v.index as usize;
+            let (Some(sum), Some(Some(noise))) = (self.sum.get(i), self.demods.get(i)) else {
+                continue;
+            };
+            let sigma = lockin_sigma(noise.density, noise.averaged_bandwidth);
+            push_sample(&mut samples, noise.harmonic, sum / n, sigma);
+        }
         for s in &mut self.sum {
             *s = Complex64::new(0.0, 0.0);
         }
         self.summed = 0;
-        Some(self.estimate(frame, &averaged))
+        Some(self.estimate(frame, &samples))
     }
 
+    /// An estimate from the phasors in `frame` (X + iY per demodulator, as the lock-in
+    /// reports them; e.g. one scan pixel's boxcar averages) whose one-sided equivalent noise
+    /// bandwidth is `bandwidth` (Hz) for every demodulator (1/(2T) for a boxcar of T
+    /// seconds). Does not touch the running average of [`Self::push`].
+    pub fn estimate_frame(
+        &self,
+        frame: &DemodFrame,
+        bandwidth: f64,
+    ) -> Result<ForceEstimate, EstimateError> {
+        let mut samples = Vec::with_capacity(frame.len);
+        for v in frame.values() {
+            let Some(Some(noise)) = self.demods.get(v.index as usize) else {
+                continue;
+            };
+            let sigma = lockin_sigma(noise.density, bandwidth);
+            push_sample(&mut samples, v.harmonic, Complex64::new(v.x, v.y), sigma);
+        }
+        self.estimate(frame, &samples)
+    }
+
+    /// (τ, F) of the two-harmonic fit less its second-order bias: the pair's solution is a
+    /// curved function of the two force-coefficient magnitudes, so noise biases it (F by
+    /// +0.2 % at the default 1 kHz noise). The mean over the sigma points |c_a| ± √2·σ_a,
+    /// |c_b| ± √2·σ_b (the unscented transform) estimates the expectation; the excess over
+    /// the fit is subtracted. Unchanged without noise or when a sigma point has no solution.
+    fn debiased_pair(&self, fit: &CutCosineFit, samples: &[HarmonicSample]) -> (f64, f64) {
+        let (a, b) = fit.harmonics;
+        let (ca, cb) = fit.force_coefficients;
+        let sigma = |k: usize| {
+            let s = samples
+                .iter()
+                .find(|s| s.harmonic == k)
+                .map_or(0.0, |s| s.sigma);
+            s / self.model.transfer(k).map_or(f64::INFINITY, |t| t.norm())
+        };
+        let (sa, sb) = (sigma(a), sigma(b));
+        if !(sa > 0.0 || sb > 0.0) {
+            return (fit.tau, fit.max_force);
+        }
+        let h = std::f64::consts::SQRT_2;
+        let mut mean = (0.0, 0.0);
+        for (da, db) in [(h * sa, 0.0), (-h * sa, 0.0), (0.0, h * sb), (0.0, -h * sb)] {
+            match cut_cosine_from_coefficients(a, ca + da, b, cb + db) {
+                Ok((tau, force)) => {
+                    mean.0 += 0.25 * tau;
+                    mean.1 += 0.25 * force;
+                }
+                Err(_) => return (fit.tau, fit.max_force),
+            }
+        }
+        (2.0 * fit.tau - mean.0, 2.0 * fit.max_force - mean.1)
+    }
+
+    /// The estimate from harmonics `samples` (two-sided S_k with σ per quadrature).
     fn estimate(
         &self,
         frame: &DemodFrame,
-        harmonics: &[(u32, Complex64, f64)],
+        samples: &[HarmonicSample],
     ) -> Result<ForceEstimate, EstimateError> {
-        let find = |k: usize| {
-            harmonics
-                .iter()
-                .find(|(h, _, _)| *h as usize == k)
-                .ok_or(EstimateError::MissingHarmonic(k))
-        };
-        let measurement = |k: usize| -> Result<AmplitudeMeasurement, EstimateError> {
-            let (_, z, sigma) = find(k)?;
-            Ok(AmplitudeMeasurement {
-                harmonic: k,
-                amplitude: z.norm(),
-                sigma: *sigma,
-            })
-        };
-        let maths = |e: &dyn std::fmt::Display| EstimateError::Maths(e.to_string());
-        let fit = fit_two_harmonics(
-            &self.cantilever,
-            self.drive_frequency,
-            measurement(self.pair.0)?,
-            measurement(self.pair.1)?,
-        )
-        .map_err(|e| maths(&e))?;
-        // The lock-in reads X + iY = 2·S_k; the inversion takes two-sided S_k.
-        let samples: Vec<HarmonicSample> = harmonics
-            .iter()
-            .filter(|(h, _, _)| *h >= 2)
-            .map(|(h, z, sigma)| HarmonicSample {
-                harmonic: *h as usize,
-                value: z / 2.0,
-                sigma: sigma / 2.0,
-            })
-            .collect();
-        let options = InversionOptions {
-            pair: Some(self.pair),
-            grid_points: self.points,
-            ..InversionOptions::default()
-        };
-        let reconstruction =
-            reconstruct_force(&self.cantilever, self.drive_frequency, &samples, &options)
-                .map_err(|e| maths(&e))?;
-        let (method, tau, sigma_tau, force, sigma_force, modulus) = match self.method {
-            InversionMethod::Full => {
-                // σ of τ from the reconstruction is not propagated; the two-harmonic fit's
-                // is the conservative stand-in (the full series adds harmonics, not noise).
-                let sigma_f = reconstruction.force_sigma;
-                let e = self
-                    .table
-                    .estimate(
-                        reconstruction.peak_force,
-                        reconstruction.contact_time_ratio,
-                        sigma_f,
-                        fit.sigma_tau,
-                    )
-                    .map_err(|e| maths(&e))?;
-                (
-                    "full",
-                    reconstruction.contact_time_ratio,
-                    fit.sigma_tau,
-                    reconstruction.peak_force,
-                    sigma_f,
-                    e,
-                )
+        for k in [self.pair.0, self.pair.1] {
+            if !samples.iter().any(|s| s.harmonic == k) {
+                return Err(EstimateError::MissingHarmonic(k));
             }
+        }
+        let maths = |e: &dyn std::fmt::Display| EstimateError::Maths(e.to_string());
+        let paired = two_harmonic_prior(&self.model, samples, Some(self.pair), MIN_SNR, false)
+            .map_err(|e| maths(&e))?;
+        let (method, tau, sigma_tau, force, sigma_force, covariance, prior) = match self.method {
             InversionMethod::TwoHarmonic => {
-                let e = self
-                    .table
-                    .estimate_with_covariance(fit.max_force, fit.tau, fit.force_tau_covariance())
-                    .map_err(|e| maths(&e))?;
+                let fit = paired.fit.as_ref().ok_or(EstimateError::Maths(
+                    "the two-harmonic fit is missing".into(),
+                ))?;
+                let (tau, force) = self.debiased_pair(fit, samples);
                 (
                     "two_harmonic",
-                    fit.tau,
+                    tau,
                     fit.sigma_tau,
-                    fit.max_force,
+                    force,
                     fit.sigma_force,
-                    e,
+                    fit.force_tau_covariance(),
+                    CutCosinePrior::new(tau, force, paired.pulse_phase),
+                )
+            }
+            InversionMethod::Full => {
+                let lsq = fit_cut_cosine(
+                    &self.model,
+                    samples,
+                    CutCosineStart {
+                        tau: paired.tau,
+                        max_force: paired.max_force,
+                        pulse_phase: paired.pulse_phase,
+                    },
+                )
+                .map_err(|e| maths(&e))?;
+                // Second-order bias removed (Box): tiny against σ, but E is steep in (F, τ).
+                let (tau, force) = (lsq.tau - lsq.bias[0], lsq.max_force - lsq.bias[1]);
+                (
+                    "full",
+                    tau,
+                    lsq.sigma_tau,
+                    force,
+                    lsq.sigma_force,
+                    lsq.force_tau_covariance(),
+                    CutCosinePrior::new(tau, force, lsq.pulse_phase),
                 )
             }
         };
+        let modulus = self
+            .table
+            .estimate_unbiased(force, tau, covariance)
+            .map_err(|e| maths(&e))?;
+        let options = InversionOptions {
+            min_snr: MIN_SNR,
+            pair: Some(self.pair),
+            grid_points: self.points,
+            transfer_minima: false,
+            ..InversionOptions::default()
+        };
+        let reconstruction = reconstruct_force_with(&self.model, samples, &options, Some(prior))
+            .map_err(|e| maths(&e))?;
         Ok(ForceEstimate {
             sample_index: frame.sample_index,
             t: frame.t,
@@ -267,8 +398,30 @@ impl ForceEstimator {
             youngs_modulus: modulus.youngs_modulus,
             youngs_modulus_sigma: modulus.uncertainty,
             table_range: modulus.range,
-            pulse_phase: reconstruction.pulse_phase.rem_euclid(2.0 * PI),
+            pulse_phase: reconstruction.pulse_phase,
             waveform: reconstruction.force,
         })
     }
+}
+
+/// Adds the lock-in reading `z` = X + iY at `harmonic` with σ per quadrature `sigma` (of a
+/// harmonic k ≥ 1, [`lockin_sigma`]) as a two-sided sample: S_k = z/2 with σ/2 for k ≥ 1;
+/// for k = 0 the mean itself, whose single quadrature has σ/√2 (mixing with 1 instead of
+/// 2e^{−ikθ}). A second demodulator at a harmonic already present is skipped (its noise is
+/// not independent of the first's).
+fn push_sample(samples: &mut Vec<HarmonicSample>, harmonic: u32, z: Complex64, sigma: f64) {
+    let k = harmonic as usize;
+    if samples.iter().any(|s| s.harmonic == k) {
+        return;
+    }
+    let (scale, sigma_scale) = if k == 0 {
+        (1.0, std::f64::consts::FRAC_1_SQRT_2)
+    } else {
+        (0.5, 0.5)
+    };
+    samples.push(HarmonicSample {
+        harmonic: k,
+        value: z * scale,
+        sigma: sigma * sigma_scale,
+    });
 }

@@ -6,11 +6,13 @@
 pub mod bench;
 pub mod config;
 pub mod dsp;
+pub mod imaging;
 pub mod inversion;
 pub mod model;
 pub mod paper;
 pub mod physics;
 pub mod pipeline;
+pub mod scan;
 pub mod server;
 pub mod soak;
 pub mod synth;

@@ -54,6 +54,29 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Record scan frames without the daemon (free-running unless --realtime), write each
+    /// channel as .gsf (Gwyddion) and .npy (NumPy), and report contrast and CNR per region.
+    Scan {
+        #[command(flatten)]
+        config: ConfigArg,
+        /// Frames to record (1 ≤ N ≤ 1000).
+        #[arg(
+            long,
+            value_name = "N",
+            default_value_t = 1,
+            allow_negative_numbers = true
+        )]
+        frames: i64,
+        /// Directory for the image files (created if missing); without it nothing is written.
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// Pace the chain by the wall clock, as the daemon does, instead of free-running.
+        #[arg(long)]
+        realtime: bool,
+        /// Print exactly one JSON object on stdout (progress still goes to stderr).
+        #[arg(long)]
+        json: bool,
+    },
     /// Run the whole signal chain on its threads and measure throughput (or, with
     /// --realtime, soak it at the wall-clock rate and count overruns).
     Bench {
@@ -106,6 +129,11 @@ enum Command {
         /// Exit with status 1 if any overrun or seq gap occurred (for CI).
         #[arg(long)]
         fail_on_loss: bool,
+        /// Write the HTML report (summary, latency histogram, latency over time) here;
+        /// default: ftafm-soak-<unix time>.html in the temporary directory. Its path is
+        /// printed on stderr at the end.
+        #[arg(long, value_name = "FILE")]
+        report: Option<PathBuf>,
     },
     /// Print the configured instrument: its modes and the 1-DOF tapping solution.
     Info {
@@ -138,6 +166,13 @@ fn main() -> ExitCode {
             json,
         } => run_paper(config.config.as_ref(), inhomogeneity_factor, json),
         Command::Info { config } => run_info(config.config.as_ref()),
+        Command::Scan {
+            config,
+            frames,
+            out,
+            realtime,
+            json,
+        } => run_scan(config.config.as_ref(), frames, out, realtime, json),
         Command::Bench {
             config,
             seconds,
@@ -151,7 +186,8 @@ fn main() -> ExitCode {
             streams,
             json,
             fail_on_loss,
-        } => run_soak(url, clients, seconds, &streams, json, fail_on_loss),
+            report,
+        } => run_soak(url, clients, seconds, &streams, json, fail_on_loss, report),
     };
     result.unwrap_or_else(|code| code)
 }
@@ -280,6 +316,39 @@ fn run_bench(
     Ok(ExitCode::SUCCESS)
 }
 
+fn run_scan(
+    config: Option<&PathBuf>,
+    frames: i64,
+    out: Option<PathBuf>,
+    realtime: bool,
+    json: bool,
+) -> Result<ExitCode, ExitCode> {
+    if !(1..=1000).contains(&frames) {
+        eprintln!("ftafm: --frames = {frames} is out of range: allowed 1 ≤ N ≤ 1000");
+        return Err(ExitCode::from(EXIT_USAGE));
+    }
+    let mut settings = load(config)?;
+    settings.synth.realtime = realtime;
+    let report = ftafm::scan::run(
+        &settings,
+        frames as usize,
+        out.as_deref(),
+        |line, lines, frame, wall| {
+            eprintln!("[{wall:>5.0} s] frame {frame}, line {line}/{lines}");
+        },
+    )
+    .map_err(|e| {
+        eprintln!("ftafm: {e}");
+        ExitCode::FAILURE
+    })?;
+    if json {
+        println!("{}", serde_json::to_string(&report).expect("plain numbers"));
+    } else {
+        print!("{}", ftafm::scan::render_text(&report));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
 fn run_soak(
     url: String,
     clients: i64,
@@ -287,6 +356,7 @@ fn run_soak(
     streams: &str,
     json: bool,
     fail_on_loss: bool,
+    html: Option<PathBuf>,
 ) -> Result<ExitCode, ExitCode> {
     let usage = |message: String| {
         eprintln!("ftafm: {message}");
@@ -340,6 +410,17 @@ fn run_soak(
                 ExitCode::FAILURE
             }
         })?;
+    let html = html.unwrap_or_else(|| {
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs())
+            .unwrap_or(0);
+        std::env::temp_dir().join(format!("ftafm-soak-{now}.html"))
+    });
+    match ftafm::soak::html::write(&report, &html) {
+        Ok(()) => eprintln!("ftafm: report written to {}", html.display()),
+        Err(e) => eprintln!("ftafm: cannot write the report {}: {e}", html.display()),
+    }
     if json {
         println!("{}", serde_json::to_string(&report).expect("plain numbers"));
     } else {

@@ -3,8 +3,12 @@
 //! Each client connects, subscribes to the chosen streams (JSON format) and, for every data
 //! message, records the receive latency (receipt Unix time − `t_synth_ns`) in an HDR
 //! histogram and counts the gaps in `seq`. Before and after the run the server's own
-//! counters are read from `/metrics` (overruns, messages dropped for slow clients, clients).
-//! Clients that lose their connection are counted and reconnect.
+//! counters are read from `/metrics` (overruns, messages dropped for slow clients, clients,
+//! the daemon's resident memory). Clients that lose their connection are counted and
+//! reconnect. The report keeps the latency histogram and a per-second timeline, which
+//! [`html::render`] draws as a self-contained HTML page.
+
+pub mod html;
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU8, Ordering};
@@ -27,6 +31,8 @@ pub const MAX_CLIENTS: usize = 1024;
 pub const MAX_SECONDS: f64 = 86_400.0;
 /// Largest latency the histogram resolves (60 s); larger values are clamped to it.
 const MAX_LATENCY_NS: u64 = 60_000_000_000;
+/// Bins per decade of the report's latency histogram.
+const BINS_PER_DECADE: u32 = 10;
 /// How long connecting and subscribing may take per client.
 const SETUP_TIMEOUT: Duration = Duration::from_secs(10);
 
@@ -208,6 +214,15 @@ pub struct ServerReport {
     pub overruns: u64,
     /// Blocks dropped because the ring was full, during the run.
     pub overrun_blocks: u64,
+    /// Times the paced synthesiser fell more than 0.1 s behind the wall clock during the
+    /// run and restarted its pacing, skipping that stretch of signal time (no frames are
+    /// made for it, so clients see no gap).
+    #[serde(default)]
+    pub late_blocks: u64,
+    /// Samples synthesised during the run per second of the run, divided by the sample
+    /// rate: 1 when the synthesiser kept up with the wall clock (0 if unknown).
+    #[serde(default)]
+    pub synthesis_realtime_fraction: f64,
     /// Messages dropped for slow clients during the run, all streams.
     pub messages_dropped: u64,
     /// The same by stream.
@@ -224,10 +239,28 @@ pub struct ServerReport {
     pub overruns_total: u64,
     /// Seconds the daemon had been up at the end.
     pub uptime_s: f64,
-    /// The daemon's resident memory in bytes, if `/metrics` reports it.
+    /// The daemon's resident memory in bytes at the end, if `/metrics` reports it.
     pub memory_bytes: Option<u64>,
     /// Where `memory_bytes` came from, or why it is unavailable.
     pub memory: String,
+    /// The daemon's resident memory (bytes) when the measurement started (clients
+    /// connected and subscribed).
+    #[serde(default)]
+    pub rss_bytes_before: Option<u64>,
+    /// The same when it ended (clients still connected).
+    #[serde(default)]
+    pub rss_bytes_after: Option<u64>,
+    /// The daemon's largest resident memory since it started (bytes), at the end.
+    #[serde(default)]
+    pub rss_peak_bytes: Option<u64>,
+    /// `rss_bytes_after − rss_bytes_before` (bytes; negative if it shrank).
+    #[serde(default)]
+    pub memory_growth_bytes: Option<i64>,
+    /// The daemon's own latency summaries of demodulator frames since it started (ns), by
+    /// path as in `/metrics` (`synth_to_dsp`, `synth_to_send`, `dsp_to_socket`,
+    /// `synth_to_socket`); paths with no data are left out.
+    #[serde(default)]
+    pub latency_ns: BTreeMap<String, LatencySummary>,
 }
 
 /// What `ftafm soak` reports; `--json` prints it as one object.
@@ -259,6 +292,41 @@ pub struct SoakReport {
     pub per_stream: BTreeMap<String, StreamReport>,
     /// The server's counters over the run.
     pub server: ServerReport,
+    /// The receive latency histogram: logarithmic bins (10 per decade), from the first to
+    /// the last non-empty one.
+    #[serde(default)]
+    pub latency_histogram: Vec<HistogramBin>,
+    /// One point per second of the measurement (the last may be shorter).
+    #[serde(default)]
+    pub timeline: Vec<TimelinePoint>,
+}
+
+/// One bin of the latency histogram: latencies in `[lo_ns, hi_ns)`.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct HistogramBin {
+    /// Lower edge (ns).
+    pub lo_ns: u64,
+    /// Upper edge (ns).
+    pub hi_ns: u64,
+    /// Messages whose latency fell in the bin.
+    pub count: u64,
+}
+
+/// Receive latency and counts over one interval of the run (about a second).
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct TimelinePoint {
+    /// Seconds since the measurement started, at the interval's end.
+    pub t: f64,
+    /// Messages received in the interval (all clients).
+    pub messages: u64,
+    /// Missing messages (seq gaps) found in the interval.
+    pub gaps: u64,
+    /// Median latency in the interval (ns; 1 µs resolution, 2 significant digits).
+    pub p50_ns: u64,
+    /// 99th percentile (ns).
+    pub p99_ns: u64,
+    /// Largest (ns).
+    pub max_ns: u64,
 }
 
 impl SoakReport {
@@ -286,8 +354,17 @@ pub struct SoakProgress {
 /// One client's tallies, shared with the collector.
 struct ClientStats {
     histogram: Histogram<u64>,
+    /// Latencies since the collector last looked (for the timeline): coarser, to keep a
+    /// client small.
+    interval: Histogram<u32>,
+    interval_gaps: u64,
     per_stream: Vec<(u64, u64, u64)>, // messages, gaps, bytes; index of `streams`
     disconnects: u64,
+}
+
+/// The histogram of one timeline interval: 1 µs resolution, 2 significant digits.
+fn interval_histogram() -> Histogram<u32> {
+    Histogram::new_with_bounds(1_000, MAX_LATENCY_NS, 2).expect("valid histogram bounds")
 }
 
 impl ClientStats {
@@ -295,6 +372,8 @@ impl ClientStats {
         Self {
             histogram: Histogram::new_with_bounds(1, MAX_LATENCY_NS, 3)
                 .expect("valid histogram bounds"),
+            interval: interval_histogram(),
+            interval_gaps: 0,
             per_stream: vec![(0, 0, 0); streams],
             disconnects: 0,
         }
@@ -383,9 +462,11 @@ fn on_text(
         entry.0 += 1;
         entry.1 += gap;
         entry.2 += text.len() as u64;
+        s.interval_gaps += gap;
         if let Some(t) = env.t_synth_ns {
             let latency = received_ns.saturating_sub(t).clamp(1, MAX_LATENCY_NS);
             s.histogram.saturating_record(latency);
+            s.interval.saturating_record(latency);
         }
     }
     Ok(())
@@ -507,9 +588,42 @@ impl Metrics {
             .sum()
     }
 
+    /// The `ftafm_latency_seconds` summaries (converted to ns), by path, if not empty.
+    fn latencies(&self) -> BTreeMap<String, LatencySummary> {
+        let mut out = BTreeMap::new();
+        for (key, &v) in &self.values {
+            let Some(labels) = key
+                .strip_prefix("ftafm_latency_seconds_count{path=\"")
+                .and_then(|r| r.strip_suffix("\"}"))
+            else {
+                continue;
+            };
+            if v < 1.0 {
+                continue;
+            }
+            let q = |q: &str| {
+                let k = format!("ftafm_latency_seconds{{path=\"{labels}\",quantile=\"{q}\"}}");
+                (self.get(&k).unwrap_or(0.0) * 1e9).round() as u64
+            };
+            out.insert(
+                labels.to_string(),
+                LatencySummary {
+                    count: v as u64,
+                    p50: q("0.5"),
+                    p90: q("0.9"),
+                    p99: q("0.99"),
+                    p999: q("0.999"),
+                    max: q("1"),
+                },
+            );
+        }
+        out
+    }
+
     /// The daemon's resident memory, under any of the usual names.
     fn memory(&self) -> Option<(u64, &'static str)> {
         [
+            "ftafm_process_resident_bytes",
             "ftafm_process_resident_memory_bytes",
             "ftafm_resident_memory_bytes",
             "ftafm_memory_bytes",
@@ -592,9 +706,15 @@ fn server_report(before: &Metrics, during: &Metrics, after: &Metrics) -> ServerR
             "unavailable: the daemon's /metrics reports no memory figure".to_string(),
         ),
     };
+    let rss_bytes_before = before.memory().map(|m| m.0);
+    let memory_growth_bytes = rss_bytes_before
+        .zip(memory_bytes)
+        .map(|(b, a)| a as i64 - b as i64);
     ServerReport {
         overruns: delta("ftafm_overrun_samples_total"),
         overrun_blocks: delta("ftafm_overrun_blocks_total"),
+        late_blocks: delta("ftafm_late_blocks_total"),
+        synthesis_realtime_fraction: 0.0,
         messages_dropped: by_stream.values().sum(),
         messages_dropped_by_stream: by_stream,
         frames_dropped: after
@@ -607,7 +727,41 @@ fn server_report(before: &Metrics, during: &Metrics, after: &Metrics) -> ServerR
         uptime_s: after.get("ftafm_uptime_seconds").unwrap_or(0.0),
         memory_bytes,
         memory,
+        rss_bytes_before,
+        rss_bytes_after: memory_bytes,
+        rss_peak_bytes: after
+            .get("ftafm_process_resident_peak_bytes")
+            .map(|v| v as u64),
+        memory_growth_bytes,
+        latency_ns: after.latencies(),
     }
+}
+
+/// Logarithmic bins of `h` (`BINS_PER_DECADE` per decade from 1 µs), from the first to the
+/// last non-empty one.
+fn histogram_bins(h: &Histogram<u64>) -> Vec<HistogramBin> {
+    if h.is_empty() {
+        return Vec::new();
+    }
+    let per = f64::from(BINS_PER_DECADE);
+    let edge = |i: usize| (1e3 * 10f64.powf(i as f64 / per)).round() as u64;
+    // Bin 0 is [0, edge(1)): everything below 1 µs joins the first bin.
+    let bin = |v: u64| ((v.max(1_000) as f64 / 1e3).log10() * per).floor().max(0.0) as usize;
+    let mut counts = vec![0u64; bin(h.max()) + 1];
+    for v in h.iter_recorded() {
+        // Each recorded HDR bucket goes whole into the bin of its lowest value.
+        let value = h.lowest_equivalent(v.value_iterated_to());
+        let last = counts.len() - 1;
+        counts[bin(value).min(last)] += v.count_at_value();
+    }
+    let first = counts.iter().position(|&c| c > 0).unwrap_or(0);
+    (first..counts.len())
+        .map(|i| HistogramBin {
+            lo_ns: if i == 0 { 0 } else { edge(i) },
+            hi_ns: edge(i + 1),
+            count: counts[i],
+        })
+        .collect()
 }
 
 /// Runs the soak: connects `options.clients` clients, measures for `options.seconds`, and
@@ -668,6 +822,38 @@ pub async fn run(
         }
         (h, per, disconnects)
     };
+    // Takes every client's interval histogram (starting them afresh): one timeline point.
+    let mut interval = interval_histogram();
+    let mut timeline = Vec::new();
+    let mut take_interval = |t: f64| {
+        interval.reset();
+        let mut gaps = 0;
+        for s in &all_stats {
+            let mut s = s.lock().unwrap_or_else(|e| e.into_inner());
+            let _ = interval.add(&s.interval);
+            s.interval.reset();
+            gaps += std::mem::take(&mut s.interval_gaps);
+        }
+        let q = |q: f64| {
+            if interval.is_empty() {
+                0
+            } else {
+                interval.value_at_quantile(q)
+            }
+        };
+        timeline.push(TimelinePoint {
+            t,
+            messages: interval.len(),
+            gaps,
+            p50_ns: q(0.5),
+            p99_ns: q(0.99),
+            max_ns: if interval.is_empty() {
+                0
+            } else {
+                interval.max()
+            },
+        });
+    };
     loop {
         let elapsed = start.elapsed();
         if elapsed >= duration {
@@ -680,6 +866,7 @@ pub async fn run(
                 // Once, with every client connected: the server's view of the clients.
                 during = fetch_metrics(&target).await.unwrap_or_default();
             }
+            take_interval(start.elapsed().as_secs_f64());
             let (h, per, disconnects) = summarize();
             progress(&SoakProgress {
                 elapsed: start.elapsed().as_secs_f64(),
@@ -697,6 +884,7 @@ pub async fn run(
     }
     state.store(DONE, Ordering::Release);
     let seconds = start.elapsed().as_secs_f64();
+    take_interval(seconds);
     let (histogram, per, disconnects) = summarize();
     if during.values.is_empty() {
         during = fetch_metrics(&target).await.unwrap_or_default();
@@ -717,6 +905,13 @@ pub async fn run(
         );
     }
 
+    let mut server = server_report(&before, &during, &after);
+    if let Some(rate) = after.get("ftafm_sample_rate_hertz").filter(|r| *r > 0.0) {
+        let synthesised = after
+            .int("ftafm_samples_synthesized_total")
+            .saturating_sub(before.int("ftafm_samples_synthesized_total"));
+        server.synthesis_realtime_fraction = synthesised as f64 / seconds / rate;
+    }
     let per_stream: BTreeMap<_, _> = streams
         .iter()
         .zip(&per)
@@ -747,7 +942,9 @@ pub async fn run(
         bytes_per_s: bytes as f64 / seconds,
         latency_ns: LatencySummary::from_histogram(&histogram),
         per_stream,
-        server: server_report(&before, &during, &after),
+        server,
+        latency_histogram: histogram_bins(&histogram),
+        timeline,
     })
 }
 
@@ -788,10 +985,12 @@ pub fn render_text(r: &SoakReport) -> String {
         .map(|(k, v)| format!("{k} {v}"))
         .collect();
     out += &format!(
-        "server    overruns {} samples in {} blocks; messages dropped {} ({}); frames dropped {}; \
-         clients {} during, {} after; stalled {}\n",
+        "server    overruns {} samples in {} blocks; late blocks {} (synthesis at {:.3} of real time); \
+         messages dropped {} ({}); frames dropped {}; clients {} during, {} after; stalled {}\n",
         s.overruns,
         s.overrun_blocks,
+        s.late_blocks,
+        s.synthesis_realtime_fraction,
         s.messages_dropped,
         dropped.join(", "),
         s.frames_dropped,
@@ -799,9 +998,30 @@ pub fn render_text(r: &SoakReport) -> String {
         s.clients_after,
         s.clients_stalled,
     );
-    out += &match s.memory_bytes {
-        Some(b) => format!("memory    {:.1} MiB ({})\n", b as f64 / 1048576.0, s.memory),
-        None => format!("memory    {}\n", s.memory),
+    for (path, l) in &s.latency_ns {
+        out += &format!(
+            "daemon    {path:<15} p50 {:.3} ms  p99 {:.3} ms  p99.9 {:.3} ms  max {:.3} ms ({} frames since start)\n",
+            ms(l.p50),
+            ms(l.p99),
+            ms(l.p999),
+            ms(l.max),
+            l.count
+        );
+    }
+    let mib = |b: u64| b as f64 / 1048576.0;
+    out += &match (s.rss_bytes_before, s.memory_bytes, s.memory_growth_bytes) {
+        (Some(before), Some(after), Some(growth)) => format!(
+            "memory    {:.1} MiB before, {:.1} MiB after: growth {growth} bytes ({:+.2} MiB){} ({})\n",
+            mib(before),
+            mib(after),
+            growth as f64 / 1048576.0,
+            s.rss_peak_bytes
+                .map(|p| format!(", peak {:.1} MiB", mib(p)))
+                .unwrap_or_default(),
+            s.memory
+        ),
+        (_, Some(b), _) => format!("memory    {:.1} MiB ({})\n", mib(b), s.memory),
+        _ => format!("memory    {}\n", s.memory),
     };
     out
 }

@@ -4,8 +4,9 @@
 use std::collections::BTreeSet;
 
 use ftafm::config::{
-    ConfigError, DEFAULT_TOML, Engine, InversionMethod, InversionSettings, NodeError, Settings,
-    SpectrumWindow, default_settings, load, load_str, registry,
+    ConfigError, DEFAULT_TOML, Engine, FeedbackSettings, InclusionSettings, InclusionShape,
+    InversionMethod, InversionSettings, NodeError, ScanSettings, Settings, SpectrumWindow,
+    default_settings, load, load_str, registry,
 };
 use proptest::prelude::*;
 use serde_json::{Value, json};
@@ -76,6 +77,62 @@ fn default_is_the_papers_silicon_case() {
             points: 256,
         }
     );
+    assert_eq!(
+        s.scan,
+        ScanSettings {
+            enable: false,
+            size: 1e-6,
+            pixels: 128,
+            line_rate: 2.0,
+            x: 0.0,
+            y: 0.0,
+        }
+    );
+    // The feedback holds the amplitude at /surface/distance; its gains are tuned in the
+    // default file, so only their ranges are asserted here.
+    assert!(s.feedback.enable);
+    assert_eq!(s.feedback.setpoint, 0.0);
+    assert!((0.0..=10.0).contains(&s.feedback.proportional));
+    assert!(s.feedback.integral > 0.0 && s.feedback.integral <= 1e6);
+    // Inclusion 0: the paper's 10 % softer inhomogeneity, a flat disc a third of the scan
+    // size across at the centre of the scan area; the rest are disabled silicon.
+    assert_eq!(s.inclusions.len(), 8);
+    assert_eq!(
+        s.inclusions[0],
+        InclusionSettings {
+            enable: true,
+            shape: InclusionShape::Disc,
+            x: 0.0,
+            y: 0.0,
+            width: 333.3e-9,
+            length: 333.3e-9,
+            height: 0.0,
+            youngs_modulus: 116.1e9,
+            poisson: 0.28,
+        }
+    );
+    assert!((s.inclusions[0].width - s.scan.size / 3.0).abs() < 1e-10);
+    assert!((s.inclusions[0].youngs_modulus / s.sample.youngs_modulus - 0.9).abs() < 1e-3);
+    for inclusion in &s.inclusions[1..] {
+        assert_eq!(
+            *inclusion,
+            InclusionSettings {
+                enable: false,
+                shape: InclusionShape::Disc,
+                x: 0.0,
+                y: 0.0,
+                width: 100e-9,
+                length: 100e-9,
+                height: 0.0,
+                youngs_modulus: 129e9,
+                poisson: 0.28,
+            }
+        );
+    }
+    // Each pixel of the default scan lasts 195 drive periods (at least 10 are required).
+    let pixel = 1.0 / (2.0 * f64::from(s.scan.pixels) * s.scan.line_rate);
+    assert_eq!((pixel * s.drive.frequency).floor(), 195.0);
+    assert_eq!(f64::from(s.scan.pixels) / s.scan.line_rate, 64.0);
     assert_eq!(s.demods.len(), 32);
     for (n, demod) in s.demods.iter().enumerate() {
         assert!(demod.enable);
@@ -115,7 +172,20 @@ fn settings_serialise_to_toml_that_loads_back() {
         text.find(table)
             .unwrap_or_else(|| panic!("{table}: {text}"))
     };
-    assert!(at("[server]") < at("[inversion]") && at("[inversion]") < at("[demods.0]"));
+    assert!(at("[server]") < at("[inversion]") && at("[inversion]") < at("[scan]"));
+    assert!(at("[scan]") < at("[feedback]") && at("[feedback]") < at("[inclusions.0]"));
+    assert!(at("[inclusions.7]") < at("[demods.0]"));
+    assert_eq!(json["inclusions"]["0"]["shape"], json!("disc"));
+    assert_eq!(json["inclusions"]["0"]["youngs_modulus"], json!(116.1e9));
+    assert_eq!(json["scan"]["pixels"], json!(128));
+    assert_eq!(json["feedback"]["setpoint"], json!(0.0));
+    // Shapes are written by name and come back.
+    let mut s = default_settings();
+    s.inclusions[5].shape = InclusionShape::Rectangle;
+    s.inclusions[5].enable = true;
+    let text = toml::to_string(&s).unwrap();
+    assert!(text.contains("shape = \"rectangle\""), "{text}");
+    assert_eq!(load_str(&text, "roundtrip.toml").unwrap(), s);
     let mut s = default_settings();
     s.inversion.method = InversionMethod::TwoHarmonic;
     let text = toml::to_string(&s).unwrap();
@@ -1086,6 +1156,475 @@ fn inversion_nodes_change_at_runtime() {
     s.validate().unwrap();
 }
 
+// ---------------------------------------------------------------------------------------------
+// Scan, feedback and the sample map
+
+const LINE_RATE_TOO_HIGH: &str = "/scan/line_rate = 50 Hz: with 128 pixels per line \
+                                  (/scan/pixels) each pixel must last at least 10 drive \
+                                  periods (10 / /drive/frequency = 100 µs), so at most \
+                                  /drive/frequency / (20 × /scan/pixels) = 39.0625 Hz";
+
+const DRIVE_TOO_LOW_FOR_SCAN: &str = "cannot set /drive/frequency = 2000: /scan/line_rate = \
+                                      2 Hz: with 128 pixels per line (/scan/pixels) each \
+                                      pixel must last at least 10 drive periods (10 / \
+                                      /drive/frequency = 5 ms), so at most /drive/frequency \
+                                      / (20 × /scan/pixels) = 781.25 mHz";
+
+const UNKNOWN_INCLUSION: &str =
+    "unknown key /inclusions/8 in site.toml; keys of [inclusions]: 0 … 7";
+
+#[test]
+fn scan_and_feedback_overlays_change_only_what_they_name() {
+    let s = load_str(
+        "[scan]\nenable = true\nsize = 5e-6\npixels = 256\nline_rate = 1.5\nx = 1e-6\n\
+         y = -2e-6\n[feedback]\nenable = false\nsetpoint = 15e-9\nproportional = 0.5\n\
+         integral = 500\n",
+        "scan.toml",
+    )
+    .unwrap();
+    let mut expected = default_settings();
+    expected.scan = ScanSettings {
+        enable: true,
+        size: 5e-6,
+        pixels: 256,
+        line_rate: 1.5,
+        x: 1e-6,
+        y: -2e-6,
+    };
+    expected.feedback = FeedbackSettings {
+        enable: false,
+        setpoint: 15e-9,
+        proportional: 0.5,
+        integral: 500.0,
+    };
+    assert_eq!(s, expected);
+    // Integral floats are integers here too.
+    assert_eq!(
+        load_str("[scan]\npixels = 64.0\n", "t.toml")
+            .unwrap()
+            .scan
+            .pixels,
+        64
+    );
+    // The ends themselves are allowed.
+    let s = load_str(
+        "[scan]\nsize = 100e-6\npixels = 8\nline_rate = 100\nx = -1e-3\ny = 1e-3\n\
+         [feedback]\nsetpoint = 1e-6\nproportional = 10\nintegral = 1e6\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!((s.scan.pixels, s.scan.line_rate), (8, 100.0));
+    let s = load_str(
+        "[scan]\npixels = 1024\nline_rate = 1\n[feedback]\nsetpoint = 0\nintegral = 0\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!((s.scan.pixels, s.feedback.integral), (1024, 0.0));
+}
+
+#[test]
+fn scan_and_feedback_ranges_name_the_key() {
+    for (overlay, message) in [
+        (
+            "[scan]\nsize = 0\n",
+            "/scan/size = 0 is out of range: allowed 0 < value ≤ 1e-4 m",
+        ),
+        (
+            "[scan]\nsize = 2e-4\n",
+            "/scan/size = 2e-4 is out of range: allowed 0 < value ≤ 1e-4 m",
+        ),
+        (
+            "[scan]\npixels = 7\n",
+            "/scan/pixels = 7 is out of range: allowed 8 ≤ value ≤ 1024",
+        ),
+        (
+            "[scan]\npixels = 1025\n",
+            "/scan/pixels = 1025 is out of range: allowed 8 ≤ value ≤ 1024",
+        ),
+        (
+            "[scan]\nline_rate = 0\n",
+            "/scan/line_rate = 0 is out of range: allowed 0 < value ≤ 100 Hz",
+        ),
+        (
+            "[scan]\nline_rate = 101\n",
+            "/scan/line_rate = 101 is out of range: allowed 0 < value ≤ 100 Hz",
+        ),
+        (
+            "[scan]\nx = 2e-3\n",
+            "/scan/x = 0.002 is out of range: allowed -0.001 ≤ value ≤ 0.001 m",
+        ),
+        (
+            "[scan]\ny = -0.0011\n",
+            "/scan/y = -0.0011 is out of range: allowed -0.001 ≤ value ≤ 0.001 m",
+        ),
+        (
+            "[feedback]\nsetpoint = -1e-9\n",
+            "/feedback/setpoint = -1e-9 is out of range: allowed 0 ≤ value ≤ 1e-6 m",
+        ),
+        (
+            "[feedback]\nsetpoint = 2e-6\n",
+            "/feedback/setpoint = 2e-6 is out of range: allowed 0 ≤ value ≤ 1e-6 m",
+        ),
+        (
+            "[feedback]\nproportional = 11\n",
+            "/feedback/proportional = 11 is out of range: allowed 0 ≤ value ≤ 10",
+        ),
+        (
+            "[feedback]\nproportional = -0.1\n",
+            "/feedback/proportional = -0.1 is out of range: allowed 0 ≤ value ≤ 10",
+        ),
+        (
+            "[feedback]\nintegral = 2e6\n",
+            "/feedback/integral = 2e6 is out of range: allowed 0 ≤ value ≤ 1e6 1/s",
+        ),
+    ] {
+        assert_eq!(error_of(overlay), format!("test.toml: {message}"));
+        let path = message.split(' ').next().unwrap();
+        assert_eq!(load_str(overlay, "t.toml").unwrap_err().path(), Some(path));
+    }
+    assert_mentions(
+        &error_of("[scan]\npixels = 100.5\n"),
+        &["/scan/pixels = 100.5", "not an integer", "8 ≤ value ≤ 1024"],
+    );
+    assert_mentions(
+        &error_of("[scan]\nenable = \"yes\"\n"),
+        &["/scan/enable = \"yes\"", "true or false"],
+    );
+    assert_mentions(
+        &error_of("[feedback]\nintegral = nan\n"),
+        &["/feedback/integral = nan", "not a finite number", "1/s"],
+    );
+    assert_mentions(
+        &error_of("[scan]\nline_rat = 1\n"),
+        &["/scan/line_rat", "[scan]", "line_rate", "pixels"],
+    );
+}
+
+#[test]
+fn scan_line_rate_leaves_ten_drive_periods_per_pixel() {
+    // 100 kHz / (20 × 128 pixels) = 39.0625 Hz: allowed, and just above it refused.
+    let s = load_str("[scan]\nline_rate = 39.0625\n", "t.toml").unwrap();
+    assert_eq!(s.scan.line_rate, 39.0625);
+    assert_eq!(
+        error_of("[scan]\nline_rate = 50\n"),
+        format!("test.toml: {LINE_RATE_TOO_HIGH}")
+    );
+    assert_eq!(
+        load_str("[scan]\nline_rate = 50\n", "t.toml")
+            .unwrap_err()
+            .path(),
+        Some("/scan/line_rate")
+    );
+    assert_mentions(
+        &error_of("[scan]\nline_rate = 39.07\n"),
+        &["/scan/line_rate = 39.07 Hz", "at most", "= 39.0625 Hz"],
+    );
+    // Checked while the scan is off, so starting it never fails.
+    assert_mentions(
+        &error_of("[scan]\nline_rate = 50\nenable = false\n"),
+        &["/scan/line_rate = 50 Hz"],
+    );
+    // Fewer pixels, or a faster drive in the same file (150 kHz / (20 × 128) = 58.6 Hz), make
+    // room: the order of the keys does not matter.
+    let s = load_str("[scan]\nline_rate = 50\npixels = 64\n", "t.toml").unwrap();
+    assert_eq!((s.scan.line_rate, s.scan.pixels), (50.0, 64));
+    let s = load_str(
+        "[scan]\nline_rate = 50\n[drive]\nfrequency = 150e3\n[cantilever]\nf1 = 150e3\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!(s.scan.line_rate, 50.0);
+    // More pixels at the default 2 Hz: 100 kHz / (20 × 2 Hz) = 2500 ≥ 1024, always fine;
+    // at 10 Hz at most 500.
+    assert!(load_str("[scan]\npixels = 1024\n", "t.toml").is_ok());
+    assert_mentions(
+        &error_of("[scan]\npixels = 512\nline_rate = 10\n"),
+        &[
+            "/scan/line_rate = 10 Hz: with 512 pixels per line (/scan/pixels)",
+            "10 drive periods",
+            "/drive/frequency",
+            "= 9.765625 Hz",
+        ],
+    );
+}
+
+#[test]
+fn the_image_stream_carries_at_most_20000_pixels_per_second() {
+    // A 1 MHz drive leaves 50000 / pixels by the dwell time; the stream's 20000 pixels per
+    // second bind first: 128 pixels allow 78.125 lines per second.
+    let fast = "[synth]\nsample_rate = 100e6\n[drive]\nfrequency = 1e6\n[cantilever]\nf1 = 1e6\n";
+    let s = load_str(&format!("{fast}[scan]\nline_rate = 78.125\n"), "t.toml").unwrap();
+    assert_eq!(s.scan.line_rate, 78.125);
+    let message = error_of(&format!("{fast}[scan]\nline_rate = 100\n"));
+    assert_eq!(
+        message,
+        "test.toml: /scan/line_rate = 100 Hz: with 128 pixels per line (/scan/pixels) the \
+         image stream would carry 2 × /scan/pixels × /scan/line_rate = 25600 pixels per \
+         second, more than its 20000, so at most 20000 / (2 × /scan/pixels) = 78.125 Hz"
+    );
+}
+
+#[test]
+fn scan_relation_by_set_names_the_node_set() {
+    let mut s = default_settings();
+    let before = s.clone();
+    let error = s.set("/scan/line_rate", &json!(50)).unwrap_err();
+    assert_eq!(error.code(), "invalid_value");
+    assert_eq!(error.path(), "/scan/line_rate");
+    assert_eq!(error.to_string(), LINE_RATE_TOO_HIGH);
+    // The drive is tied to the scan: too slow a drive is refused, naming the line rate.
+    let error = s.set("/drive/frequency", &json!(2e3)).unwrap_err();
+    assert_eq!(error.path(), "/drive/frequency");
+    assert_eq!(error.to_string(), DRIVE_TOO_LOW_FOR_SCAN);
+    // Pixels: at 20 Hz, 100 kHz / (20 × 20 Hz) = 250 pixels at most.
+    s.set("/scan/line_rate", &json!(20)).unwrap();
+    let after_rate = s.clone();
+    let error = s.set("/scan/pixels", &json!(256)).unwrap_err();
+    assert_eq!(error.path(), "/scan/pixels");
+    assert_mentions(
+        &error.to_string(),
+        &[
+            "cannot set /scan/pixels = 256: /scan/line_rate = 20 Hz: with 256 pixels per line",
+            "at most /drive/frequency / (20 × /scan/pixels) = 19.53125 Hz",
+        ],
+    );
+    assert_eq!(s, after_rate);
+    // `list` reports the limits as they stand.
+    let info = |s: &Settings, path: &str| s.nodes_under(path).into_iter().next().unwrap();
+    assert_eq!(info(&s, "/scan/pixels").max, json!(250));
+    assert_eq!(info(&s, "/scan/line_rate").max, json!(39.0625));
+    assert_eq!(s.set("/scan/pixels", &json!(250)).unwrap(), json!(250));
+    assert_eq!(info(&s, "/scan/line_rate").max, json!(20.0));
+    assert!(s.set("/scan/pixels", &json!(251)).is_err());
+    s.set("/scan/pixels", &json!(128)).unwrap();
+    s.set("/scan/line_rate", &json!(2.0)).unwrap();
+    assert_eq!(s, before);
+}
+
+#[test]
+fn scan_feedback_and_inclusion_nodes_change_at_runtime() {
+    let mut s = default_settings();
+    for (path, value, applied) in [
+        ("/scan/enable", json!(true), json!(true)),
+        ("/scan/size", json!(2e-6), json!(2e-6)),
+        ("/scan/pixels", json!(64.0), json!(64)),
+        ("/scan/line_rate", json!(4), json!(4.0)),
+        ("/scan/x", json!(-5e-7), json!(-5e-7)),
+        ("/scan/y", json!(5e-7), json!(5e-7)),
+        ("/feedback/enable", json!(false), json!(false)),
+        ("/feedback/setpoint", json!(12e-9), json!(12e-9)),
+        ("/feedback/proportional", json!(0.2), json!(0.2)),
+        ("/feedback/integral", json!(1500), json!(1500.0)),
+        ("/inclusions/4/enable", json!(true), json!(true)),
+        (
+            "/inclusions/4/shape",
+            json!("rectangle"),
+            json!("rectangle"),
+        ),
+        ("/inclusions/4/x", json!(1e-7), json!(1e-7)),
+        ("/inclusions/4/y", json!(-1e-7), json!(-1e-7)),
+        ("/inclusions/4/width", json!(3e-7), json!(3e-7)),
+        ("/inclusions/4/length", json!(2e-7), json!(2e-7)),
+        ("/inclusions/4/height", json!(-5e-9), json!(-5e-9)),
+        ("/inclusions/4/youngs_modulus", json!(70e9), json!(70e9)),
+        ("/inclusions/4/poisson", json!(0.17), json!(0.17)),
+    ] {
+        let info = s.nodes_under(path).into_iter().next().unwrap();
+        assert!(info.writable, "{path}");
+        assert_eq!(s.set(path, &value).unwrap(), applied, "{path}");
+        assert_eq!(s.get(path).unwrap(), applied, "{path}");
+    }
+    assert_eq!(
+        s.scan,
+        ScanSettings {
+            enable: true,
+            size: 2e-6,
+            pixels: 64,
+            line_rate: 4.0,
+            x: -5e-7,
+            y: 5e-7,
+        }
+    );
+    assert_eq!(
+        s.feedback,
+        FeedbackSettings {
+            enable: false,
+            setpoint: 12e-9,
+            proportional: 0.2,
+            integral: 1500.0,
+        }
+    );
+    assert_eq!(
+        s.inclusions[4],
+        InclusionSettings {
+            enable: true,
+            shape: InclusionShape::Rectangle,
+            x: 1e-7,
+            y: -1e-7,
+            width: 3e-7,
+            length: 2e-7,
+            height: -5e-9,
+            youngs_modulus: 70e9,
+            poisson: 0.17,
+        }
+    );
+    // Only inclusion 4 changed.
+    let defaults = default_settings();
+    for (n, inclusion) in s.inclusions.iter().enumerate().filter(|(n, _)| *n != 4) {
+        assert_eq!(*inclusion, defaults.inclusions[n], "inclusion {n}");
+    }
+    s.validate().unwrap();
+}
+
+#[test]
+fn a_partial_inclusion_overlay_changes_only_that_slot() {
+    let s = load_str(
+        "[inclusions.2]\nenable = true\nwidth = 50e-9\n",
+        "inclusion.toml",
+    )
+    .unwrap();
+    let mut expected = default_settings();
+    expected.inclusions[2].enable = true;
+    expected.inclusions[2].width = 50e-9;
+    assert_eq!(s, expected);
+    // The inline form does the same.
+    let s = load_str(
+        "[inclusions]\n2 = { enable = true, width = 50e-9 }\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!(s, expected);
+    // Two slots, and the base material, in one file.
+    let s = load_str(
+        "[inclusions.7]\nshape = \"rectangle\"\nheight = 2e-9\n[inclusions.0]\nenable = false\n\
+         [sample]\nyoungs_modulus = 100e9\n",
+        "t.toml",
+    )
+    .unwrap();
+    let mut expected = default_settings();
+    expected.inclusions[7].shape = InclusionShape::Rectangle;
+    expected.inclusions[7].height = 2e-9;
+    expected.inclusions[0].enable = false;
+    expected.sample.youngs_modulus = 100e9;
+    assert_eq!(s, expected);
+}
+
+#[test]
+fn inclusion_ranges_name_the_key() {
+    for (overlay, message) in [
+        (
+            "[inclusions.3]\nx = 1.5e-3\n",
+            "/inclusions/3/x = 0.0015 is out of range: allowed -0.001 ≤ value ≤ 0.001 m",
+        ),
+        (
+            "[inclusions.3]\ny = -2e-3\n",
+            "/inclusions/3/y = -0.002 is out of range: allowed -0.001 ≤ value ≤ 0.001 m",
+        ),
+        (
+            "[inclusions.0]\nwidth = 0\n",
+            "/inclusions/0/width = 0 is out of range: allowed 0 < value ≤ 0.001 m",
+        ),
+        (
+            "[inclusions.0]\nlength = 2e-3\n",
+            "/inclusions/0/length = 0.002 is out of range: allowed 0 < value ≤ 0.001 m",
+        ),
+        (
+            "[inclusions.5]\nheight = 2e-6\n",
+            "/inclusions/5/height = 2e-6 is out of range: allowed -1e-6 ≤ value ≤ 1e-6 m",
+        ),
+        (
+            "[inclusions.5]\nyoungs_modulus = 0\n",
+            "/inclusions/5/youngs_modulus = 0 is out of range: allowed 0 < value ≤ 1e13 Pa",
+        ),
+        (
+            "[inclusions.6]\npoisson = 0.5\n",
+            "/inclusions/6/poisson = 0.5 is out of range: allowed -1 < value < 0.5",
+        ),
+        (
+            "[inclusions.1]\nshape = \"circle\"\n",
+            "/inclusions/1/shape = \"circle\" is not allowed: choose one of \"disc\", \
+             \"rectangle\"",
+        ),
+    ] {
+        assert_eq!(error_of(overlay), format!("test.toml: {message}"));
+        let path = message.split(' ').next().unwrap();
+        assert_eq!(load_str(overlay, "t.toml").unwrap_err().path(), Some(path));
+    }
+    // A pit and the ends are allowed.
+    let s = load_str(
+        "[inclusions.5]\nheight = -1e-6\nwidth = 1e-3\nx = -1e-3\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!(s.inclusions[5].height, -1e-6);
+    assert_mentions(
+        &error_of("[inclusions.1]\nenable = 1\n"),
+        &["/inclusions/1/enable = 1", "true or false"],
+    );
+    assert_mentions(
+        &error_of("[inclusions.1]\nradius = 1e-7\n"),
+        &["/inclusions/1/radius", "[inclusions.1]", "width", "length"],
+    );
+    assert_eq!(InclusionShape::NAMES, ["disc", "rectangle"]);
+    for (shape, name) in InclusionShape::ALL.into_iter().zip(InclusionShape::NAMES) {
+        assert_eq!(shape.name(), *name);
+        assert_eq!(InclusionShape::from_name(name), Some(shape));
+    }
+}
+
+#[test]
+fn unknown_inclusion_indices_are_refused() {
+    assert_eq!(
+        load_str("[inclusions.8]\nenable = true\n", "site.toml")
+            .unwrap_err()
+            .to_string(),
+        UNKNOWN_INCLUSION
+    );
+    let error = load_str("[inclusions.8]\nenable = true\n", "site.toml").unwrap_err();
+    assert_eq!(error.path(), Some("/inclusions/8"));
+    assert_mentions(
+        &error_of("[inclusions]\n03 = { enable = true }\n"),
+        &["/inclusions/03", "[inclusions]", "0 … 7"],
+    );
+    assert_mentions(
+        &error_of("inclusions = 3\n"),
+        &["/inclusions", "table", "0 … 7"],
+    );
+    let mut s = default_settings();
+    let error = s.set("/inclusions/8/enable", &json!(true)).unwrap_err();
+    assert_eq!(error.code(), "unknown_path");
+    assert_mentions(&error.to_string(), &["/inclusions/8/enable", "0 … 7"]);
+    assert_eq!(s, default_settings());
+}
+
+#[test]
+fn docs_inclusion_example_loads() {
+    let docs = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/docs/configuration.md"
+    ))
+    .unwrap();
+    let example = docs
+        .split("```toml\n")
+        .find(|block| block.starts_with("# bump.toml"))
+        .and_then(|block| block.split("```").next())
+        .expect("docs/configuration.md has the bump.toml example");
+    let s = load_str(example, "bump.toml").unwrap();
+    let mut expected = default_settings();
+    expected.inclusions[2] = InclusionSettings {
+        enable: true,
+        shape: InclusionShape::Rectangle,
+        x: 200e-9,
+        y: 0.0,
+        width: 200e-9,
+        length: 100e-9,
+        height: 50e-9,
+        youngs_modulus: 3e9,
+        poisson: 0.35,
+    };
+    assert_eq!(s, expected);
+}
+
 const COUPLED_REFUSED: &str = "/synth/engine = \"coupled\" is not available yet (the coupled \
                                engine is a later piece of work); allowed: \"paper\"";
 
@@ -1377,7 +1916,8 @@ fn every_node_round_trips_through_set() {
 fn list_entries_have_the_protocol_fields() {
     let nodes = default_settings().nodes();
     assert_eq!(nodes.len(), registry().len());
-    assert_eq!(nodes.len(), 39 + 32 * 5);
+    // 49 scalar nodes, 8 inclusions of 9 nodes, 32 demodulators of 5.
+    assert_eq!(nodes.len(), 49 + 8 * 9 + 32 * 5);
     let entry = serde_json::to_value(&nodes[0]).unwrap();
     let keys: BTreeSet<&str> = entry
         .as_object()
@@ -1444,6 +1984,32 @@ fn list_entries_have_the_protocol_fields() {
         ("/inversion/harmonic_b", "", json!(2), json!(32)),
         ("/inversion/averaging", "frames", json!(1), json!(10000)),
         ("/inversion/points", "samples", json!(16), json!(4096)),
+        ("/scan/enable", "", Value::Null, Value::Null),
+        ("/scan/size", "m", json!(0.0), json!(100e-6)),
+        // 2 Hz allows up to 2500 pixels by the dwell time: the static 1024 stands.
+        ("/scan/pixels", "pixels", json!(8), json!(1024)),
+        // 100 kHz / (20 × 128 pixels).
+        ("/scan/line_rate", "Hz", json!(0.0), json!(39.0625)),
+        ("/scan/x", "m", json!(-1e-3), json!(1e-3)),
+        ("/scan/y", "m", json!(-1e-3), json!(1e-3)),
+        ("/feedback/enable", "", Value::Null, Value::Null),
+        ("/feedback/setpoint", "m", json!(0.0), json!(1e-6)),
+        ("/feedback/proportional", "1", json!(0.0), json!(10.0)),
+        ("/feedback/integral", "1/s", json!(0.0), json!(1e6)),
+        ("/inclusions/3/enable", "", Value::Null, Value::Null),
+        ("/inclusions/3/shape", "", Value::Null, Value::Null),
+        ("/inclusions/3/x", "m", json!(-1e-3), json!(1e-3)),
+        ("/inclusions/3/y", "m", json!(-1e-3), json!(1e-3)),
+        ("/inclusions/3/width", "m", json!(0.0), json!(1e-3)),
+        ("/inclusions/3/length", "m", json!(0.0), json!(1e-3)),
+        ("/inclusions/3/height", "m", json!(-1e-6), json!(1e-6)),
+        (
+            "/inclusions/3/youngs_modulus",
+            "Pa",
+            json!(0.0),
+            json!(1e13),
+        ),
+        ("/inclusions/3/poisson", "1", json!(-1.0), json!(0.5)),
     ] {
         let info = find(path);
         assert_eq!(
@@ -1505,6 +2071,28 @@ fn nodes_under_matches_whole_segments() {
             "/inversion/points"
         ]
     );
+    assert_eq!(s.nodes_under("/scan").len(), 6);
+    assert_eq!(s.nodes_under("/feedback").len(), 4);
+    assert_eq!(s.nodes_under("/inclusions").len(), 8 * 9);
+    let paths: Vec<String> = s
+        .nodes_under("/inclusions/2")
+        .into_iter()
+        .map(|n| n.path)
+        .collect();
+    assert_eq!(
+        paths,
+        [
+            "/inclusions/2/enable",
+            "/inclusions/2/shape",
+            "/inclusions/2/x",
+            "/inclusions/2/y",
+            "/inclusions/2/width",
+            "/inclusions/2/length",
+            "/inclusions/2/height",
+            "/inclusions/2/youngs_modulus",
+            "/inclusions/2/poisson"
+        ]
+    );
     assert_eq!(s.nodes_under("/sample/poisson").len(), 1);
     assert_eq!(s.nodes_under("/").len(), s.nodes().len());
     assert!(s.nodes_under("/samp").is_empty());
@@ -1513,14 +2101,16 @@ fn nodes_under_matches_whole_segments() {
 // ---------------------------------------------------------------------------------------------
 // Docs and defaults stay in step with the registry
 
-/// `/demods/17/rate` → `/demods/N/rate`: the docs describe the bank once.
+/// `/demods/17/rate` → `/demods/N/rate`, `/inclusions/3/x` → `/inclusions/N/x`: the docs
+/// describe each index-keyed table once.
 fn generic_path(path: &str) -> String {
+    let indexed = path.starts_with("/demods/") || path.starts_with("/inclusions/");
     let segments: Vec<&str> = path
         .split('/')
         .enumerate()
         .map(|(i, segment)| {
             let is_index = segment.bytes().all(|b| b.is_ascii_digit());
-            if i == 2 && path.starts_with("/demods/") && is_index {
+            if i == 2 && indexed && is_index {
                 "N"
             } else {
                 segment
@@ -1538,6 +2128,7 @@ fn docs_describe_every_node() {
     ))
     .unwrap();
     assert!(docs.contains("`/demods/N/…` for N = 0 … 31"));
+    assert!(docs.contains("`/inclusions/N/…` for N = 0 … 7"));
     let documented: BTreeSet<String> = registry().iter().map(|s| generic_path(&s.path)).collect();
     for spec in registry() {
         let path = generic_path(&spec.path);
@@ -1611,6 +2202,9 @@ fn docs_quote_the_scope_and_origin_errors() {
         WILDCARD_REFUSED,
         HARMONIC_NOT_MEASURED,
         SAME_HARMONICS,
+        LINE_RATE_TOO_HIGH,
+        DRIVE_TOO_LOW_FOR_SCAN,
+        UNKNOWN_INCLUSION,
     ] {
         assert!(
             docs.contains(&format!("`{message}`")),
@@ -1676,6 +2270,9 @@ fn any_json() -> impl Strategy<Value = Value> {
             "two_harmonic",
             "two-harmonic",
             "magic",
+            "disc",
+            "rectangle",
+            "circle",
         ])
         .prop_map(Value::from),
         // Inversion harmonics, averaging and points near their limits, and harmonics the
@@ -1683,6 +2280,12 @@ fn any_json() -> impl Strategy<Value = Value> {
         prop::sample::select(vec![
             0u64, 1, 2, 3, 5, 6, 7, 8, 15, 16, 17, 18, 31, 32, 33, 40, 4095, 4096, 4097, 9999,
             10000, 10001,
+        ])
+        .prop_map(Value::from),
+        // Scan, feedback and inclusion values near their limits.
+        prop::sample::select(vec![
+            -2e-3, -1e-3, -1e-6, 1e-4, 2e-4, 8.0, 7.0, 39.0, 39.0625, 40.0, 78.0, 1023.0, 1025.0,
+            2e-3, 1e6, 2e6, 10.0, 11.0,
         ])
         .prop_map(Value::from),
         // Scope and server values near their limits.
@@ -1751,11 +2354,27 @@ fn any_path() -> impl Strategy<Value = String> {
             .map(String::from),
         )
         .collect();
+    // The scan's nodes and the drive they are tied to.
+    let scan: Vec<String> = registry()
+        .iter()
+        .map(|s| s.path.clone())
+        .filter(|p| p.starts_with("/scan/") || p.starts_with("/feedback/"))
+        .chain(["/drive/frequency".to_owned()])
+        .collect();
     prop_oneof![
         9 => prop::sample::select(known),
         3 => prop::sample::select(inversion),
-        1 => prop::sample::select(vec!["", "/", "/sample", "/demods/32/rate", "/demods/-1/rate"])
-            .prop_map(String::from),
+        2 => prop::sample::select(scan),
+        1 => prop::sample::select(vec![
+            "",
+            "/",
+            "/sample",
+            "/demods/32/rate",
+            "/demods/-1/rate",
+            "/inclusions/8/x",
+            "/inclusions",
+        ])
+        .prop_map(String::from),
     ]
 }
 
@@ -1788,6 +2407,13 @@ proptest! {
                     );
                 }
             }
+            // The scan's relation, checked independently of `validate`.
+            let scan = &s.scan;
+            let pixels = f64::from(scan.pixels);
+            prop_assert!((8..=1024).contains(&scan.pixels));
+            prop_assert!(2.0 * pixels * scan.line_rate <= 20_000.0);
+            prop_assert!(1.0 / (2.0 * pixels * scan.line_rate) >= 10.0 / s.drive.frequency * (1.0 - 1e-12));
+            prop_assert_eq!(s.inclusions.len(), 8);
             prop_assert!((1..=10_000).contains(&inv.averaging));
             prop_assert!((16..=4096).contains(&inv.points));
             prop_assert_eq!(

@@ -59,8 +59,13 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
+/// The counter is per thread name, not per pipeline: one pipeline at a time, or a starting
+/// pipeline's threads would count against a running test.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 #[test]
 fn realtime_threads_do_not_allocate_or_free_while_running() {
+    let _serial = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let mut settings = default_settings();
     settings.synth.realtime = false;
     let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
@@ -115,4 +120,50 @@ fn realtime_threads_do_not_allocate_or_free_while_running() {
         .join()
         .unwrap();
     assert!(seen >= 1);
+}
+
+#[test]
+fn a_running_scan_allocates_nothing_on_the_realtime_threads() {
+    let _serial = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let mut settings = default_settings();
+    settings.synth.realtime = false;
+    settings.scan.enable = true;
+    settings.scan.pixels = 16;
+    settings.scan.line_rate = 50.0;
+    let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    while pipeline.counters().pixels < 40 {
+        output.drain();
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let before = REALTIME_ALLOCATIONS.load(Ordering::SeqCst);
+    let pixels = pipeline.counters().pixels;
+    // Raster restarts, gains, setpoint, a new inclusion modulus (new tap tables, built
+    // here), the scan off and on again.
+    let mut next = settings.clone();
+    let changes: [&dyn Fn(&mut ftafm::config::Settings); 6] = [
+        &|s| s.scan.line_rate = 40.0,
+        &|s| s.feedback.integral = 800.0,
+        &|s| s.feedback.setpoint = 17e-9,
+        &|s| s.inclusions[0].youngs_modulus = 60e9,
+        &|s| s.scan.enable = false,
+        &|s| s.scan.enable = true,
+    ];
+    for change in changes {
+        change(&mut next);
+        pipeline.apply(&next).unwrap();
+        for _ in 0..50 {
+            output.drain();
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+    let after = REALTIME_ALLOCATIONS.load(Ordering::SeqCst);
+    let c = pipeline.counters();
+    assert!(c.pixels > pixels + 200, "the scan ran: {c:?}");
+    assert!(c.topography_pixels > 200, "{c:?}");
+    assert_eq!(c.synth_plans_applied, 6);
+    assert_eq!(
+        after - before,
+        0,
+        "allocations or frees on the real-time threads while scanning"
+    );
 }

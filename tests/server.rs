@@ -121,8 +121,10 @@ async fn http_get(addr: SocketAddr, path: &str) -> (u16, String) {
     )
     .await
     .unwrap();
-    let mut text = String::new();
-    s.read_to_string(&mut text).await.unwrap();
+    // Bodies may be binary (image export): read bytes, show them lossily.
+    let mut bytes = Vec::new();
+    s.read_to_end(&mut bytes).await.unwrap();
+    let text = String::from_utf8_lossy(&bytes).into_owned();
     let status = text[9..12].parse().unwrap();
     let body = text
         .split_once("\r\n\r\n")
@@ -731,69 +733,214 @@ async fn force_mean(ws: &mut Ws, n: usize, field: &str) -> f64 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_force_stream_recovers_contact_time_force_and_modulus() {
     // Noise off, the paper's case: the FT-AFM inversion of the live lock-in outputs must
-    // give back the τ and F that `ftafm paper` computes and the modulus that was set.
-    let mut settings = default_settings();
-    settings.noise.enable = false;
-    for d in &mut settings.demods {
-        d.rate = 200.0;
-    }
-    for method in ["full", "two_harmonic"] {
-        let d = Daemon::start(settings.clone()).await;
-        let mut ws = connect(d.addr).await;
-        assert_eq!(
-            call(
-                &mut ws,
-                json!({"op": "set", "path": "/inversion/method", "value": method})
-            )
-            .await["ok"],
-            true
-        );
-        assert_eq!(
-            call(&mut ws, json!({"op": "subscribe", "stream": "force"})).await["ok"],
-            true
-        );
-        for modulus in [129e9, 50e9, 200e9] {
-            let r = call(
-                &mut ws,
-                json!({"op": "set", "path": "/sample/youngs_modulus", "value": modulus}),
-            )
-            .await;
-            assert_eq!(r["ok"], true);
-            // Let the mode transients and the 4th-order filters settle (≈ 30 ms), then skip
-            // what was queued meanwhile.
-            tokio::time::sleep(Duration::from_millis(300)).await;
-            for _ in 0..60 {
-                next_of(&mut ws, "force").await;
-            }
-            let first = next_of(&mut ws, "force").await;
-            assert_eq!(first["method"], method);
-            assert_eq!(first["waveform"].as_array().unwrap().len(), 256);
-            let tau = force_mean(&mut ws, 10, "contact_time_ratio").await;
-            let force = force_mean(&mut ws, 10, "max_force").await;
-            let e = force_mean(&mut ws, 10, "youngs_modulus").await;
-            let mut s = settings.clone();
-            s.sample.youngs_modulus = modulus;
-            let paper = &ftafm::paper::compute(&s, 1.0).unwrap().materials[0];
-            assert!(
-                (tau / paper.contact_time_ratio - 1.0).abs() < 0.01,
-                "{method} at {modulus:e}: τ {tau} vs {}",
-                paper.contact_time_ratio
-            );
-            assert!(
-                (force / paper.max_force - 1.0).abs() < 0.01,
-                "{method} at {modulus:e}: F {force:e} vs {:e}",
-                paper.max_force
-            );
-            assert!(
-                (e / modulus - 1.0).abs() < 0.02,
-                "{method}: E {e:e} vs {modulus:e}"
-            );
+    // give back the τ and F that `ftafm paper` computes and the modulus that was set, with
+    // the demodulators at their default 1 kHz (where the full method once read +1.6 % at
+    // 129 GPa and +3.5 % at 60 GPa: the harmonics folded from above Nyquist) and at 200 Hz.
+    for rate in [1000.0, 200.0] {
+        let mut settings = default_settings();
+        settings.noise.enable = false;
+        for d in &mut settings.demods {
+            d.rate = rate;
         }
-        let (_, metrics) = http_get(d.addr, "/metrics").await;
-        assert!(
-            metrics.contains("ftafm_force_estimates_total{outcome=\"failed\"} 0"),
-            "{metrics}"
-        );
-        d.shutdown().await;
+        for method in ["full", "two_harmonic"] {
+            let d = Daemon::start(settings.clone()).await;
+            let mut ws = connect(d.addr).await;
+            assert_eq!(
+                call(
+                    &mut ws,
+                    json!({"op": "set", "path": "/inversion/method", "value": method})
+                )
+                .await["ok"],
+                true
+            );
+            assert_eq!(
+                call(&mut ws, json!({"op": "subscribe", "stream": "force"})).await["ok"],
+                true
+            );
+            for modulus in [129e9, 60e9, 50e9, 200e9] {
+                let r = call(
+                    &mut ws,
+                    json!({"op": "set", "path": "/sample/youngs_modulus", "value": modulus}),
+                )
+                .await;
+                assert_eq!(r["ok"], true);
+                // Frames made before the change took effect may still be queued behind the
+                // reply (replies go first): skip 250 ms of simulated time from the first
+                // frame after the reply, which covers the change (a plan build, ~0.1 s) and
+                // the mode transients and 4th-order filters settling (≈ 30 ms); and wait
+                // for the estimator of the method just set (it is rebuilt off the request
+                // path, ~0.1 s, longer on a busy machine).
+                let t0 = next_of(&mut ws, "force").await["t"].as_f64().unwrap();
+                let first = loop {
+                    let f = next_of(&mut ws, "force").await;
+                    if f["t"].as_f64().unwrap() >= t0 + 0.25 && f["method"] == method {
+                        break f;
+                    }
+                };
+                assert_eq!(first["method"], method);
+                assert_eq!(first["waveform"].as_array().unwrap().len(), 256);
+                let tau = force_mean(&mut ws, 10, "contact_time_ratio").await;
+                let force = force_mean(&mut ws, 10, "max_force").await;
+                let e = force_mean(&mut ws, 10, "youngs_modulus").await;
+                let mut s = settings.clone();
+                s.sample.youngs_modulus = modulus;
+                let paper = &ftafm::paper::compute(&s, 1.0).unwrap().materials[0];
+                let (dt, df, de) = (
+                    tau / paper.contact_time_ratio - 1.0,
+                    force / paper.max_force - 1.0,
+                    e / modulus - 1.0,
+                );
+                // The goals (1 %, 1 %, 2 %), and what is achieved, so a regression shows.
+                let at = format!("{method} at {modulus:e} Pa, {rate} Hz");
+                assert!(
+                    dt.abs() < 0.01,
+                    "{at}: τ {tau} vs {}",
+                    paper.contact_time_ratio
+                );
+                assert!(
+                    df.abs() < 0.01,
+                    "{at}: F {force:e} vs {:e}",
+                    paper.max_force
+                );
+                assert!(de.abs() < 0.02, "{at}: E {e:e}");
+                assert!(
+                    dt.abs() < 1e-4 && df.abs() < 1e-4 && de.abs() < 1e-3,
+                    "{at}: τ {dt:+e}, F {df:+e}, E {de:+e}"
+                );
+            }
+            let (_, metrics) = http_get(d.addr, "/metrics").await;
+            assert!(
+                metrics.contains("ftafm_force_estimates_total{outcome=\"failed\"} 0"),
+                "{metrics}"
+            );
+            d.shutdown().await;
+        }
     }
+}
+
+/// Collects the `image` lines of one whole frame (the first frame that starts at line 0).
+async fn image_frame(ws: &mut Ws, pixels: usize) -> Vec<Value> {
+    let mut lines: Vec<Value> = Vec::new();
+    loop {
+        let v = next_of(ws, "image").await;
+        if v["line"] == 0 {
+            lines.clear();
+        }
+        if lines.is_empty() && v["line"] != 0 {
+            continue;
+        }
+        lines.push(v);
+        if lines.len() == pixels {
+            return lines;
+        }
+    }
+}
+
+fn channel(line: &Value, name: &str) -> Vec<f64> {
+    line["channels"][name]
+        .as_array()
+        .unwrap_or_else(|| panic!("channel {name}"))
+        .iter()
+        .map(|x| x.as_f64().unwrap_or(f64::NAN))
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_small_scan_images_the_softer_disc_in_the_high_harmonics() {
+    let mut s = default_settings();
+    s.noise.enable = false;
+    s.scan.enable = true;
+    s.scan.pixels = 16;
+    s.scan.line_rate = 20.0;
+    // Light on the shared cores (the other tests run alongside): only the harmonics the
+    // test reads, the two-harmonic inversion, no spectrum or scope.
+    for d in &mut s.demods {
+        d.enable = [1, 6, 17, 18].contains(&d.harmonic);
+    }
+    s.inversion.method = ftafm::config::InversionMethod::TwoHarmonic;
+    s.spectrum.enable = false;
+    s.scope.enable = false;
+    let daemon = Daemon::start(s).await;
+    let mut ws = connect(daemon.addr).await;
+    // No frame has finished yet: the export says so.
+    let (status, body) = http_get(daemon.addr, "/image/h17.gsf").await;
+    assert_eq!(status, 404, "{body}");
+    assert!(body.contains("no scan frame"), "{body}");
+
+    assert_eq!(
+        call(&mut ws, json!({"op": "subscribe", "stream": "image"})).await["ok"],
+        true
+    );
+    let lines = image_frame(&mut ws, 16).await;
+    let first = &lines[0];
+    assert_eq!(first["pixels"], 16);
+    assert_eq!(first["direction"], "trace");
+    assert_eq!(first["units"]["h17"], "m");
+    assert_eq!(first["units"]["youngs_modulus"], "Pa");
+    for name in [
+        "height",
+        "amplitude",
+        "phase",
+        "h6",
+        "h17",
+        "h18",
+        "contact_time_ratio",
+        "max_force",
+        "youngs_modulus",
+    ] {
+        assert_eq!(channel(first, name).len(), 16, "{name}");
+    }
+    // The disc (radius 167 nm at the centre, pixels 62.5 nm): line 7 crosses its middle.
+    let middle = &lines[7];
+    let inside = |name: &str| {
+        let c = channel(middle, name);
+        (c[7] + c[8]) / 2.0
+    };
+    let outside = |name: &str| {
+        let c = channel(middle, name);
+        (c[0] + c[1] + c[14] + c[15]) / 4.0
+    };
+    let contrast = |name: &str| 1.0 - outside(name) / inside(name);
+    let (c6, c17, c18) = (contrast("h6"), contrast("h17"), contrast("h18"));
+    eprintln!(
+        "scan contrast (1 - S_Si/S_Inh): h6 {:.3} %, h17 {:.2} %, h18 {:.2} %; E inside {:.1} GPa, outside {:.1} GPa",
+        c6 * 100.0,
+        c17 * 100.0,
+        c18 * 100.0,
+        inside("youngs_modulus") / 1e9,
+        outside("youngs_modulus") / 1e9
+    );
+    // The paper: ≈ 3 % at 17/18 (silicon brighter), ≈ 0.3 % at 6; `ftafm paper`: −2.7, −3.2, −0.30 %.
+    assert!((-0.035..-0.020).contains(&c17), "c17 {c17}");
+    assert!((-0.040..-0.025).contains(&c18), "c18 {c18}");
+    assert!((-0.005..-0.0015).contains(&c6), "c6 {c6}");
+    // The modulus channel tells the materials apart.
+    assert!((inside("youngs_modulus") / 116.1e9 - 1.0).abs() < 0.03);
+    assert!((outside("youngs_modulus") / 129e9 - 1.0).abs() < 0.03);
+    // Sharp edges: along the middle line, at most one pixel per edge lies between the two
+    // materials' values (the pixel the edge crosses).
+    let h17 = channel(middle, "h17");
+    let (lo, hi) = (inside("h17"), outside("h17"));
+    let between = h17
+        .iter()
+        .filter(|&&v| v > lo + 0.1 * (hi - lo) && v < hi - 0.1 * (hi - lo))
+        .count();
+    assert!(
+        between <= 2,
+        "pixels between the levels: {between} in {h17:?}"
+    );
+
+    // The finished frame exports.
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let (status, body) = http_get(daemon.addr, "/image/h17.gsf").await;
+    assert_eq!(status, 200);
+    assert!(
+        body.starts_with("Gwyddion Simple Field 1.0\nXRes = 16\nYRes = 16\n"),
+        "{}",
+        &body[..80.min(body.len())]
+    );
+    let (status, body) = http_get(daemon.addr, "/image/nothing.gsf").await;
+    assert_eq!(status, 404);
+    assert!(body.contains("h17"), "{body}");
+    daemon.shutdown().await;
 }

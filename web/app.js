@@ -2,9 +2,9 @@
 // (history.js), and panels that each draw their own canvas when they have something new.
 // Messages are only stored when they arrive; drawing happens on requestAnimationFrame.
 //
-// A panel is an object with optional onData(message) and draw(now); to add one (FT-AFM force
-// results, scan images), put its <section class="panel"> in index.html, write its module,
-// and add it to `panels` below.
+// A panel is an object with optional onData(message) and draw(now); to add one, put its
+// <section class="panel"> in index.html, write its module, add it to `panels` below and to
+// ASSETS in src/server/assets.rs (the daemon serves only the files listed there).
 
 import { Connection } from "./conn.js";
 import { DemodHistory } from "./history.js";
@@ -15,16 +15,19 @@ import { ScopePanel } from "./scope.js";
 import { StatusPanel } from "./status.js";
 import { ControlsPanel } from "./controls.js";
 import { ForcePanel } from "./force.js";
+import { ImagePanel } from "./image.js";
 import { si } from "./units.js";
 
-const STREAMS = ["demods", "spectrum", "scope", "status", "force"];
-const FORMATS = { demods: "binary", spectrum: "binary", scope: "binary", status: "json", force: "binary" };
+const STREAMS = ["demods", "spectrum", "scope", "status", "force", "image"];
+const FORMATS = { demods: "binary", spectrum: "binary", scope: "binary", status: "json", force: "binary", image: "json" };
+// subscribed by their panels, only while on screen
+const ON_DEMAND = new Set(["force", "image"]);
 const zero = () => Object.fromEntries(STREAMS.map((s) => [s, 0]));
 
 const stats = {
   messages: zero(), // data messages received per stream, since the page loaded
   gaps: zero(), // messages lost (seq gaps) per stream
-  draws: { harmonics: 0, contrast: 0, scope: 0, spectrum: 0, force: 0 },
+  draws: { harmonics: 0, contrast: 0, scope: 0, spectrum: 0, force: 0, image: 0 },
   connects: 0,
   state: "connecting",
   fps: 0, // redraws per second of the time plot (the page's animation rate)
@@ -48,6 +51,7 @@ const app = {
     if (n) n.value = value;
     updateParams();
     controls.updateDemodOptions();
+    image.onSet(path, value);
   },
 };
 
@@ -58,8 +62,9 @@ const scope = new ScopePanel(app);
 const status = new StatusPanel(app);
 const controls = new ControlsPanel(app);
 const force = new ForcePanel(app);
-const panels = [spectrum, harmonics, contrast, scope, status, force];
-const byStream = { spectrum, scope, status, force };
+const image = new ImagePanel(app);
+const panels = [spectrum, harmonics, contrast, scope, status, force, image];
+const byStream = { spectrum, scope, status, force, image };
 
 function updateParams() {
   const v = (p) => app.nodes.get(p)?.value;
@@ -102,9 +107,11 @@ async function onOpen(conn) {
   lastSeq = {};
   stats.connects = conn.connects;
   try {
-    // `force` (1 kHz) only while its panel is on screen: ForcePanel subscribes and unsubscribes
-    const subs = Promise.all(STREAMS.filter((s) => s !== "force").map((stream) => conn.request("subscribe", { stream, format: FORMATS[stream] })));
+    // `force` (1 kHz) and `image` only while their panels are on screen: the panels subscribe
+    // and unsubscribe
+    const subs = Promise.all(STREAMS.filter((s) => !ON_DEMAND.has(s)).map((stream) => conn.request("subscribe", { stream, format: FORMATS[stream] })));
     force.onOpen(conn);
+    image.onOpen(conn);
     subs.catch(() => {}); // reported by the await below
     app.hello = await conn.request("hello");
     if (app.hello.protocol !== 1) console.warn(`ftafm: the daemon speaks protocol ${app.hello.protocol}; this page was written for 1`);
@@ -183,7 +190,7 @@ app.conn.start();
 window.ftafm = {
   stats,
   app,
-  panels: { spectrum, harmonics, contrast, scope, status, controls, force },
+  panels: { spectrum, harmonics, contrast, scope, status, controls, force, image },
   /** 0.2 s mean amplitude (m) at harmonic k, or null. */
   amplitude(k) {
     const i = app.history.indexOf(k);
@@ -193,4 +200,6 @@ window.ftafm = {
   contrast: () => contrast.values(),
   /** 0.5 s means of the FT-AFM estimates: { E (Pa), F (N), tau, latest message }. */
   force: () => force.values(),
+  /** The scan image: channel, frame, line, colour range, the region's statistics. */
+  image: () => image.values(),
 };

@@ -26,6 +26,20 @@ const GROUPS = [
     { path: "/inversion/harmonic_b", label: "Harmonic b" },
     { path: "/inversion/averaging", label: "Averaging (frames per estimate)" },
   ] },
+  // shown in the scan panel (#scan-controls); Start/Stop is the panel's button (image.js)
+  { legend: "Raster scan", target: "scan-controls", items: [
+    { path: "/scan/pixels", label: "Pixels per line (and lines)" },
+    { path: "/scan/line_rate", label: "Line rate" },
+    { path: "/scan/size", label: "Scan size" },
+    { path: "/scan/x", label: "Centre x" },
+    { path: "/scan/y", label: "Centre y" },
+  ] },
+  { legend: "Amplitude feedback", target: "scan-controls", items: [
+    { path: "/feedback/enable", label: "Feedback" },
+    { path: "/feedback/setpoint", label: "Setpoint (0: automatic)" },
+    { path: "/feedback/proportional", label: "Proportional gain" },
+    { path: "/feedback/integral", label: "Integral gain" },
+  ] },
 ];
 const DEMOD_ITEMS = [
   { key: "enable", label: "Enabled" },

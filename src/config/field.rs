@@ -7,7 +7,7 @@ use serde_json::Value;
 use super::nodes::show_json;
 use super::quantity::number;
 use super::range::Range;
-use super::settings::{Engine, InversionMethod, Settings, SpectrumWindow};
+use super::settings::{Engine, InclusionShape, InversionMethod, Settings, SpectrumWindow};
 
 /// Most cantilever modes simulated: entries of `/cantilever/q` plus `/cantilever/extra_modes`.
 pub const MAX_MODES: usize = 16;
@@ -50,6 +50,17 @@ pub const MAX_INVERSION_AVERAGING: u32 = 10_000;
 pub const MIN_INVERSION_POINTS: u32 = 16;
 /// Most points of the reconstructed force waveform over one period (`/inversion/points`).
 pub const MAX_INVERSION_POINTS: u32 = 4096;
+/// Fewest pixels per scan line (and lines per frame), `/scan/pixels`.
+pub const MIN_SCAN_PIXELS: u32 = 8;
+/// Most pixels per scan line (and lines per frame), `/scan/pixels`.
+pub const MAX_SCAN_PIXELS: u32 = 1024;
+/// Drive periods each pixel of a scan line must last at least: the lock-in needs a few
+/// periods to see the material change (`/scan/line_rate` ≤ `/drive/frequency` /
+/// (2 × this × `/scan/pixels`)).
+pub const MIN_PIXEL_PERIODS: f64 = 10.0;
+/// Most pixels per second the image stream carries, trace and retrace together
+/// (2 × `/scan/pixels` × `/scan/line_rate` ≤ this).
+pub const MAX_PIXEL_RATE: f64 = 20_000.0;
 
 // Static ranges. Limits that depend on another node (the Nyquist frequency, one sample
 // period) are checked in `relations`, after a whole file or a `set` has been applied, so the
@@ -88,8 +99,27 @@ const SPECTRUM_RATE: Range = Range::above_up_to(0.0, 1e3);
 const SCOPE_RATE: Range = Range::above_up_to(0.0, 100.0);
 /// Seconds a client's socket may accept nothing before it is disconnected.
 const STALL_TIMEOUT: Range = Range::closed(1.0, 600.0);
+/// Side of the square scan area in m: up to 100 µm (a typical piezo scanner's range).
+const SCAN_SIZE: Range = Range::above_up_to(0.0, 100e-6);
+/// Scan lines per second in Hz (and, in `relations`, at least ten drive periods per pixel
+/// and at most 20000 pixels per second).
+const LINE_RATE: Range = Range::above_up_to(0.0, 100.0);
+/// Positions in sample coordinates in m (scan centre, inclusion centre): within ±1 mm.
+const POSITION: Range = Range::closed(-1e-3, 1e-3);
+/// Amplitude setpoint of the feedback in m: up to 1 µm; 0 means the amplitude at the
+/// surface distance over the base material.
+const SETPOINT: Range = Range::closed(0.0, 1e-6);
+/// Proportional gain of the feedback (1).
+const PROPORTIONAL_GAIN: Range = Range::closed(0.0, 10.0);
+/// Integral gain of the feedback in 1/s.
+const INTEGRAL_GAIN: Range = Range::closed(0.0, 1e6);
+/// Width and length of an inclusion in m: up to 1 mm.
+const EXTENT: Range = Range::above_up_to(0.0, 1e-3);
+/// Height of an inclusion above the base material in m: ±1 µm (negative is a pit).
+const HEIGHT: Range = Range::closed(-1e-6, 1e-6);
 
-/// One node of the tree. Demodulator nodes carry their index N of `/demods/N/…`.
+/// One node of the tree. Inclusion and demodulator nodes carry their index N of
+/// `/inclusions/N/…` and `/demods/N/…`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Field {
     /// `/cantilever/f1` (Hz).
@@ -170,6 +200,44 @@ pub enum Field {
     InversionAveraging,
     /// `/inversion/points` (samples).
     InversionPoints,
+    /// `/scan/enable` (bool).
+    ScanEnable,
+    /// `/scan/size` (m).
+    ScanSize,
+    /// `/scan/pixels` (pixels).
+    ScanPixels,
+    /// `/scan/line_rate` (Hz).
+    ScanLineRate,
+    /// `/scan/x` (m).
+    ScanX,
+    /// `/scan/y` (m).
+    ScanY,
+    /// `/feedback/enable` (bool).
+    FeedbackEnable,
+    /// `/feedback/setpoint` (m).
+    FeedbackSetpoint,
+    /// `/feedback/proportional` (1).
+    FeedbackProportional,
+    /// `/feedback/integral` (1/s).
+    FeedbackIntegral,
+    /// `/inclusions/N/enable` (bool).
+    InclusionEnable(usize),
+    /// `/inclusions/N/shape` (text).
+    InclusionShape(usize),
+    /// `/inclusions/N/x` (m).
+    InclusionX(usize),
+    /// `/inclusions/N/y` (m).
+    InclusionY(usize),
+    /// `/inclusions/N/width` (m).
+    InclusionWidth(usize),
+    /// `/inclusions/N/length` (m).
+    InclusionLength(usize),
+    /// `/inclusions/N/height` (m).
+    InclusionHeight(usize),
+    /// `/inclusions/N/youngs_modulus` (Pa).
+    InclusionYoungsModulus(usize),
+    /// `/inclusions/N/poisson` (1).
+    InclusionPoisson(usize),
     /// `/demods/N/enable` (bool).
     DemodEnable(usize),
     /// `/demods/N/harmonic` (integer).
@@ -363,8 +431,8 @@ impl Typed {
 }
 
 impl Field {
-    /// Nodes outside the demodulator bank, in tree order.
-    pub(crate) const SCALARS: [Field; 39] = [
+    /// Nodes outside the index-keyed tables (inclusions, demodulators), in tree order.
+    pub(crate) const SCALARS: [Field; 49] = [
         Field::CantileverF1,
         Field::CantileverK,
         Field::CantileverQ,
@@ -404,7 +472,32 @@ impl Field {
         Field::InversionHarmonicB,
         Field::InversionAveraging,
         Field::InversionPoints,
+        Field::ScanEnable,
+        Field::ScanSize,
+        Field::ScanPixels,
+        Field::ScanLineRate,
+        Field::ScanX,
+        Field::ScanY,
+        Field::FeedbackEnable,
+        Field::FeedbackSetpoint,
+        Field::FeedbackProportional,
+        Field::FeedbackIntegral,
     ];
+
+    /// The nodes of inclusion `index`, in tree order.
+    pub(crate) fn inclusion(index: usize) -> [Field; 9] {
+        [
+            Field::InclusionEnable(index),
+            Field::InclusionShape(index),
+            Field::InclusionX(index),
+            Field::InclusionY(index),
+            Field::InclusionWidth(index),
+            Field::InclusionLength(index),
+            Field::InclusionHeight(index),
+            Field::InclusionYoungsModulus(index),
+            Field::InclusionPoisson(index),
+        ]
+    }
 
     /// The nodes of demodulator `index`, in tree order.
     pub(crate) fn demod(index: usize) -> [Field; 5] {
@@ -459,6 +552,25 @@ impl Field {
             Field::InversionHarmonicB => "/inversion/harmonic_b",
             Field::InversionAveraging => "/inversion/averaging",
             Field::InversionPoints => "/inversion/points",
+            Field::ScanEnable => "/scan/enable",
+            Field::ScanSize => "/scan/size",
+            Field::ScanPixels => "/scan/pixels",
+            Field::ScanLineRate => "/scan/line_rate",
+            Field::ScanX => "/scan/x",
+            Field::ScanY => "/scan/y",
+            Field::FeedbackEnable => "/feedback/enable",
+            Field::FeedbackSetpoint => "/feedback/setpoint",
+            Field::FeedbackProportional => "/feedback/proportional",
+            Field::FeedbackIntegral => "/feedback/integral",
+            Field::InclusionEnable(i) => return format!("/inclusions/{i}/enable"),
+            Field::InclusionShape(i) => return format!("/inclusions/{i}/shape"),
+            Field::InclusionX(i) => return format!("/inclusions/{i}/x"),
+            Field::InclusionY(i) => return format!("/inclusions/{i}/y"),
+            Field::InclusionWidth(i) => return format!("/inclusions/{i}/width"),
+            Field::InclusionLength(i) => return format!("/inclusions/{i}/length"),
+            Field::InclusionHeight(i) => return format!("/inclusions/{i}/height"),
+            Field::InclusionYoungsModulus(i) => return format!("/inclusions/{i}/youngs_modulus"),
+            Field::InclusionPoisson(i) => return format!("/inclusions/{i}/poisson"),
             Field::DemodEnable(i) => return format!("/demods/{i}/enable"),
             Field::DemodHarmonic(i) => return format!("/demods/{i}/harmonic"),
             Field::DemodOrder(i) => return format!("/demods/{i}/order"),
@@ -468,11 +580,11 @@ impl Field {
         fixed.to_owned()
     }
 
-    /// SI unit: `Hz`, `N/m`, `m`, `Pa`, `s`, `K`, `m/√Hz`, `1` (dimensionless numbers and
-    /// counts), `bit` (ADC resolution), `samples` (FFT and trace lengths, decimation, points
-    /// of the force waveform), `frames` (demodulator frames averaged), `clients`,
-    /// `messages`, or empty for text, lists of text, booleans and the inversion's harmonic
-    /// numbers.
+    /// SI unit: `Hz`, `N/m`, `m`, `Pa`, `s`, `1/s`, `K`, `m/√Hz`, `1` (dimensionless numbers
+    /// and counts), `bit` (ADC resolution), `samples` (FFT and trace lengths, decimation,
+    /// points of the force waveform), `frames` (demodulator frames averaged), `pixels` (per
+    /// scan line), `clients`, `messages`, or empty for text, lists of text, booleans and the
+    /// inversion's harmonic numbers.
     pub fn unit(self) -> &'static str {
         match self {
             Field::CantileverF1
@@ -480,12 +592,22 @@ impl Field {
             | Field::SynthSampleRate
             | Field::SpectrumRate
             | Field::ScopeRate
+            | Field::ScanLineRate
             | Field::DemodRate(_) => "Hz",
             Field::CantileverK => "N/m",
             Field::CantileverTipRadius
             | Field::DriveFreeAmplitude
             | Field::SurfaceDistance
-            | Field::NoiseAdcRange => "m",
+            | Field::NoiseAdcRange
+            | Field::ScanSize
+            | Field::ScanX
+            | Field::ScanY
+            | Field::FeedbackSetpoint
+            | Field::InclusionX(_)
+            | Field::InclusionY(_)
+            | Field::InclusionWidth(_)
+            | Field::InclusionLength(_)
+            | Field::InclusionHeight(_) => "m",
             Field::NoiseTemperature => "K",
             Field::NoiseDetectorDensity => "m/√Hz",
             Field::NoiseAdcBits => "bit",
@@ -494,14 +616,20 @@ impl Field {
             | Field::ScopeDecimation
             | Field::InversionPoints => "samples",
             Field::InversionAveraging => "frames",
+            Field::ScanPixels => "pixels",
             Field::ServerMaxClients => "clients",
             Field::ServerClientQueue => "messages",
-            Field::TipYoungsModulus | Field::SampleYoungsModulus => "Pa",
+            Field::TipYoungsModulus
+            | Field::SampleYoungsModulus
+            | Field::InclusionYoungsModulus(_) => "Pa",
             Field::DemodTimeconstant(_) | Field::ServerStallTimeout => "s",
+            Field::FeedbackIntegral => "1/s",
             Field::CantileverQ
             | Field::CantileverExtraModes
             | Field::TipPoisson
             | Field::SamplePoisson
+            | Field::InclusionPoisson(_)
+            | Field::FeedbackProportional
             | Field::SynthSeed
             | Field::DemodHarmonic(_)
             | Field::DemodOrder(_) => "1",
@@ -516,6 +644,10 @@ impl Field {
             | Field::InversionMethod
             | Field::InversionHarmonicA
             | Field::InversionHarmonicB
+            | Field::ScanEnable
+            | Field::FeedbackEnable
+            | Field::InclusionEnable(_)
+            | Field::InclusionShape(_)
             | Field::DemodEnable(_) => "",
         }
     }
@@ -540,8 +672,12 @@ impl Field {
                 max: MAX_MODES as u64 - 1,
             },
             Field::CantileverTipRadius => Kind::Float(TIP_RADIUS),
-            Field::TipYoungsModulus | Field::SampleYoungsModulus => Kind::Float(MODULUS),
-            Field::TipPoisson | Field::SamplePoisson => Kind::Float(POISSON),
+            Field::TipYoungsModulus
+            | Field::SampleYoungsModulus
+            | Field::InclusionYoungsModulus(_) => Kind::Float(MODULUS),
+            Field::TipPoisson | Field::SamplePoisson | Field::InclusionPoisson(_) => {
+                Kind::Float(POISSON)
+            }
             Field::DriveFreeAmplitude | Field::SurfaceDistance => Kind::Float(LENGTH),
             Field::SynthSampleRate => Kind::Float(SAMPLE_RATE),
             Field::SynthEngine => Kind::Text(Engine::NAMES),
@@ -554,6 +690,9 @@ impl Field {
             | Field::SpectrumEnable
             | Field::ScopeEnable
             | Field::InversionEnable
+            | Field::ScanEnable
+            | Field::FeedbackEnable
+            | Field::InclusionEnable(_)
             | Field::DemodEnable(_) => Kind::Bool,
             Field::NoiseTemperature => Kind::Float(TEMPERATURE),
             Field::NoiseDetectorDensity => Kind::Float(DETECTOR_DENSITY),
@@ -604,6 +743,21 @@ impl Field {
                 min: MIN_INVERSION_POINTS.into(),
                 max: MAX_INVERSION_POINTS.into(),
             },
+            Field::ScanSize => Kind::Float(SCAN_SIZE),
+            Field::ScanPixels => Kind::Integer {
+                min: MIN_SCAN_PIXELS.into(),
+                max: MAX_SCAN_PIXELS.into(),
+            },
+            Field::ScanLineRate => Kind::Float(LINE_RATE),
+            Field::ScanX | Field::ScanY | Field::InclusionX(_) | Field::InclusionY(_) => {
+                Kind::Float(POSITION)
+            }
+            Field::FeedbackSetpoint => Kind::Float(SETPOINT),
+            Field::FeedbackProportional => Kind::Float(PROPORTIONAL_GAIN),
+            Field::FeedbackIntegral => Kind::Float(INTEGRAL_GAIN),
+            Field::InclusionShape(_) => Kind::Text(InclusionShape::NAMES),
+            Field::InclusionWidth(_) | Field::InclusionLength(_) => Kind::Float(EXTENT),
+            Field::InclusionHeight(_) => Kind::Float(HEIGHT),
             Field::DemodHarmonic(_) => Kind::Integer {
                 min: 0,
                 max: MAX_HARMONIC.into(),
@@ -725,6 +879,71 @@ impl Field {
             Field::InversionPoints => {
                 "Points of the reconstructed force waveform over one drive period, in samples: 16 to 4096."
             }
+            Field::ScanEnable => {
+                "Raster-scans the tip over the sample map and sends the image stream (true), or rests it over the base material at /surface/distance (false)."
+            }
+            Field::ScanSize => "Side of the square scan area, in m, centred on /scan/x, /scan/y.",
+            Field::ScanPixels => {
+                "Pixels per scan line, and lines per frame (the image is square), in pixels: 8 to 1024."
+            }
+            Field::ScanLineRate => {
+                "Scan lines per second, trace and retrace together, in Hz; each pixel must last at least 10 drive periods, and 2 × pixels × line_rate ≤ 20000 pixels per second."
+            }
+            Field::ScanX => {
+                "Centre of the scan area in sample coordinates, x, in m (x grows to the right along a trace)."
+            }
+            Field::ScanY => {
+                "Centre of the scan area in sample coordinates, y, in m (line 0 is at the top, the largest y)."
+            }
+            Field::FeedbackEnable => {
+                "The amplitude feedback moves the surface distance to hold the fundamental amplitude at the setpoint while scanning (true), or the distance stays at /surface/distance (false)."
+            }
+            Field::FeedbackSetpoint => {
+                "Photodiode amplitude at the drive frequency the feedback holds, in m (peak, as demodulator harmonic 1 reads it); 0 holds the steady amplitude at /surface/distance over the base material."
+            }
+            Field::FeedbackProportional => {
+                "Proportional gain of the amplitude feedback (dimensionless): m of distance per m of amplitude error."
+            }
+            Field::FeedbackIntegral => {
+                "Integral gain of the amplitude feedback, in 1/s: m of distance per second per m of amplitude error."
+            }
+            Field::InclusionEnable(i) => {
+                return format!(
+                    "Inclusion {i} is part of the sample map (true) or absent (false); where inclusions overlap, the higher index is on top."
+                );
+            }
+            Field::InclusionShape(i) => {
+                return format!(
+                    "Shape of inclusion {i}: \"disc\" (diameter width) or \"rectangle\" (width along x by length along y)."
+                );
+            }
+            Field::InclusionX(i) => {
+                return format!("Centre of inclusion {i} in sample coordinates, x, in m.");
+            }
+            Field::InclusionY(i) => {
+                return format!("Centre of inclusion {i} in sample coordinates, y, in m.");
+            }
+            Field::InclusionWidth(i) => {
+                return format!(
+                    "Diameter of inclusion {i} if a disc, its extent along x if a rectangle, in m."
+                );
+            }
+            Field::InclusionLength(i) => {
+                return format!(
+                    "Extent of inclusion {i} along y if a rectangle, in m; a disc does not use it."
+                );
+            }
+            Field::InclusionHeight(i) => {
+                return format!(
+                    "Height of inclusion {i}'s surface above the base material's, in m; negative is a pit."
+                );
+            }
+            Field::InclusionYoungsModulus(i) => {
+                return format!("Young's modulus of inclusion {i}'s material, in Pa.");
+            }
+            Field::InclusionPoisson(i) => {
+                return format!("Poisson ratio of inclusion {i}'s material (dimensionless).");
+            }
             Field::DemodEnable(i) => {
                 return format!("Demodulator {i} produces output (true) or is idle (false).");
             }
@@ -750,7 +969,8 @@ impl Field {
         fixed.to_owned()
     }
 
-    /// The node's current value; `None` only for a demodulator index the bank lacks.
+    /// The node's current value; `None` only for an inclusion or demodulator index the
+    /// settings lack.
     pub(crate) fn read(self, s: &Settings) -> Option<Typed> {
         Some(match self {
             Field::CantileverF1 => Typed::Float(s.cantilever.f1),
@@ -792,6 +1012,25 @@ impl Field {
             Field::InversionHarmonicB => Typed::Integer(s.inversion.harmonic_b.into()),
             Field::InversionAveraging => Typed::Integer(s.inversion.averaging.into()),
             Field::InversionPoints => Typed::Integer(s.inversion.points.into()),
+            Field::ScanEnable => Typed::Bool(s.scan.enable),
+            Field::ScanSize => Typed::Float(s.scan.size),
+            Field::ScanPixels => Typed::Integer(s.scan.pixels.into()),
+            Field::ScanLineRate => Typed::Float(s.scan.line_rate),
+            Field::ScanX => Typed::Float(s.scan.x),
+            Field::ScanY => Typed::Float(s.scan.y),
+            Field::FeedbackEnable => Typed::Bool(s.feedback.enable),
+            Field::FeedbackSetpoint => Typed::Float(s.feedback.setpoint),
+            Field::FeedbackProportional => Typed::Float(s.feedback.proportional),
+            Field::FeedbackIntegral => Typed::Float(s.feedback.integral),
+            Field::InclusionEnable(i) => Typed::Bool(s.inclusions.get(i)?.enable),
+            Field::InclusionShape(i) => Typed::Text(s.inclusions.get(i)?.shape.name()),
+            Field::InclusionX(i) => Typed::Float(s.inclusions.get(i)?.x),
+            Field::InclusionY(i) => Typed::Float(s.inclusions.get(i)?.y),
+            Field::InclusionWidth(i) => Typed::Float(s.inclusions.get(i)?.width),
+            Field::InclusionLength(i) => Typed::Float(s.inclusions.get(i)?.length),
+            Field::InclusionHeight(i) => Typed::Float(s.inclusions.get(i)?.height),
+            Field::InclusionYoungsModulus(i) => Typed::Float(s.inclusions.get(i)?.youngs_modulus),
+            Field::InclusionPoisson(i) => Typed::Float(s.inclusions.get(i)?.poisson),
             Field::DemodEnable(i) => Typed::Bool(s.demods.get(i)?.enable),
             Field::DemodHarmonic(i) => Typed::Integer(s.demods.get(i)?.harmonic.into()),
             Field::DemodOrder(i) => Typed::Integer(s.demods.get(i)?.order.into()),
@@ -801,8 +1040,8 @@ impl Field {
     }
 
     /// Stores a value already checked against [`Field::kind`]. `None` if the value does not
-    /// fit the field (cannot happen after the
-    /// node's own type check) or the bank lacks the index.
+    /// fit the field (cannot happen after the node's own type check) or the settings lack
+    /// the inclusion or demodulator index.
     pub(crate) fn write(self, s: &mut Settings, value: Typed) -> Option<()> {
         match (self, value) {
             (Field::CantileverF1, Typed::Float(x)) => s.cantilever.f1 = x,
@@ -869,6 +1108,31 @@ impl Field {
             }
             (Field::InversionPoints, Typed::Integer(n)) => {
                 s.inversion.points = u32::try_from(n).ok()?;
+            }
+            (Field::ScanEnable, Typed::Bool(b)) => s.scan.enable = b,
+            (Field::ScanSize, Typed::Float(x)) => s.scan.size = x,
+            (Field::ScanPixels, Typed::Integer(n)) => s.scan.pixels = u32::try_from(n).ok()?,
+            (Field::ScanLineRate, Typed::Float(x)) => s.scan.line_rate = x,
+            (Field::ScanX, Typed::Float(x)) => s.scan.x = x,
+            (Field::ScanY, Typed::Float(x)) => s.scan.y = x,
+            (Field::FeedbackEnable, Typed::Bool(b)) => s.feedback.enable = b,
+            (Field::FeedbackSetpoint, Typed::Float(x)) => s.feedback.setpoint = x,
+            (Field::FeedbackProportional, Typed::Float(x)) => s.feedback.proportional = x,
+            (Field::FeedbackIntegral, Typed::Float(x)) => s.feedback.integral = x,
+            (Field::InclusionEnable(i), Typed::Bool(b)) => s.inclusions.get_mut(i)?.enable = b,
+            (Field::InclusionShape(i), Typed::Text(name)) => {
+                s.inclusions.get_mut(i)?.shape = InclusionShape::from_name(name)?;
+            }
+            (Field::InclusionX(i), Typed::Float(x)) => s.inclusions.get_mut(i)?.x = x,
+            (Field::InclusionY(i), Typed::Float(x)) => s.inclusions.get_mut(i)?.y = x,
+            (Field::InclusionWidth(i), Typed::Float(x)) => s.inclusions.get_mut(i)?.width = x,
+            (Field::InclusionLength(i), Typed::Float(x)) => s.inclusions.get_mut(i)?.length = x,
+            (Field::InclusionHeight(i), Typed::Float(x)) => s.inclusions.get_mut(i)?.height = x,
+            (Field::InclusionYoungsModulus(i), Typed::Float(x)) => {
+                s.inclusions.get_mut(i)?.youngs_modulus = x;
+            }
+            (Field::InclusionPoisson(i), Typed::Float(x)) => {
+                s.inclusions.get_mut(i)?.poisson = x;
             }
             (Field::DemodEnable(i), Typed::Bool(b)) => s.demods.get_mut(i)?.enable = b,
             (Field::DemodHarmonic(i), Typed::Integer(n)) => {

@@ -7,16 +7,17 @@
 //! - [`registry`](mod@registry): the one list of nodes, lookup by path, the tables of the tree.
 //! - [`nodes`]: `get`/`set`/`list` by path, with per-node checks.
 //! - `relations`: checks between nodes (Nyquist, sample period, mode count, scope traces that
-//!   must not overlap, the inversion's harmonics measured by enabled demodulators) and the
-//!   engines not available yet.
+//!   must not overlap, the inversion's harmonics measured by enabled demodulators, the scan's
+//!   pixel dwell time and pixel rate) and the engines not available yet.
+//! - `indexed_table`: the index-keyed tables of the files (`[demods]`, `[inclusions]`).
 //! - [`load`](mod@load): the default and overlay files.
 //! - [`error`]: [`NodeError`] and [`ConfigError`].
 //!
 //! See `docs/configuration.md` for every node.
 
-mod demod_table;
 pub mod error;
 pub mod field;
+mod indexed_table;
 pub mod load;
 pub mod nodes;
 mod quantity;
@@ -29,9 +30,10 @@ pub use error::{ConfigError, NodeError};
 pub use field::{
     Field, Kind, MAX_ADC_BITS, MAX_ALLOWED_ORIGINS, MAX_CLIENT_QUEUE, MAX_CLIENTS,
     MAX_FILTER_ORDER, MAX_HARMONIC, MAX_INVERSION_AVERAGING, MAX_INVERSION_POINTS, MAX_MODES,
-    MAX_ORIGIN_BYTES, MAX_SCOPE_DECIMATION, MAX_SCOPE_LENGTH, MAX_SPECTRUM_SIZE,
-    MAX_YOUNGS_MODULUS, MIN_CLIENT_QUEUE, MIN_INVERSION_HARMONIC, MIN_INVERSION_POINTS,
-    MIN_SCOPE_LENGTH, MIN_SPECTRUM_SIZE, TextEntry,
+    MAX_ORIGIN_BYTES, MAX_PIXEL_RATE, MAX_SCAN_PIXELS, MAX_SCOPE_DECIMATION, MAX_SCOPE_LENGTH,
+    MAX_SPECTRUM_SIZE, MAX_YOUNGS_MODULUS, MIN_CLIENT_QUEUE, MIN_INVERSION_HARMONIC,
+    MIN_INVERSION_POINTS, MIN_PIXEL_PERIODS, MIN_SCAN_PIXELS, MIN_SCOPE_LENGTH, MIN_SPECTRUM_SIZE,
+    TextEntry,
 };
 pub use load::{DEFAULT_TOML, default_settings, load, load_str, overlay_str};
 pub use nodes::{NodeInfo, NodeSpec};

@@ -358,6 +358,7 @@ impl NodeSpec {
                     Field::DemodTimeconstant(_) => low = low.max(1.0 / sample_rate),
                     Field::DemodRate(_) | Field::SpectrumRate => high = high.min(sample_rate),
                     Field::ScopeRate => high = high.min(relations::highest_scope_rate(s)),
+                    Field::ScanLineRate => high = high.min(relations::highest_line_rate(s)),
                     _ => {}
                 }
                 (Value::from(low), Value::from(high))
@@ -388,6 +389,7 @@ impl NodeSpec {
                             relations::longest_scope_span(s) / u64::from(s.scope.length).max(1),
                         );
                     }
+                    Field::ScanPixels => max = max.min(relations::highest_scan_pixels(s)),
                     _ => {}
                 }
                 (Value::from(min), Value::from(max))

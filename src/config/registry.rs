@@ -1,12 +1,13 @@
 //! The registry: the one list of nodes, built once, with lookup by path and the tables of
-//! the tree (what keys `[sample]` or `[demods.3]` have) for the config loader and messages.
+//! the tree (what keys `[sample]`, `[inclusions.2]` or `[demods.3]` have) for the config
+//! loader and messages.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::OnceLock;
 
 use super::field::Field;
 use super::nodes::NodeSpec;
-use super::settings::DEMODULATOR_COUNT;
+use super::settings::{DEMODULATOR_COUNT, INCLUSION_COUNT};
 
 struct Registry {
     specs: Vec<NodeSpec>,
@@ -20,6 +21,7 @@ fn registry_data() -> &'static Registry {
     REGISTRY.get_or_init(|| {
         let specs: Vec<NodeSpec> = Field::SCALARS
             .into_iter()
+            .chain((0..INCLUSION_COUNT).flat_map(Field::inclusion))
             .chain((0..DEMODULATOR_COUNT).flat_map(Field::demod))
             .map(NodeSpec::new)
             .collect();
@@ -47,7 +49,8 @@ fn registry_data() -> &'static Registry {
     })
 }
 
-/// Every node, in tree order: the scalar nodes, then `/demods/0/…` … `/demods/31/…`.
+/// Every node, in tree order: the scalar nodes, then `/inclusions/0/…` … `/inclusions/7/…`,
+/// then `/demods/0/…` … `/demods/31/…`.
 pub fn registry() -> &'static [NodeSpec] {
     &registry_data().specs
 }
@@ -115,9 +118,14 @@ mod tests {
     fn registry_lists_each_path_once() {
         assert_eq!(
             registry().len(),
-            Field::SCALARS.len() + 5 * DEMODULATOR_COUNT
+            Field::SCALARS.len() + 9 * INCLUSION_COUNT + 5 * DEMODULATOR_COUNT
         );
         assert_eq!(registry_data().by_path.len(), registry().len());
+        assert_eq!(
+            node("/inclusions/7/poisson").unwrap().field,
+            Field::InclusionPoisson(7)
+        );
+        assert!(node("/inclusions/8/poisson").is_none());
         assert_eq!(node("/demods/31/rate").unwrap().field, Field::DemodRate(31));
         assert!(node("/demods/32/rate").is_none());
     }
@@ -127,6 +135,25 @@ mod tests {
         let top = table_keys("").unwrap();
         assert_eq!(top[0], "cantilever");
         assert_eq!(top.last().unwrap(), "demods");
+        assert_eq!(
+            top[top.len() - 4..],
+            ["scan", "feedback", "inclusions", "demods"]
+        );
+        assert_eq!(key_list(table_keys("/inclusions").unwrap()), "0 … 7");
+        assert_eq!(
+            table_keys("/inclusions/2").unwrap(),
+            [
+                "enable",
+                "shape",
+                "x",
+                "y",
+                "width",
+                "length",
+                "height",
+                "youngs_modulus",
+                "poisson"
+            ]
+        );
         assert_eq!(
             table_keys("/sample").unwrap(),
             ["youngs_modulus", "poisson"]

@@ -1,17 +1,19 @@
 //! Whole-settings validation: every node inside its own range, the limits that tie nodes
 //! together (the Nyquist frequency, one sample period, the number of modes, the inversion's
-//! harmonics and the demodulators that measure them), and the values a
+//! harmonics and the demodulators that measure them, the scan's pixel dwell time and pixel
+//! rate), and the values a
 //! node knows but the instrument cannot run yet (the `"coupled"` engine). These run after a
 //! whole config file or a whole `set`, never per key, so the order of keys never matters.
 //! Every message about a relation names every node it involves.
 
 use super::error::NodeError;
 use super::field::{
-    MAX_HARMONIC, MAX_MODES, MAX_SCOPE_DECIMATION, MAX_SCOPE_LENGTH, MIN_INVERSION_HARMONIC,
+    MAX_HARMONIC, MAX_MODES, MAX_PIXEL_RATE, MAX_SCAN_PIXELS, MAX_SCOPE_DECIMATION,
+    MAX_SCOPE_LENGTH, MIN_INVERSION_HARMONIC, MIN_PIXEL_PERIODS,
 };
-use super::quantity::quantity;
+use super::quantity::{number, quantity};
 use super::registry::registry;
-use super::settings::{DEMODULATOR_COUNT, Engine, Settings};
+use super::settings::{DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, Settings};
 
 /// The engines implemented so far. The others are known names (so a file that asks for one is
 /// told it is not available, rather than that it does not exist), but are refused.
@@ -19,9 +21,19 @@ const AVAILABLE_ENGINES: [Engine; 1] = [Engine::Paper];
 
 impl Settings {
     /// Checks everything `set` and the config loader guarantee: exactly
-    /// [`DEMODULATOR_COUNT`] demodulators, every node inside its range, and the relations
-    /// between nodes. Returns the first problem found.
+    /// [`INCLUSION_COUNT`] inclusions and [`DEMODULATOR_COUNT`] demodulators, every node
+    /// inside its range, and the relations between nodes. Returns the first problem found.
     pub fn validate(&self) -> Result<(), NodeError> {
+        if self.inclusions.len() != INCLUSION_COUNT {
+            return Err(NodeError::InvalidValue {
+                path: "/inclusions".to_owned(),
+                message: format!(
+                    "/inclusions has {} inclusions: exactly {INCLUSION_COUNT} (0 … {}) are required",
+                    self.inclusions.len(),
+                    INCLUSION_COUNT - 1
+                ),
+            });
+        }
         if self.demods.len() != DEMODULATOR_COUNT {
             return Err(NodeError::InvalidValue {
                 path: "/demods".to_owned(),
@@ -47,7 +59,8 @@ impl Settings {
         check_spectrum(self)?;
         check_scope(self)?;
         check_demods(self)?;
-        check_inversion(self)
+        check_inversion(self)?;
+        check_scan(self)
     }
 }
 
@@ -364,6 +377,99 @@ fn check_inversion(s: &Settings) -> Result<(), NodeError> {
     Ok(())
 }
 
+/// The highest `/scan/line_rate` at which each pixel lasts at least [`MIN_PIXEL_PERIODS`]
+/// drive periods: a pixel lasts 1 / (2 × `/scan/pixels` × `/scan/line_rate`) (trace and
+/// retrace share a line), so `/drive/frequency` / (2 × 10 × `/scan/pixels`).
+fn dwell_line_rate(s: &Settings, pixels: u64) -> f64 {
+    s.drive.frequency / (2.0 * MIN_PIXEL_PERIODS * pixels as f64)
+}
+
+/// The highest `/scan/line_rate` at which the image stream carries at most
+/// [`MAX_PIXEL_RATE`] pixels per second: 20000 / (2 × `/scan/pixels`).
+fn stream_line_rate(pixels: u64) -> f64 {
+    MAX_PIXEL_RATE / (2.0 * pixels as f64)
+}
+
+/// Whether a scan of `pixels` per line at the current `/scan/line_rate` meets both limits;
+/// monotone in `pixels`, so [`highest_scan_pixels`] can step to the exact edge.
+fn scan_fits(pixels: u64, s: &Settings) -> bool {
+    let rate = s.scan.line_rate;
+    rate <= dwell_line_rate(s, pixels) && rate <= stream_line_rate(pixels)
+}
+
+/// The highest `/scan/line_rate` the relations allow with the current `/scan/pixels` and
+/// `/drive/frequency`, as `list` reports it.
+pub(crate) fn highest_line_rate(s: &Settings) -> f64 {
+    let pixels = u64::from(s.scan.pixels);
+    dwell_line_rate(s, pixels).min(stream_line_rate(pixels))
+}
+
+/// The most `/scan/pixels` the relations allow at the current `/scan/line_rate` and
+/// `/drive/frequency`, at most [`MAX_SCAN_PIXELS`] (0 if not even one pixel fits), as `list`
+/// reports it.
+pub(crate) fn highest_scan_pixels(s: &Settings) -> u64 {
+    let most = u64::from(MAX_SCAN_PIXELS);
+    let (drive, rate) = (s.drive.frequency, s.scan.line_rate);
+    if !(drive.is_finite() && rate.is_finite() && drive > 0.0 && rate > 0.0) {
+        return most;
+    }
+    // Start from the closed form, then step so the answer agrees exactly with `scan_fits`,
+    // which `check_scan` applies.
+    let closed = (drive / (2.0 * MIN_PIXEL_PERIODS * rate)).min(MAX_PIXEL_RATE / (2.0 * rate));
+    let mut pixels = closed.floor().clamp(0.0, most as f64) as u64;
+    while pixels > 0 && !scan_fits(pixels, s) {
+        pixels -= 1;
+    }
+    while pixels < most && scan_fits(pixels + 1, s) {
+        pixels += 1;
+    }
+    pixels
+}
+
+/// The scan's line rate: each pixel lasts at least [`MIN_PIXEL_PERIODS`] drive periods (so
+/// the lock-in sees each material), and the image stream carries at most
+/// [`MAX_PIXEL_RATE`] pixels per second. Checked whether or not the scan is enabled, so
+/// starting a scan never fails.
+fn check_scan(s: &Settings) -> Result<(), NodeError> {
+    let scan = &s.scan;
+    let pixels = u64::from(scan.pixels);
+    let rate = scan.line_rate;
+    let dwell = dwell_line_rate(s, pixels);
+    if rate > dwell {
+        return Err(invalid(
+            "/scan/line_rate",
+            format!(
+                "/scan/line_rate = {}: with {pixels} pixels per line (/scan/pixels) each pixel \
+                 must last at least {} drive periods ({} / /drive/frequency = {}), so at most \
+                 /drive/frequency / ({} × /scan/pixels) = {}",
+                quantity(rate, "Hz"),
+                number(MIN_PIXEL_PERIODS),
+                number(MIN_PIXEL_PERIODS),
+                quantity(MIN_PIXEL_PERIODS / s.drive.frequency, "s"),
+                number(2.0 * MIN_PIXEL_PERIODS),
+                quantity(dwell, "Hz")
+            ),
+        ));
+    }
+    let stream = stream_line_rate(pixels);
+    if rate > stream {
+        return Err(invalid(
+            "/scan/line_rate",
+            format!(
+                "/scan/line_rate = {}: with {pixels} pixels per line (/scan/pixels) the image \
+                 stream would carry 2 × /scan/pixels × /scan/line_rate = {} pixels per second, \
+                 more than its {}, so at most {} / (2 × /scan/pixels) = {}",
+                quantity(rate, "Hz"),
+                number(2.0 * pixels as f64 * rate),
+                number(MAX_PIXEL_RATE),
+                number(MAX_PIXEL_RATE),
+                quantity(stream, "Hz")
+            ),
+        ));
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -523,6 +629,40 @@ mod tests {
         assert_eq!(inversion_harmonic_bounds(&s, 17), Some((2, 2)));
         s.demods[1].harmonic = 1;
         assert_eq!(inversion_harmonic_bounds(&s, 17), None);
+    }
+
+    #[test]
+    fn scan_limits_agree_with_the_check() {
+        let mut s = default_settings();
+        // 100 kHz drive, 128 pixels: 100e3 / (20 × 128) = 39.0625 Hz; 20000 / 256 = 78.125.
+        assert_eq!(highest_line_rate(&s), 39.0625);
+        // At 2 Hz: 100e3 / 40 = 2500 pixels by dwell, 5000 by the stream: capped at 1024.
+        assert_eq!(highest_scan_pixels(&s), 1024);
+        for rate in [2.0, 3.0, 7.7, 39.0625, 50.0, 99.9, 100.0, 1e-3] {
+            s.scan.line_rate = rate;
+            let pixels = highest_scan_pixels(&s);
+            assert!(pixels == 1024 || !scan_fits(pixels + 1, &s), "{rate}");
+            assert!(pixels == 0 || scan_fits(pixels, &s), "{rate}");
+        }
+        s.scan.line_rate = 39.0625;
+        assert_eq!(highest_scan_pixels(&s), 128);
+        assert!(check_scan(&s).is_ok());
+        s.scan.pixels = 129;
+        assert_eq!(check_scan(&s).unwrap_err().path(), "/scan/line_rate");
+        // A fast drive: the image stream's 20000 pixels per second bind first.
+        s.drive.frequency = 1e6;
+        s.scan.pixels = 128;
+        assert_eq!(highest_line_rate(&s), 78.125);
+        s.scan.line_rate = 78.125;
+        assert_eq!(highest_scan_pixels(&s), 128);
+        s.scan.line_rate = 100.0;
+        assert_eq!(highest_scan_pixels(&s), 100);
+        assert_eq!(
+            check_scan(&s).unwrap_err().to_string(),
+            "/scan/line_rate = 100 Hz: with 128 pixels per line (/scan/pixels) the image \
+             stream would carry 2 × /scan/pixels × /scan/line_rate = 25600 pixels per second, \
+             more than its 20000, so at most 20000 / (2 × /scan/pixels) = 78.125 Hz"
+        );
     }
 
     #[test]

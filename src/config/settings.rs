@@ -5,6 +5,8 @@ use serde::{Deserialize, Serialize};
 
 /// Number of lock-in demodulators in the bank (`/demods/0` … `/demods/31`).
 pub const DEMODULATOR_COUNT: usize = 32;
+/// Number of inclusion slots in the sample map (`/inclusions/0` … `/inclusions/7`).
+pub const INCLUSION_COUNT: usize = 8;
 
 /// The whole instrument configuration.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -21,10 +23,16 @@ pub struct Settings {
     pub scope: ScopeSettings,
     pub server: ServerSettings,
     pub inversion: InversionSettings,
+    pub scan: ScanSettings,
+    pub feedback: FeedbackSettings,
+    /// Inclusions in the sample; always [`INCLUSION_COUNT`] entries, index = N of
+    /// `/inclusions/N` (a table keyed by index, like `[demods]`).
+    #[serde(with = "super::indexed_table")]
+    pub inclusions: Vec<InclusionSettings>,
     /// Demodulator bank; always [`DEMODULATOR_COUNT`] entries, index = N of `/demods/N`.
     /// (De)serialised as a table keyed by index (`[demods]` with keys `"0"` … `"31"`), so
     /// TOML and JSON paths mirror the node tree.
-    #[serde(with = "super::demod_table")]
+    #[serde(with = "super::indexed_table")]
     pub demods: Vec<DemodSettings>,
 }
 
@@ -300,4 +308,99 @@ pub struct DemodSettings {
     pub timeconstant: f64,
     /// Output rate (Hz).
     pub rate: f64,
+}
+
+/// `[scan]`: the raster scan of the tip over the sample map. Trace (left to right) and
+/// retrace (right to left) at constant speed; the slow axis steps one pixel per line, line 0
+/// at the top (largest y).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScanSettings {
+    /// The tip scans (true) or rests over the base material at `/surface/distance` (false).
+    pub enable: bool,
+    /// Side of the square scan area (m).
+    pub size: f64,
+    /// Pixels per line, and lines per frame (pixels).
+    pub pixels: u32,
+    /// Lines per second, trace and retrace together (Hz).
+    pub line_rate: f64,
+    /// Centre of the scan area in sample coordinates, x (m).
+    pub x: f64,
+    /// Centre of the scan area in sample coordinates, y (m).
+    pub y: f64,
+}
+
+/// `[feedback]`: the amplitude feedback of tapping mode, a PI controller that moves the
+/// sample so the photodiode amplitude at the drive frequency stays at the setpoint. Runs while
+/// the scan runs; its output (the surface distance) is the height channel.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FeedbackSettings {
+    /// The controller acts (true) or holds the distance at `/surface/distance` (false).
+    pub enable: bool,
+    /// Photodiode amplitude at the drive frequency to hold (m, peak, as demodulator
+    /// harmonic 1 reads it); 0 means the steady amplitude at `/surface/distance` over the
+    /// base material.
+    pub setpoint: f64,
+    /// Proportional gain (m of distance per m of amplitude error, 1).
+    pub proportional: f64,
+    /// Integral gain (m of distance per s per m of amplitude error, 1/s).
+    pub integral: f64,
+}
+
+/// Shape of an inclusion (`/inclusions/N/shape`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum InclusionShape {
+    /// A disc of diameter `width`.
+    Disc,
+    /// A rectangle `width` (x) by `length` (y), sides along the axes.
+    Rectangle,
+}
+
+impl InclusionShape {
+    /// Every shape, in the order of [`InclusionShape::NAMES`].
+    pub const ALL: [InclusionShape; 2] = [InclusionShape::Disc, InclusionShape::Rectangle];
+    /// The names used in config files and the protocol.
+    pub const NAMES: &'static [&'static str] = &["disc", "rectangle"];
+
+    /// The config/protocol name of this shape.
+    pub fn name(self) -> &'static str {
+        match self {
+            InclusionShape::Disc => "disc",
+            InclusionShape::Rectangle => "rectangle",
+        }
+    }
+
+    /// The shape called `name`, if there is one.
+    pub fn from_name(name: &str) -> Option<InclusionShape> {
+        InclusionShape::ALL
+            .into_iter()
+            .find(|shape| shape.name() == name)
+    }
+}
+
+/// `[inclusions.N]`: a region of the sample of another material and height. Where
+/// inclusions overlap, the one with the higher index is on top.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InclusionSettings {
+    /// The inclusion is part of the sample.
+    pub enable: bool,
+    /// Disc or rectangle.
+    pub shape: InclusionShape,
+    /// Centre, x (m, sample coordinates).
+    pub x: f64,
+    /// Centre, y (m, sample coordinates).
+    pub y: f64,
+    /// Diameter of a disc, x extent of a rectangle (m).
+    pub width: f64,
+    /// y extent of a rectangle (m); not used by a disc.
+    pub length: f64,
+    /// Height of its surface above the base material's (m; negative: a pit).
+    pub height: f64,
+    /// Young's modulus E (Pa).
+    pub youngs_modulus: f64,
+    /// Poisson ratio ν (1).
+    pub poisson: f64,
 }

@@ -139,6 +139,10 @@ struct BlockState {
     /// Low-pass section outputs.
     lowpass_re: [Lanes; MAX_ORDER as usize],
     lowpass_im: [Lanes; MAX_ORDER as usize],
+    /// Sums of the pre-decimator's baseband outputs since the last
+    /// [`LockInBank::take_integrals`]: the boxcar (pixel) demodulation.
+    acc_re: Lanes,
+    acc_im: Lanes,
 }
 
 impl Default for BlockState {
@@ -152,6 +156,8 @@ impl Default for BlockState {
             prev2_im: [0.0; BLOCK],
             lowpass_re: [[0.0; BLOCK]; MAX_ORDER as usize],
             lowpass_im: [[0.0; BLOCK]; MAX_ORDER as usize],
+            acc_re: [0.0; BLOCK],
+            acc_im: [0.0; BLOCK],
         }
     }
 }
@@ -203,6 +209,8 @@ struct State {
     countdown: Vec<u32>,
     /// Decimated samples since the last output of any lane.
     since_output: u32,
+    /// Decimated samples summed in the boxcar integrators.
+    integrated: u32,
     /// The smallest countdown: when the next output of any lane is due.
     next_output: u32,
 }
@@ -327,6 +335,7 @@ impl LockInBank {
             out_im: vec![0.0; width],
             countdown: plan.period.clone(),
             since_output: 0,
+            integrated: 0,
             next_output: plan.period.iter().copied().min().unwrap_or(u32::MAX),
         };
         Ok(Self {
@@ -442,6 +451,35 @@ impl LockInBank {
         self.state.reanchor_in = 0;
     }
 
+    /// The boxcar demodulation since the last call: for each enabled demodulator, in index
+    /// order, `sink(demod, harmonic, x, y)` with X + iY the mean of its pre-decimated
+    /// baseband samples (the same calibration as its low-pass output: peak amplitude, phase
+    /// against k times the drive). A decimated sample belongs to the call after the input
+    /// sample that completes it, [`group_delay`](Self::group_delay) samples after its
+    /// centre. Resets the integrators; returns the decimated samples averaged (0: nothing
+    /// is reported). Real-time safe.
+    pub fn take_integrals(&mut self, mut sink: impl FnMut(usize, u32, f64, f64)) -> u32 {
+        let n = self.state.integrated;
+        if n > 0 {
+            let scale = 1.0 / f64::from(n);
+            for l in 0..self.plan.count {
+                let block = &self.state.blocks[l / BLOCK];
+                sink(
+                    self.plan.demod[l],
+                    self.plan.harmonic[l],
+                    block.acc_re[l % BLOCK] * scale,
+                    block.acc_im[l % BLOCK] * scale,
+                );
+            }
+        }
+        for block in &mut self.state.blocks {
+            block.acc_re = [0.0; BLOCK];
+            block.acc_im = [0.0; BLOCK];
+        }
+        self.state.integrated = 0;
+        n
+    }
+
     /// Demodulate a block of input samples (any length) and hand each output to `sink` in
     /// time order (demodulators in index order within one time). Real-time safe.
     pub fn process<F>(&mut self, input: &[f64], mut sink: F)
@@ -550,6 +588,7 @@ impl LockInBank {
             st.reanchor_in = REANCHOR_INTERVAL;
         }
         st.reanchor_in -= 1;
+        st.integrated += 1;
 
         // The section count is a constant inside the kernel, so its loop unrolls.
         let c = self.compensation;
@@ -679,6 +718,13 @@ unsafe fn lane_block<V: F64s, const NV: usize, const S: usize>(
             let (rr, ri) = (V::load(at(&st.rot_re, j)), V::load(at(&st.rot_im, j)));
             let zr = rr.mul(fr[j]).sub(ri.mul(fi[j]));
             let zi = rr.mul(fi[j]).add(ri.mul(fr[j]));
+            // The boxcar integrator of the pixel demodulation.
+            V::load(at(&st.acc_re, j))
+                .add(zr)
+                .store(at_mut(&mut st.acc_re, j));
+            V::load(at(&st.acc_im, j))
+                .add(zi)
+                .store(at_mut(&mut st.acc_im, j));
             // Rotate the reference on to the next decimated sample.
             let (sr, si) = (V::load(at(&k.step_re, j)), V::load(at(&k.step_im, j)));
             rr.mul(sr).sub(ri.mul(si)).store(at_mut(&mut st.rot_re, j));

@@ -5,9 +5,11 @@ pub mod beam;
 pub mod contact;
 pub mod impact;
 pub mod inversion;
+pub mod sample_map;
 pub mod spectrum;
 
 pub use beam::{Cantilever, Mode};
 pub use contact::{Elastic, HertzContact};
 pub use impact::{ImpactOscillator, ImpactSolution, SolveOptions};
+pub use sample_map::{Outline, Region, SampleMap};
 pub use spectrum::Harmonic;

@@ -2,7 +2,7 @@
 //! the stream and the exact drive phase, so the DSP's reference stays locked to it.
 
 /// Describes one block of samples in the sample ring.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BlockHeader {
     /// Index of the block's first sample.
     pub index: u64,
@@ -14,6 +14,8 @@ pub struct BlockHeader {
     pub frequency_word: u64,
     /// Unix time (ns) when the block's newest sample was synthesised.
     pub t_synth_ns: u64,
+    /// The raster of the scan in progress, if one runs.
+    pub raster: Option<crate::synth::Raster>,
 }
 
 /// Unix time in ns now.

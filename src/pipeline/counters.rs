@@ -27,6 +27,10 @@ pub struct Counters {
     pub(crate) late_blocks: AtomicU64,
     pub(crate) ring_fill: AtomicU64,
     pub(crate) ring_fill_max: AtomicU64,
+    pub(crate) topography_pixels: AtomicU64,
+    pub(crate) topography_pixels_dropped: AtomicU64,
+    pub(crate) pixels: AtomicU64,
+    pub(crate) pixels_dropped: AtomicU64,
 }
 
 impl Counters {
@@ -58,6 +62,10 @@ impl Counters {
             late_blocks: r(&self.late_blocks),
             ring_fill: r(&self.ring_fill),
             ring_fill_max: r(&self.ring_fill_max),
+            topography_pixels: r(&self.topography_pixels),
+            topography_pixels_dropped: r(&self.topography_pixels_dropped),
+            pixels: r(&self.pixels),
+            pixels_dropped: r(&self.pixels_dropped),
         }
     }
 }
@@ -103,4 +111,12 @@ pub struct CountersSnapshot {
     pub ring_fill: u64,
     /// Largest ring fill seen.
     pub ring_fill_max: u64,
+    /// Scan pixels whose topography (height, amplitude) the synthesiser handed out.
+    pub topography_pixels: u64,
+    /// Scan pixels whose topography no consumer took in time.
+    pub topography_pixels_dropped: u64,
+    /// Scan pixels whose harmonics the DSP handed out.
+    pub pixels: u64,
+    /// Scan pixels the DSP lost: cut by a gap in the stream, or not taken in time.
+    pub pixels_dropped: u64,
 }

@@ -5,7 +5,7 @@ use crate::config::{Settings, SpectrumWindow};
 use crate::dsp::{Demodulator, DspError, LockInBank, SlidingSpectrum, SpectrumConfig, Window};
 
 use super::dsp_worker::Emitter;
-use super::frames::DemodValue;
+use super::frames::{DemodFrame, DemodValue};
 use super::scope::{ScopeCapture, ScopeConfig};
 
 /// Lock-in bank plus sliding spectrum, with the mapping from their own sample counts to
@@ -83,6 +83,29 @@ impl DspPlan {
         if let Some(s) = &mut self.scope {
             s.restart();
         }
+    }
+
+    /// Input samples between a decimated sample's centre and the input sample that
+    /// completes it.
+    pub(crate) fn group_delay(&self) -> u64 {
+        self.bank.group_delay() as u64
+    }
+
+    /// The boxcar demodulation of every enabled demodulator since the last call, into
+    /// `frame`'s values (its length set); returns the decimated samples averaged.
+    pub(crate) fn take_pixel(&mut self, frame: &mut DemodFrame) -> u32 {
+        frame.len = 0;
+        self.bank.take_integrals(|demod, harmonic, x, y| {
+            if frame.len < frame.values.len() {
+                frame.values[frame.len] = DemodValue {
+                    index: demod as u8,
+                    harmonic,
+                    x,
+                    y,
+                };
+                frame.len += 1;
+            }
+        })
     }
 
     /// Locks the lock-in reference to the synthesiser's drive for the next sample.

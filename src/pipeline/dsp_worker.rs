@@ -11,7 +11,7 @@ use ringbuf::{HeapCons, HeapProd};
 use super::block::{BlockHeader, unix_ns};
 use super::counters::Counters;
 use super::dsp_plan::DspPlan;
-use super::frames::{DemodFrame, DemodValue, ScopeBuffer, SpectrumBuffer};
+use super::frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
 
 /// How long the DSP thread sleeps when the ring is empty: well under a block (410 µs).
 const IDLE: Duration = Duration::from_micros(50);
@@ -37,6 +37,20 @@ pub(crate) struct DspWorker {
     pub scope_current: Option<ScopeBuffer>,
     /// A scope buffer not in use (a trace abandoned at a gap), used before the pool.
     pub scope_spare: Option<ScopeBuffer>,
+    /// Scan pixels' harmonics, to the consumer.
+    pub pixels: HeapProd<PixelHarmonics>,
+    /// The pixel whose boxcar is being integrated: (raster generation, serial).
+    pub pixel_open: Option<(u32, u64)>,
+    /// Scratch for a pixel's values.
+    pub pixel_frame: DemodFrame,
+}
+
+/// Stream samples `lo..hi` of a block held in the ring as two slices.
+fn slice_range<'a>(first: &'a [f64], second: &'a [f64], lo: usize, hi: usize) -> [&'a [f64]; 2] {
+    let split = first.len();
+    let a = &first[lo.min(split)..hi.min(split)];
+    let b = &second[lo.saturating_sub(split)..hi.saturating_sub(split)];
+    [a, b]
 }
 
 impl DspWorker {
@@ -97,10 +111,69 @@ impl DspWorker {
                 frame: DemodFrame::empty(),
                 sample_rate: self.plan.sample_rate,
             };
-            for part in [first, second] {
-                if !part.is_empty() {
-                    self.plan.process(part, &mut emit);
+            // With a scan, the block is cut at pixel boundaries (shifted by the
+            // pre-decimator's delay, so each decimated sample counts in the pixel its
+            // window is centred in) and each pixel's boxcar demodulation is handed out.
+            let base = header.index;
+            let end = base + len as u64;
+            let mut pos = base;
+            while pos < end {
+                let mut stop = end;
+                let mut finishes = None;
+                if let Some(r) = header.raster {
+                    let delay = self.plan.group_delay();
+                    match r.pixel_at(pos.saturating_sub(delay)) {
+                        None => {
+                            stop = stop.min(r.start + delay);
+                            self.pixel_open = None;
+                        }
+                        Some(id) => {
+                            let key = (r.generation, id.serial);
+                            if self.pixel_open != Some(key) {
+                                // Samples from before this pixel: not part of any pixel.
+                                self.plan.take_pixel(&mut self.pixel_frame);
+                                self.pixel_open = Some(key);
+                            }
+                            let boundary = r.pixel_start(id.serial + 1) + delay;
+                            if boundary <= end {
+                                stop = boundary;
+                                finishes = Some((r.generation, id));
+                            }
+                        }
+                    }
                 }
+                let (lo, hi) = ((pos - base) as usize, (stop - base) as usize);
+                for part in slice_range(first, second, lo, hi) {
+                    if !part.is_empty() {
+                        self.plan.process(part, &mut emit);
+                    }
+                }
+                if let Some((generation, pixel)) = finishes {
+                    let samples = self.plan.take_pixel(&mut self.pixel_frame);
+                    let frame = &mut self.pixel_frame;
+                    frame.sample_index = stop - 1;
+                    frame.t = frame.sample_index as f64 / self.plan.sample_rate;
+                    frame.t_synth_ns = header.t_synth_ns;
+                    frame.t_dsp_ns = unix_ns();
+                    let record = PixelHarmonics {
+                        generation,
+                        pixel,
+                        samples,
+                        frame: *frame,
+                    };
+                    if self.pixels.try_push(record).is_ok() {
+                        Counters::add(&self.counters.pixels, 1);
+                    } else {
+                        Counters::add(&self.counters.pixels_dropped, 1);
+                    }
+                    self.pixel_open = None;
+                }
+                pos = stop;
+            }
+            if header.raster.is_none() {
+                // Keep the integrators from growing without a scan.
+                self.plan.take_pixel(&mut self.pixel_frame);
+                self.pixel_open = None;
             }
             emit.flush();
             if let Some(scope) = &mut self.plan.scope {

@@ -104,3 +104,18 @@ pub struct ScopeBuffer {
     /// The samples (m, nominal photodiode deflection), oldest first.
     pub samples: Vec<f32>,
 }
+
+/// The harmonics of one pixel of a scan: every enabled demodulator's phasor averaged over
+/// exactly the pixel's samples (a boxcar, so the image has no filter lag and sharp edges).
+#[derive(Clone, Copy, Debug)]
+pub struct PixelHarmonics {
+    /// Generation of the raster the pixel belongs to.
+    pub generation: u32,
+    /// The pixel.
+    pub pixel: crate::synth::PixelId,
+    /// Pre-decimated samples averaged.
+    pub samples: u32,
+    /// The mean phasors as demodulator values (`sample_index`, `t` and `t_synth_ns` of the
+    /// pixel's last sample).
+    pub frame: DemodFrame,
+}

@@ -17,6 +17,7 @@ mod counters;
 mod dsp_plan;
 mod dsp_worker;
 mod frames;
+pub mod realtime;
 mod scope;
 mod synth_worker;
 
@@ -30,13 +31,13 @@ use ringbuf::{HeapCons, HeapProd, HeapRb};
 pub use block::{BlockHeader, unix_ns};
 pub use counters::{Counters, CountersSnapshot};
 pub use dsp_plan::DspPlan;
-pub use frames::{DemodFrame, DemodValue, ScopeBuffer, SpectrumBuffer};
+pub use frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
 pub use scope::MAX_SCOPE_SAMPLES;
 pub use synth_worker::BLOCK_SAMPLES;
 
 use crate::config::{MAX_SPECTRUM_SIZE, Settings};
 use crate::dsp::DspError;
-use crate::synth::{PlanError, SynthPlan, SynthState};
+use crate::synth::{PixelTopography, PlanError, ScanRuntime, SynthPlan, SynthState, TapTables};
 use dsp_worker::DspWorker;
 use synth_worker::SynthWorker;
 
@@ -47,6 +48,8 @@ pub const SAMPLE_RING: usize = 1 << 21;
 const PLAN_SLOTS: usize = 4;
 /// Demodulator frames queued for the consumer: 4 s at 1 kHz.
 const DEMOD_QUEUE: usize = 4096;
+/// Scan pixels queued for the consumer, from each thread: 2 s at the fastest scan.
+const PIXEL_QUEUE: usize = 1 << 15;
 /// Buffers in each pool (spectra, scope traces).
 const POOL_BUFFERS: usize = 8;
 
@@ -81,6 +84,10 @@ pub struct PipelineOutput {
     /// [`recycle_scope`](Self::recycle_scope).
     pub scopes: HeapCons<ScopeBuffer>,
     free_scopes: HeapProd<ScopeBuffer>,
+    /// Scan pixels' harmonics from the DSP thread, in scan order.
+    pub pixels: HeapCons<PixelHarmonics>,
+    /// Scan pixels' height and amplitude from the synthesiser, in scan order.
+    pub topography: HeapCons<PixelTopography>,
 }
 
 impl PipelineOutput {
@@ -108,6 +115,8 @@ impl PipelineOutput {
             self.recycle_scope(b);
             scopes += 1;
         }
+        self.pixels.skip(usize::MAX);
+        self.topography.skip(usize::MAX);
         (demods, spectra, scopes)
     }
 }
@@ -168,12 +177,16 @@ pub struct Pipeline {
     dsp_link: PlanLink<DspPlan>,
     synth_thread: Option<JoinHandle<()>>,
     dsp_thread: Option<JoinHandle<()>>,
+    /// The scan's tap tables, kept so that a change of the raster or the gains does not
+    /// solve them again.
+    tap_tables: Option<Arc<TapTables>>,
 }
 
 impl Pipeline {
     /// Builds the plans for `settings` and starts both threads.
     pub fn start(settings: &Settings) -> Result<(Self, PipelineOutput), PipelineError> {
         let synth_plan = Box::new(SynthPlan::new(settings)?);
+        let tap_tables = synth_plan.scan.as_ref().map(|s| s.tables.clone());
         let dsp_plan = Box::new(DspPlan::new(settings)?);
         let state = SynthState::steady(&synth_plan, settings.synth.seed);
 
@@ -201,6 +214,8 @@ impl Pipeline {
             phase_step: 0.0,
             samples: Vec::with_capacity(MAX_SCOPE_SAMPLES),
         });
+        let (pixels_in, pixels_out) = HeapRb::<PixelHarmonics>::new(PIXEL_QUEUE).split();
+        let (topography_in, topography_out) = HeapRb::<PixelTopography>::new(PIXEL_QUEUE).split();
         let (synth_link, synth_plans_in, synth_plans_out) = plan_link();
         let (dsp_link, dsp_plans_in, dsp_plans_out) = plan_link();
 
@@ -208,9 +223,12 @@ impl Pipeline {
         let stop_synth = Arc::new(AtomicBool::new(false));
         let stop_dsp = Arc::new(AtomicBool::new(false));
         let realtime = Arc::new(AtomicBool::new(settings.synth.realtime));
+        let scan = ScanRuntime::new(&synth_plan);
         let synth = SynthWorker {
             plan: synth_plan,
             state,
+            scan,
+            topography: topography_in,
             samples: samples_in,
             headers: headers_in,
             plans_in: synth_plans_in,
@@ -235,6 +253,9 @@ impl Pipeline {
             free_scopes: free_scopes_out,
             scope_current: None,
             scope_spare: None,
+            pixels: pixels_in,
+            pixel_open: None,
+            pixel_frame: DemodFrame::empty(),
         };
         let mut pipeline = Self {
             settings: settings.clone(),
@@ -246,11 +267,16 @@ impl Pipeline {
             dsp_link,
             synth_thread: None,
             dsp_thread: None,
+            tap_tables,
         };
         let spawn = |name: &'static str, f: Box<dyn FnOnce() + Send>| {
+            let paced = settings.synth.realtime;
             std::thread::Builder::new()
                 .name(format!("ftafm-{name}"))
-                .spawn(f)
+                .spawn(move || {
+                    realtime::promote(name, paced);
+                    f()
+                })
                 .map_err(|e| PipelineError::Thread(name, e))
         };
         pipeline.dsp_thread = Some(spawn("dsp", Box::new(move || dsp.run()))?);
@@ -261,6 +287,8 @@ impl Pipeline {
             free_spectra: free_in,
             scopes: scopes_out,
             free_scopes: free_scopes_in,
+            pixels: pixels_out,
+            topography: topography_out,
         };
         Ok((pipeline, output))
     }
@@ -290,14 +318,17 @@ impl Pipeline {
             || settings.surface != old.surface
             || settings.noise != old.noise
             || settings.synth.engine != old.synth.engine
-            || settings.synth.seed != old.synth.seed;
+            || settings.synth.seed != old.synth.seed
+            || settings.scan != old.scan
+            || settings.feedback != old.feedback
+            || settings.inclusions != old.inclusions;
         let dsp_changed = settings.demods != old.demods
             || settings.spectrum != old.spectrum
             || settings.scope != old.scope;
         // Build both and check both links before sending either, so a failure changes
         // nothing.
         let synth = synth_changed
-            .then(|| SynthPlan::new(settings))
+            .then(|| SynthPlan::with_tables(settings, self.tap_tables.as_ref()))
             .transpose()?;
         let dsp = dsp_changed.then(|| DspPlan::new(settings)).transpose()?;
         let synth_room = synth.is_none() || self.synth_link.has_room();
@@ -306,6 +337,9 @@ impl Pipeline {
             return Err(PipelineError::Busy);
         }
         if let Some(plan) = synth {
+            if let Some(scan) = &plan.scan {
+                self.tap_tables = Some(scan.tables.clone());
+            }
             self.synth_link.send(Box::new(plan));
         }
         if let Some(plan) = dsp {

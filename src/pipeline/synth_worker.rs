@@ -10,7 +10,7 @@ use ringbuf::{HeapCons, HeapProd};
 
 use super::block::{BlockHeader, unix_ns};
 use super::counters::Counters;
-use crate::synth::{SynthPlan, SynthState};
+use crate::synth::{PixelTopography, ScanRuntime, SynthPlan, SynthState};
 
 /// Samples per block: 0.41 ms at 10 MS/s, short against the 1 ms output period.
 pub const BLOCK_SAMPLES: usize = 4096;
@@ -18,6 +18,9 @@ pub const BLOCK_SAMPLES: usize = 4096;
 pub(crate) struct SynthWorker {
     pub plan: Box<SynthPlan>,
     pub state: SynthState,
+    pub scan: ScanRuntime,
+    /// Finished pixels' topography, to the consumer.
+    pub topography: HeapProd<PixelTopography>,
     pub samples: HeapProd<f64>,
     pub headers: HeapProd<BlockHeader>,
     pub plans_in: HeapCons<Box<SynthPlan>>,
@@ -34,9 +37,14 @@ impl SynthWorker {
         let mut paced_from = Instant::now();
         let mut paced_index = self.state.sample_index();
         let mut was_realtime = self.realtime.load(Ordering::Relaxed);
+        // A scan configured from the start begins at the first sample.
+        self.scan
+            .retarget(&self.plan, &self.plan, self.state.sample_index());
         while !self.stop.load(Ordering::Relaxed) {
             if let Some(next) = self.plans_in.try_pop() {
                 self.state.retarget(&self.plan, &next);
+                self.scan
+                    .retarget(&self.plan, &next, self.state.sample_index());
                 let old = std::mem::replace(&mut self.plan, next);
                 // The control side keeps (plans in flight) ≤ capacity, so this has room; the
                 // old plan is freed there, not here.
@@ -54,7 +62,19 @@ impl SynthWorker {
             let phase = self.state.phase();
             let clipped_before = self.state.counters.clipped;
             let busy = Instant::now();
-            self.plan.process(&mut self.state, &mut block);
+            if self.plan.scan.is_some() {
+                let (out, counters) = (&mut self.topography, &self.counters);
+                self.plan
+                    .process_scan(&mut self.state, &mut self.scan, &mut block, &mut |p| {
+                        if out.try_push(p).is_ok() {
+                            Counters::add(&counters.topography_pixels, 1);
+                        } else {
+                            Counters::add(&counters.topography_pixels_dropped, 1);
+                        }
+                    });
+            } else {
+                self.plan.process(&mut self.state, &mut block);
+            }
             Counters::add(
                 &self.counters.synth_busy_ns,
                 busy.elapsed().as_nanos() as u64,
@@ -70,6 +90,7 @@ impl SynthWorker {
                 phase,
                 frequency_word: self.plan.frequency_word,
                 t_synth_ns: unix_ns(),
+                raster: self.plan.scan.as_ref().and(self.scan.raster),
             };
             if !self.push(&block, header, realtime) {
                 Counters::add(&self.counters.overrun_samples, BLOCK_SAMPLES as u64);

@@ -46,6 +46,7 @@ pub async fn run(
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
     let (force, estimates) = super::force::ForceLink::start();
     force.rebuild(settings.clone());
+    let (image, image_lines) = super::image::ImageLink::start(&settings);
     let state = Arc::new(AppState {
         sample_rate: settings.synth.sample_rate,
         control: Mutex::new(Control {
@@ -63,12 +64,14 @@ pub async fn run(
         closed_stalled: AtomicU64::new(0),
         latency_totals: Mutex::new(Default::default()),
         force,
+        image,
     });
-    let hub = tokio::spawn(hub::run(state.clone(), output, estimates));
+    let hub = tokio::spawn(hub::run(state.clone(), output, estimates, image_lines));
     let app = Router::new()
         .route("/ws", get(websocket))
         .route("/metrics", get(metrics_text))
         .route("/healthz", get(healthz))
+        .route("/image/{file}", get(image_file))
         .fallback(get(asset))
         .with_state(state.clone());
     let signal = async move {
@@ -129,6 +132,55 @@ async fn asset(OriginalUri(uri): OriginalUri) -> Response {
         )
             .into_response(),
     }
+}
+
+/// `GET /image/<channel>.gsf` or `.npy`: a channel of the last finished scan frame, as a
+/// Gwyddion Simple Field or a NumPy array (docs/protocol.md, "Image export").
+async fn image_file(
+    State(state): State<Arc<AppState>>,
+    axum::extract::Path(file): axum::extract::Path<String>,
+) -> Response {
+    let not_found = |msg: String| (StatusCode::NOT_FOUND, msg + "\n").into_response();
+    let Some((name, ext)) = file.rsplit_once('.') else {
+        return not_found(format!("{file}: ask for <channel>.gsf or <channel>.npy"));
+    };
+    if ext != "gsf" && ext != "npy" {
+        return not_found(format!(
+            "{file}: the formats are .gsf (Gwyddion) and .npy (NumPy)"
+        ));
+    }
+    let frame = state.image.last_frame.lock().ok().and_then(|f| f.clone());
+    let Some(frame) = frame else {
+        return not_found(
+            "no scan frame has finished yet: set /scan/enable true and wait for its last line"
+                .into(),
+        );
+    };
+    let Some(channel) = frame.channels.iter().find(|c| c.name == name) else {
+        let names: Vec<&str> = frame.channels.iter().map(|c| c.name.as_str()).collect();
+        return not_found(format!(
+            "no channel {name:?}; the last frame has {}",
+            names.join(", ")
+        ));
+    };
+    let body = if ext == "gsf" {
+        crate::imaging::export::gsf(channel, frame.pixels, frame.size, frame.origin)
+    } else {
+        crate::imaging::export::npy(channel, frame.pixels)
+    };
+    let disposition = format!(
+        "attachment; filename=\"ftafm-g{}-f{}-{name}.{ext}\"",
+        frame.generation, frame.frame
+    );
+    (
+        [
+            (header::CONTENT_TYPE, "application/octet-stream".to_owned()),
+            (header::CONTENT_DISPOSITION, disposition),
+            (header::CACHE_CONTROL, "no-store".to_owned()),
+        ],
+        body,
+    )
+        .into_response()
 }
 
 async fn healthz(State(state): State<Arc<AppState>>) -> Response {

@@ -89,6 +89,11 @@ pub(crate) const ASSETS: &[Asset] = &[
         content_type: JS,
         body: include_str!("../../web/force.js"),
     },
+    Asset {
+        path: "/image.js",
+        content_type: JS,
+        body: include_str!("../../web/image.js"),
+    },
 ];
 
 /// The asset at `path`, if any.

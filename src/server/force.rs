@@ -104,7 +104,7 @@ impl ForceLink {
     }
 
     /// Builds the estimator for `settings` on a blocking thread and hands it over
-    /// (the modulus tables take ~0.1 s).
+    /// (the modulus table and the lock-in model take ~0.1 s).
     pub fn rebuild(&self, settings: Settings) {
         let generation = self.generation.fetch_add(1, Ordering::SeqCst) + 1;
         let input = self.input.clone();
@@ -127,8 +127,9 @@ impl ForceLink {
 }
 
 /// Whether a change of `path` changes the estimator (its cantilever, drive, setpoint, tip,
-/// sample Poisson ratio, demodulators or inversion settings; not the sample's modulus,
-/// which is what it measures).
+/// sample Poisson ratio, demodulators, inversion settings, the noise it predicts for each
+/// harmonic or the sample rate that sets the aliases; not the sample's modulus, which is
+/// what it measures).
 pub(crate) fn affects_estimator(path: &str) -> bool {
     [
         "/inversion",
@@ -138,6 +139,8 @@ pub(crate) fn affects_estimator(path: &str) -> bool {
         "/drive",
         "/surface",
         "/demods",
+        "/noise",
+        "/synth/sample_rate",
     ]
     .iter()
     .any(|p| path.starts_with(p))

@@ -75,6 +75,7 @@ pub(crate) async fn run(
     state: Arc<AppState>,
     mut output: PipelineOutput,
     estimates: std::sync::mpsc::Receiver<crate::inversion::ForceEstimate>,
+    image_lines: std::sync::mpsc::Receiver<crate::imaging::ImageLine>,
 ) {
     let mut tick = tokio::time::interval(TICK);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
@@ -101,6 +102,21 @@ pub(crate) async fn run(
                 |seq| protocol::demods_binary(seq, &frame),
             );
             synth_to_send.record(unix_ns() as i64 - frame.t_synth_ns as i64);
+        }
+        // Topography first: a pixel's height is handed out before its harmonics.
+        while let Some(t) = output.topography.try_pop() {
+            state.image.topography(&t);
+        }
+        while let Some(p) = output.pixels.try_pop() {
+            state.image.pixel(&p);
+        }
+        while let Ok(line) = image_lines.try_recv() {
+            distribute(
+                &state,
+                StreamKind::Image,
+                |seq| protocol::image_json(seq, &line),
+                |seq| protocol::image_binary(seq, &line),
+            );
         }
         while let Ok(estimate) = estimates.try_recv() {
             distribute(

@@ -5,7 +5,7 @@ use hdrhistogram::Histogram;
 use super::status::LatencySummary;
 
 /// Highest latency recorded exactly: 60 s; larger values are clamped to it.
-const MAX_NS: u64 = 60_000_000_000;
+pub(crate) const MAX_NS: u64 = 60_000_000_000;
 
 /// Interval and total histograms of one latency path.
 pub(crate) struct Latency {

@@ -5,6 +5,7 @@ use std::sync::atomic::Ordering;
 
 use super::protocol::StreamKind;
 use super::state::{AppState, stream_index};
+use super::status::{ClientReport, ProcessMemory};
 
 /// Renders every counter, gauge and latency summary.
 pub(crate) fn render(state: &AppState) -> String {
@@ -45,6 +46,18 @@ pub(crate) fn render(state: &AppState) -> String {
         "counter",
         "Blocks dropped because the ring was full.",
         &one(counters.overrun_blocks),
+    );
+    metric(
+        "sample_rate_hertz",
+        "gauge",
+        "Photodiode sample rate.",
+        &[(String::new(), state.sample_rate)],
+    );
+    metric(
+        "late_blocks_total",
+        "counter",
+        "Times the paced synthesiser fell more than 0.1 s behind the wall clock and restarted its pacing (that stretch of signal time is skipped, not queued).",
+        &one(counters.late_blocks),
     );
     metric(
         "discontinuities_total",
@@ -178,9 +191,147 @@ pub(crate) fn render(state: &AppState) -> String {
             ),
         ],
     );
-    let totals = state.latency_totals.lock().map(|t| *t).unwrap_or_default();
+    let i = &state.image.counters;
+    metric(
+        "scan_pixels_total",
+        "counter",
+        "Scan pixels, by source and outcome: harmonics from the DSP and topography from the synthesiser (dropped: no consumer took them in time, or cut by an overrun), and pixels the image worker's queue refused.",
+        &[
+            (
+                "{source=\"dsp\",outcome=\"ok\"}".into(),
+                counters.pixels as f64,
+            ),
+            (
+                "{source=\"dsp\",outcome=\"dropped\"}".into(),
+                counters.pixels_dropped as f64,
+            ),
+            (
+                "{source=\"synth\",outcome=\"ok\"}".into(),
+                counters.topography_pixels as f64,
+            ),
+            (
+                "{source=\"synth\",outcome=\"dropped\"}".into(),
+                counters.topography_pixels_dropped as f64,
+            ),
+            (
+                "{source=\"image_worker\",outcome=\"dropped\"}".into(),
+                i.dropped.load(Ordering::Relaxed) as f64,
+            ),
+        ],
+    );
+    metric(
+        "image_lines_total",
+        "counter",
+        "Scan image lines and frames finished, and pixels whose FT-AFM inversion failed.",
+        &[
+            (
+                "{kind=\"line\"}".into(),
+                i.lines.load(Ordering::Relaxed) as f64,
+            ),
+            (
+                "{kind=\"frame\"}".into(),
+                i.frames.load(Ordering::Relaxed) as f64,
+            ),
+            (
+                "{kind=\"inversion_failed_pixel\"}".into(),
+                i.inversion_failed.load(Ordering::Relaxed) as f64,
+            ),
+        ],
+    );
+    let threads = crate::pipeline::realtime::promotions();
+    metric(
+        "thread_fifo_priority",
+        "gauge",
+        "SCHED_FIFO priority of each real-time thread (0: normal policy), by thread, policy and what was requested (FTAFM_SCHED).",
+        &threads
+            .iter()
+            .map(|p| {
+                (
+                    format!(
+                        "{{thread=\"{}\",policy=\"{}\",requested=\"{}\"}}",
+                        p.thread,
+                        p.policy.name(),
+                        p.requested
+                    ),
+                    f64::from(p.priority),
+                )
+            })
+            .collect::<Vec<_>>(),
+    );
+    metric(
+        "thread_nice",
+        "gauge",
+        "Nice value of each real-time thread.",
+        &threads
+            .iter()
+            .map(|p| (format!("{{thread=\"{}\"}}", p.thread), f64::from(p.nice)))
+            .collect::<Vec<_>>(),
+    );
+    // Absent where the kernel does not say (not Linux).
+    if let Some(m) = ProcessMemory::read() {
+        metric(
+            "process_resident_bytes",
+            "gauge",
+            "Resident memory of the daemon process (VmRSS).",
+            &one(m.resident_bytes),
+        );
+        metric(
+            "process_resident_peak_bytes",
+            "gauge",
+            "Largest resident memory of the daemon process so far (VmHWM).",
+            &one(m.resident_peak_bytes),
+        );
+    }
+    let clients = state.client_reports();
+    let per_client = |f: &dyn Fn(&ClientReport) -> u64| -> Vec<(String, f64)> {
+        clients
+            .iter()
+            .map(|c| (format!("{{client=\"{}\"}}", c.id), f(c) as f64))
+            .collect()
+    };
+    metric(
+        "client_messages_written_total",
+        "counter",
+        "Data messages handed to each connected client's socket, by client id.",
+        &per_client(&|c| c.written),
+    );
+    metric(
+        "client_messages_dropped_total",
+        "counter",
+        "Data messages dropped for each connected client (its queue was full), by client id.",
+        &per_client(&|c| c.dropped),
+    );
+    let mut client_latency = Vec::new();
+    for c in &clients {
+        for (path, l) in [
+            ("dsp_to_socket", c.dsp_to_socket),
+            ("synth_to_socket", c.synth_to_socket),
+        ] {
+            for (q, v) in [("0.5", l.p50), ("0.99", l.p99), ("1", l.max)] {
+                client_latency.push((
+                    format!("{{client=\"{}\",path=\"{path}\",quantile=\"{q}\"}}", c.id),
+                    v as f64 * 1e-9,
+                ));
+            }
+        }
+    }
+    metric(
+        "client_latency_seconds",
+        "gauge",
+        "Latency of demodulator messages at each connected client's socket since it connected (1 µs resolution, 2 digits), by client id and path.",
+        &client_latency,
+    );
+
+    let [synth_to_dsp, synth_to_send] = state.latency_totals.lock().map(|t| *t).unwrap_or_default();
+    let (synth_to_socket, dsp_to_socket) =
+        state.streams[stream_index(StreamKind::Demods)].socket_totals();
     let mut latency = Vec::new();
-    for (path, s) in [("synth_to_dsp", totals[0]), ("synth_to_send", totals[1])] {
+    for (path, s) in [
+        ("synth_to_dsp", synth_to_dsp),
+        ("synth_to_send", synth_to_send),
+        ("dsp_to_socket", dsp_to_socket),
+        ("synth_to_socket", synth_to_socket),
+    ] {
         for (q, v) in [
             ("0.5", s.p50),
             ("0.9", s.p90),
@@ -198,7 +349,7 @@ pub(crate) fn render(state: &AppState) -> String {
     // The `_count` lines share the summary's name with a suffix.
     let _ = writeln!(
         out,
-        "# HELP ftafm_latency_seconds Latency of demodulator frames since start, by path."
+        "# HELP ftafm_latency_seconds Latency of demodulator frames since start, by path: synth_to_dsp (synthesised -> DSP done), synth_to_send (synthesised -> queued to every client), dsp_to_socket and synth_to_socket (DSP done / synthesised -> handed to a client's socket, all clients)."
     );
     let _ = writeln!(out, "# TYPE ftafm_latency_seconds summary");
     for (labels, value) in latency {

@@ -5,6 +5,7 @@ mod app;
 mod assets;
 mod force;
 mod hub;
+mod image;
 mod latency;
 mod metrics;
 pub mod protocol;

@@ -14,7 +14,8 @@ use serde_json::{Map, Value, json};
 use tokio::sync::mpsc;
 
 use super::protocol::{self, ErrorCode, Op, ProtocolError, Request};
-use super::state::{AppState, ClientHandle};
+use super::state::{AppState, ClientHandle, DataQueue, Outgoing};
+use crate::pipeline::unix_ns;
 
 /// Requests a client may make per second on average, and in a burst.
 const REQUESTS_PER_SECOND: f64 = 200.0;
@@ -62,7 +63,7 @@ impl RateLimit {
 /// Serves one upgraded connection until either side closes it.
 pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
     let id = state.next_client.fetch_add(1, Ordering::Relaxed);
-    let (data_tx, data_rx) = mpsc::channel(queue);
+    let (data_tx, data_rx) = DataQueue::new(queue);
     let client = Arc::new(ClientHandle::new(id, data_tx));
     if let Ok(mut clients) = state.clients.lock() {
         clients.push(client.clone());
@@ -71,7 +72,14 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
     let (sink, mut stream) = socket.split();
     let (reply_tx, reply_rx) = mpsc::channel::<Message>(64);
     let stall = stall_timeout(&state);
-    let writer = tokio::spawn(write(sink, reply_rx, data_rx, state.clone(), stall));
+    let writer = tokio::spawn(write(
+        sink,
+        reply_rx,
+        data_rx,
+        state.clone(),
+        client.clone(),
+        stall,
+    ));
 
     let mut limit = RateLimit::new();
     while let Some(incoming) = stream.next().await {
@@ -140,30 +148,36 @@ fn stall_timeout(state: &AppState) -> Duration {
 }
 
 /// Sends replies (first) and data until the peer stalls, the session ends or the server
-/// shuts down.
+/// shuts down. Each data message handed to the socket is counted and its latency recorded
+/// on `client`.
 async fn write(
     mut sink: futures_util::stream::SplitSink<WebSocket, Message>,
     mut replies: mpsc::Receiver<Message>,
-    mut data: mpsc::Receiver<Message>,
+    mut data: mpsc::Receiver<Outgoing>,
     state: Arc<AppState>,
+    client: Arc<ClientHandle>,
     stall: Duration,
 ) {
     let mut shutdown = state.shutdown.clone();
     loop {
-        let msg = tokio::select! {
+        let (msg, stamps) = tokio::select! {
             biased;
             _ = shutdown.changed() => {
                 let _ = tokio::time::timeout(Duration::from_millis(500), sink.send(close(GOING_AWAY, "server shutting down"))).await;
                 return;
             }
             r = replies.recv() => match r {
-                Some(m) => m,
+                Some(m) => (m, None),
                 None => return,
             },
-            Some(m) = data.recv() => m,
+            Some(o) = data.recv() => (o.msg, Some(o.stamps)),
         };
         let closing = matches!(msg, Message::Close(_));
-        match tokio::time::timeout(stall, sink.send(msg)).await {
+        let sent = tokio::time::timeout(stall, sink.send(msg)).await;
+        if let (Ok(Ok(())), Some(stamps)) = (&sent, stamps) {
+            client.written(&state, stamps, unix_ns());
+        }
+        match sent {
             Ok(Ok(())) if !closing => {}
             Ok(Ok(())) => return,
             Ok(Err(_)) => return,
@@ -254,6 +268,9 @@ async fn respond(
                 let applied = control.set(&path, &value)?;
                 if super::force::affects_estimator(&path) {
                     state.force.rebuild(control.settings.clone());
+                }
+                if super::image::affects_images(&path) {
+                    state.image.configure(&control.settings);
                 }
                 Ok::<_, ProtocolError>((path, applied))
             })

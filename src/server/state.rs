@@ -6,15 +6,19 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use axum::extract::ws::Message;
+use hdrhistogram::Histogram;
 use serde_json::Value;
+use tokio::sync::mpsc::error::TrySendError;
 use tokio::sync::{mpsc, watch};
 
-use super::protocol::{ErrorCode, Format, ProtocolError, StreamKind};
+use super::latency::Latency;
+use super::protocol::{self, ErrorCode, Format, ProtocolError, StreamKind};
+use super::status::{ClientReport, LatencySummary};
 use crate::config::Settings;
 use crate::pipeline::{CountersSnapshot, Pipeline, PipelineError};
 
 /// Streams in the order of [`StreamKind::ALL`]; indexes per-stream arrays.
-pub(crate) const STREAMS: usize = 5;
+pub(crate) const STREAMS: usize = 6;
 
 pub(crate) fn stream_index(s: StreamKind) -> usize {
     match s {
@@ -23,6 +27,7 @@ pub(crate) fn stream_index(s: StreamKind) -> usize {
         StreamKind::Scope => 2,
         StreamKind::Status => 3,
         StreamKind::Force => 4,
+        StreamKind::Image => 5,
     }
 }
 
@@ -61,24 +66,187 @@ impl Control {
     }
 }
 
+/// When a data message's newest sample was synthesised and when the DSP finished its frame
+/// (Unix ns, 0 = unknown), and its stream: what the latency at the socket is measured from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct Stamps {
+    /// Index of the stream ([`stream_index`]), if known.
+    pub stream: Option<usize>,
+    /// Unix time (ns) at which the newest sample was synthesised.
+    pub t_synth_ns: u64,
+    /// Unix time (ns) at which the DSP finished the frame.
+    pub t_dsp_ns: u64,
+}
+
+impl Stamps {
+    /// The stream and `t_synth_ns` from an encoded data message's header (JSON or binary);
+    /// the DSP's time is not in a message.
+    pub fn from_message(msg: &Message) -> Self {
+        let (stream, t_synth_ns) = match msg {
+            Message::Binary(b) => match protocol::decode_header(b) {
+                Some(h) => (Some(h.stream), h.t_synth_ns),
+                None => (None, 0),
+            },
+            Message::Text(t) => json_header(t.as_str()),
+            _ => (None, 0),
+        };
+        Self {
+            stream: stream.map(stream_index),
+            t_synth_ns,
+            t_dsp_ns: 0,
+        }
+    }
+}
+
+/// `stream` and `t_synth_ns` of `{"stream":"…","seq":…,"t":…,"t_synth_ns":…` (the header
+/// every JSON data message starts with).
+fn json_header(text: &str) -> (Option<StreamKind>, u64) {
+    let mut end = text.len().min(160);
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    let head = &text[..end];
+    let stream = head
+        .strip_prefix("{\"stream\":\"")
+        .and_then(|r| r.split('"').next())
+        .and_then(StreamKind::from_name);
+    let t_synth_ns = head
+        .split_once("\"t_synth_ns\":")
+        .map(|(_, r)| {
+            let digits = r.bytes().take_while(u8::is_ascii_digit).count();
+            r[..digits].parse().unwrap_or(0)
+        })
+        .unwrap_or(0);
+    (stream, t_synth_ns)
+}
+
+/// A data message queued for one client, with its stamps.
+pub(crate) struct Outgoing {
+    pub msg: Message,
+    pub stamps: Stamps,
+}
+
+/// A client's bounded queue of data messages (a slow client loses its own).
+pub(crate) struct DataQueue {
+    tx: mpsc::Sender<Outgoing>,
+}
+
+impl DataQueue {
+    /// A queue of `capacity` messages and its receiving end (the session's writer).
+    pub fn new(capacity: usize) -> (Self, mpsc::Receiver<Outgoing>) {
+        let (tx, rx) = mpsc::channel(capacity);
+        (Self { tx }, rx)
+    }
+
+    /// Queues `msg` without waiting, stamped from its own header.
+    pub fn try_send(&self, msg: Message) -> Result<(), TrySendError<Message>> {
+        let stamps = Stamps::from_message(&msg);
+        self.offer(msg, stamps)
+    }
+
+    /// Queues `msg` with `stamps` without waiting; a full queue refuses it.
+    pub fn offer(&self, msg: Message, stamps: Stamps) -> Result<(), TrySendError<Message>> {
+        self.tx
+            .try_send(Outgoing { msg, stamps })
+            .map_err(|e| match e {
+                TrySendError::Full(o) => TrySendError::Full(o.msg),
+                TrySendError::Closed(o) => TrySendError::Closed(o.msg),
+            })
+    }
+}
+
+/// Latency at the socket of one client's demodulator messages (ns): 1 µs resolution,
+/// two significant digits, so a client costs little memory.
+pub(crate) struct ClientLatency {
+    pub dsp_to_socket: Histogram<u32>,
+    pub synth_to_socket: Histogram<u32>,
+}
+
+impl ClientLatency {
+    fn new() -> Self {
+        let h = || {
+            Histogram::new_with_bounds(1_000, super::latency::MAX_NS, 2)
+                .expect("static bounds are valid")
+        };
+        Self {
+            dsp_to_socket: h(),
+            synth_to_socket: h(),
+        }
+    }
+}
+
 /// One connected WebSocket client as the fan-out sees it.
 pub(crate) struct ClientHandle {
     pub id: u64,
     /// Per stream: 0 = not subscribed, 1 = JSON, 2 = binary.
     subs: [AtomicU8; STREAMS],
     /// Data messages for this client (bounded: a slow client loses its own).
-    pub data: mpsc::Sender<Message>,
+    pub data: DataQueue,
     /// Messages dropped for this client.
     pub dropped: AtomicU64,
+    /// Data messages handed to this client's socket.
+    pub written: AtomicU64,
+    /// Latency at this client's socket; allocated with its first demodulator message.
+    latency: Mutex<Option<Box<ClientLatency>>>,
 }
 
 impl ClientHandle {
-    pub fn new(id: u64, data: mpsc::Sender<Message>) -> Self {
+    pub fn new(id: u64, data: DataQueue) -> Self {
         Self {
             id,
             subs: Default::default(),
             data,
             dropped: AtomicU64::new(0),
+            written: AtomicU64::new(0),
+            latency: Mutex::new(None),
+        }
+    }
+
+    /// Records that a message stamped `stamps` was handed to this client's socket at
+    /// `now_ns`: the client's and the stream's latency at the socket.
+    pub fn written(&self, state: &AppState, stamps: Stamps, now_ns: u64) {
+        self.written.fetch_add(1, Ordering::Relaxed);
+        let Some(stream) = stamps.stream else {
+            return;
+        };
+        let since = |t: u64| (t != 0).then(|| now_ns as i64 - t as i64);
+        let (synth, dsp) = (since(stamps.t_synth_ns), since(stamps.t_dsp_ns));
+        if synth.is_none() && dsp.is_none() {
+            return;
+        }
+        if let Some(s) = state.streams.get(stream) {
+            s.socket_latency(synth, dsp);
+        }
+        if stream != stream_index(StreamKind::Demods) {
+            return;
+        }
+        let record = |h: &mut Histogram<u32>, ns: Option<i64>| {
+            if let Some(ns) = ns {
+                h.saturating_record((ns.max(1) as u64).min(super::latency::MAX_NS));
+            }
+        };
+        if let Ok(mut l) = self.latency.lock() {
+            let l = l.get_or_insert_with(|| Box::new(ClientLatency::new()));
+            record(&mut l.synth_to_socket, synth);
+            record(&mut l.dsp_to_socket, dsp);
+        }
+    }
+
+    /// This client's figures now.
+    pub fn report(&self) -> ClientReport {
+        let (dsp_to_socket, synth_to_socket) = match self.latency.lock().as_deref() {
+            Ok(Some(l)) => (
+                LatencySummary::from_histogram(&l.dsp_to_socket),
+                LatencySummary::from_histogram(&l.synth_to_socket),
+            ),
+            _ => Default::default(),
+        };
+        ClientReport {
+            id: self.id,
+            written: self.written.load(Ordering::Relaxed),
+            dropped: self.dropped.load(Ordering::Relaxed),
+            dsp_to_socket,
+            synth_to_socket,
         }
     }
 
@@ -112,6 +280,42 @@ pub(crate) struct StreamStats {
     pub sent: AtomicU64,
     /// Messages dropped for slow clients.
     pub dropped: AtomicU64,
+    /// Latency of the stream's messages when handed to a client's socket, all clients;
+    /// allocated with the first stamped message.
+    socket: Mutex<Option<Box<SocketLatency>>>,
+}
+
+/// synth → socket and DSP → socket of one stream, all clients (interval and since start).
+pub(crate) struct SocketLatency {
+    pub synth_to_socket: Latency,
+    pub dsp_to_socket: Latency,
+}
+
+impl StreamStats {
+    fn socket_latency(&self, synth_ns: Option<i64>, dsp_ns: Option<i64>) {
+        if let Ok(mut s) = self.socket.lock() {
+            let s = s.get_or_insert_with(|| {
+                Box::new(SocketLatency {
+                    synth_to_socket: Latency::new(),
+                    dsp_to_socket: Latency::new(),
+                })
+            });
+            if let Some(ns) = synth_ns {
+                s.synth_to_socket.record(ns);
+            }
+            if let Some(ns) = dsp_ns {
+                s.dsp_to_socket.record(ns);
+            }
+        }
+    }
+
+    /// (synth → socket, DSP → socket) since start, all clients.
+    pub fn socket_totals(&self) -> (LatencySummary, LatencySummary) {
+        match self.socket.lock().as_deref() {
+            Ok(Some(s)) => (s.synth_to_socket.total(), s.dsp_to_socket.total()),
+            _ => Default::default(),
+        }
+    }
 }
 
 /// Shared by the router, the sessions and the hub.
@@ -134,6 +338,7 @@ pub(crate) struct AppState {
     pub latency_totals: Mutex<[super::status::LatencySummary; 2]>,
     /// The `force` stream's worker.
     pub force: super::force::ForceLink,
+    pub image: super::image::ImageLink,
 }
 
 impl AppState {
@@ -148,6 +353,14 @@ impl AppState {
             .lock()
             .map(|c| c.iter().any(|c| c.format(s).is_some()))
             .unwrap_or(false)
+    }
+
+    /// Every connected client's figures, by id.
+    pub fn client_reports(&self) -> Vec<ClientReport> {
+        let clients = self.clients.lock().map(|c| c.clone()).unwrap_or_default();
+        let mut reports: Vec<_> = clients.iter().map(|c| c.report()).collect();
+        reports.sort_by_key(|r| r.id);
+        reports
     }
 
     pub fn dropped_total(&self) -> u64 {

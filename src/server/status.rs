@@ -25,7 +25,7 @@ pub struct LatencySummary {
 
 impl LatencySummary {
     /// Percentiles of `h` (ns); all zero when it is empty.
-    pub fn from_histogram(h: &Histogram<u64>) -> Self {
+    pub fn from_histogram<T: hdrhistogram::Counter>(h: &Histogram<T>) -> Self {
         if h.is_empty() {
             return Self::default();
         }
@@ -38,6 +38,57 @@ impl LatencySummary {
             max: h.max(),
         }
     }
+}
+
+/// The daemon process's memory, from `/proc/self/status` (Linux only).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ProcessMemory {
+    /// Resident set size now (bytes, `VmRSS`).
+    pub resident_bytes: u64,
+    /// Largest resident set size so far (bytes, `VmHWM`).
+    pub resident_peak_bytes: u64,
+}
+
+impl ProcessMemory {
+    /// This process's memory now; `None` where `/proc/self/status` does not exist or does
+    /// not say (not Linux).
+    pub fn read() -> Option<Self> {
+        std::fs::read_to_string("/proc/self/status")
+            .ok()
+            .as_deref()
+            .and_then(Self::parse)
+    }
+
+    /// Reads `VmRSS` and `VmHWM` (in kB) of a `/proc/PID/status` text.
+    pub fn parse(status: &str) -> Option<Self> {
+        let kib = |key: &str| {
+            status.lines().find_map(|l| {
+                let rest = l.strip_prefix(key)?.strip_prefix(':')?.trim();
+                let n: u64 = rest.strip_suffix("kB")?.trim().parse().ok()?;
+                Some(n * 1024)
+            })
+        };
+        let resident_bytes = kib("VmRSS")?;
+        Some(Self {
+            resident_bytes,
+            resident_peak_bytes: kib("VmHWM").unwrap_or(resident_bytes),
+        })
+    }
+}
+
+/// One client's figures for `/metrics` and `status`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ClientReport {
+    /// The client's id (in the daemon's debug log too).
+    pub id: u64,
+    /// Data messages handed to its socket.
+    pub written: u64,
+    /// Data messages dropped for it (its queue was full).
+    pub dropped: u64,
+    /// DSP done → handed to its socket, demodulator messages (ns).
+    pub dsp_to_socket: LatencySummary,
+    /// Synthesised → handed to its socket, demodulator messages (ns).
+    pub synth_to_socket: LatencySummary,
 }
 
 /// One `status` message's content.
@@ -63,4 +114,24 @@ pub struct StatusReport {
     pub latency_synth_to_send: LatencySummary,
     /// The pipeline's counters.
     pub counters: CountersSnapshot,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn proc_status_memory_parses() {
+        let text = "Name:\tftafm\nVmHWM:\t   33000 kB\nVmRSS:\t   28000 kB\nThreads:\t9\n";
+        assert_eq!(
+            ProcessMemory::parse(text),
+            Some(ProcessMemory {
+                resident_bytes: 28000 * 1024,
+                resident_peak_bytes: 33000 * 1024,
+            })
+        );
+        assert_eq!(ProcessMemory::parse("Name:\tx\n"), None);
+        #[cfg(target_os = "linux")]
+        assert!(ProcessMemory::read().unwrap().resident_bytes > 0);
+    }
 }

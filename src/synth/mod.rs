@@ -6,8 +6,12 @@
 pub mod modal;
 pub mod plan;
 pub mod pulse;
+pub mod raster;
+pub mod scan;
 pub mod synthesizer;
 
 pub use plan::{Adc, BOLTZMANN, PlanError, SynthPlan, TapForce};
 pub use pulse::PulseTrain;
+pub use raster::{PixelId, Raster};
+pub use scan::{PixelTopography, ScanPlan, ScanRuntime, TapTable, TapTables, sample_map};
 pub use synthesizer::{SynthCounters, SynthState};

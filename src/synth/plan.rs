@@ -8,12 +8,14 @@ use rustfft::num_complex::Complex64;
 
 use super::modal::ModalKernel;
 use super::pulse::{PulseKernel, PulseTrain};
+use super::scan::{ScanPlan, TapTables};
 use crate::config::{Engine, Settings};
 use crate::dsp::{DspError, frequency_word};
 use crate::model;
 use crate::physics::beam::{BeamError, MAX_MODES};
 use crate::physics::impact::ImpactError;
 use crate::physics::{Cantilever, ImpactSolution};
+use std::sync::Arc;
 
 /// Boltzmann's constant (J/K).
 pub const BOLTZMANN: f64 = 1.380_649e-23;
@@ -108,6 +110,9 @@ pub struct SynthPlan {
     pub(crate) lanes: Lanes,
     /// Seed of the noise generator (`/synth/seed`).
     pub seed: u64,
+    /// The scan, when `/scan/enable` is on: the tip moves over the sample map under the
+    /// amplitude feedback ([`process_scan`](Self::process_scan)).
+    pub scan: Option<ScanPlan>,
 }
 
 /// Per-mode constants as structure of arrays, zero past the plan's modes.
@@ -138,8 +143,17 @@ impl Lanes {
 }
 
 impl SynthPlan {
-    /// Builds the plan for `settings`; solves the 1-DOF tapping problem (a few ms).
+    /// Builds the plan for `settings`; solves the 1-DOF tapping problem (a few ms), and with
+    /// a scan the tap tables of every region (~0.1 s each).
     pub fn new(settings: &Settings) -> Result<Self, PlanError> {
+        Self::with_tables(settings, None)
+    }
+
+    /// As [`new`](Self::new), reusing `tables` when they fit the settings' physics.
+    pub fn with_tables(
+        settings: &Settings,
+        tables: Option<&Arc<TapTables>>,
+    ) -> Result<Self, PlanError> {
         if settings.synth.engine != Engine::Paper {
             return Err(PlanError::Engine(settings.synth.engine));
         }
@@ -215,7 +229,22 @@ impl SynthPlan {
             }
         });
         let lanes = Lanes::new(&modes, &thermal_sigma);
+        let scan = settings
+            .scan
+            .enable
+            .then(|| {
+                ScanPlan::new(
+                    settings,
+                    &cantilever,
+                    drive_signal,
+                    drive_frequency,
+                    tap.map(|t| t.train),
+                    tables,
+                )
+            })
+            .transpose()?;
         Ok(Self {
+            scan,
             lanes,
             seed: settings.synth.seed,
             sample_rate,

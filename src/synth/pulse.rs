@@ -7,6 +7,7 @@ use std::f64::consts::PI;
 use rustfft::num_complex::Complex64;
 
 use super::modal::ModalKernel;
+use crate::physics::beam::MAX_MODES;
 
 /// Phase words per drive period.
 const TURN: f64 = 18_446_744_073_709_551_616.0; // 2^64
@@ -54,28 +55,50 @@ impl PulseKernel {
     /// Prepares `train` for sample period `h` (s), a drive advancing `frequency_word` phase
     /// words per sample, and the given modes.
     pub fn new(train: &PulseTrain, h: f64, frequency_word: u64, modes: &[ModalKernel]) -> Self {
+        let mut kernel = Self::idle(h);
+        kernel.retune(train, h, frequency_word, modes);
+        kernel
+    }
+
+    /// A kernel that applies no force, with room for [`MAX_MODES`] modes so that
+    /// [`retune`](Self::retune) never allocates.
+    pub fn idle(h: f64) -> Self {
+        Self {
+            max_force: 0.0,
+            window_start: 0,
+            window_words: 0,
+            seconds_per_word: 0.0,
+            nu: 0.0,
+            h,
+            inverse_rates: Vec::with_capacity(MAX_MODES),
+        }
+    }
+
+    /// Re-prepares the kernel for another pulse train, in place: allocation-free when
+    /// `modes` are no more than the kernel was built with room for (always, for
+    /// [`idle`](Self::idle) kernels). Call it between pulses, not inside one.
+    pub fn retune(
+        &mut self,
+        train: &PulseTrain,
+        h: f64,
+        frequency_word: u64,
+        modes: &[ModalKernel],
+    ) {
         let tau = train.tau.clamp(0.0, 1.0);
         let window_words = (tau * TURN).min(TURN - 1.0) as u64;
         let centre = (train.centre_phase / (2.0 * PI)).rem_euclid(1.0) * TURN;
-        let window_start = (centre as u64).wrapping_sub(window_words / 2);
-        let seconds_per_word = h / frequency_word.max(1) as f64;
-        let period = TURN * seconds_per_word;
-        let nu = if tau > 0.0 { PI / (tau * period) } else { 0.0 };
-        let inverse_rates = modes
-            .iter()
-            .map(|m| {
-                let i_nu = Complex64::new(0.0, nu);
-                ((-m.lambda + i_nu).inv(), (-m.lambda - i_nu).inv())
-            })
-            .collect();
-        Self {
-            max_force: if tau > 0.0 { train.max_force } else { 0.0 },
-            window_start,
-            window_words,
-            seconds_per_word,
-            nu,
-            h,
-            inverse_rates,
+        self.window_start = (centre as u64).wrapping_sub(window_words / 2);
+        self.window_words = window_words;
+        self.seconds_per_word = h / frequency_word.max(1) as f64;
+        let period = TURN * self.seconds_per_word;
+        self.nu = if tau > 0.0 { PI / (tau * period) } else { 0.0 };
+        self.h = h;
+        self.max_force = if tau > 0.0 { train.max_force } else { 0.0 };
+        self.inverse_rates.clear();
+        let i_nu = Complex64::new(0.0, self.nu);
+        for m in modes {
+            self.inverse_rates
+                .push(((-m.lambda + i_nu).inv(), (-m.lambda - i_nu).inv()));
         }
     }
 

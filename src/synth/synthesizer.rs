@@ -10,6 +10,7 @@ use rand_xoshiro::rand_core::SeedableRng;
 use rustfft::num_complex::Complex64;
 
 use super::plan::{SynthPlan, TURN};
+use super::pulse::PulseKernel;
 use crate::dsp::phase_to_radians;
 use crate::physics::beam::MAX_MODES;
 
@@ -142,11 +143,23 @@ impl SynthState {
 
 impl SynthPlan {
     /// Fills `out` with the next samples (nominal metres). Allocation-free, lock-free.
+    /// The tip rests over the base material at `/surface/distance`; a scan runs through
+    /// [`process_scan`](Self::process_scan).
     pub fn process(&self, state: &mut SynthState, out: &mut [f64]) {
+        self.process_with(self.pulse.as_ref(), state, out);
+    }
+
+    /// [`process`](Self::process) with the tap force of `pulse` (none: free oscillation).
+    pub(crate) fn process_with(
+        &self,
+        pulse: Option<&PulseKernel>,
+        state: &mut SynthState,
+        out: &mut [f64],
+    ) {
         if self.modes.len() <= 8 {
-            self.process_lanes::<8>(state, out);
+            self.process_lanes::<8>(pulse, state, out);
         } else {
-            self.process_lanes::<MAX_MODES>(state, out);
+            self.process_lanes::<MAX_MODES>(pulse, state, out);
         }
     }
 
@@ -155,7 +168,12 @@ impl SynthPlan {
     // Several lane arrays are read and written in lock-step by index; that is the form
     // the compiler vectorises, and clearer than a five-way zip.
     #[allow(clippy::needless_range_loop)]
-    fn process_lanes<const L: usize>(&self, state: &mut SynthState, out: &mut [f64]) {
+    fn process_lanes<const L: usize>(
+        &self,
+        pulse: Option<&PulseKernel>,
+        state: &mut SynthState,
+        out: &mut [f64],
+    ) {
         let k = &self.lanes;
         let n_modes = self.modes.len();
         let detector = self.detector_sigma > 0.0;
@@ -209,7 +227,7 @@ impl SynthPlan {
                     re[m] = k.a_re[m] * r - k.a_im[m] * i + k.noise_re[m] * z[1 + m];
                     im[m] = k.a_re[m] * i + k.a_im[m] * r + k.noise_im[m] * z[1 + m];
                 }
-                if let Some(pulse) = &self.pulse
+                if let Some(pulse) = pulse
                     && let Some(overlap) = pulse.overlap(phase, self.frequency_word)
                 {
                     pulse.apply(

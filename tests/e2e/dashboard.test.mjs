@@ -8,68 +8,25 @@
 
 import { after, before, test } from "node:test";
 import assert from "node:assert/strict";
-import { spawn } from "node:child_process";
 import { mkdtempSync, rmSync } from "node:fs";
 import { tmpdir } from "node:os";
 import path from "node:path";
 import { fileURLToPath } from "node:url";
 import { chromium } from "playwright-core";
+import { daemons, startDaemon, stopDaemon } from "./daemon.mjs";
 
 const here = path.dirname(fileURLToPath(import.meta.url));
-const root = path.resolve(here, "../..");
-const BIN = process.env.FTAFM_BIN ?? path.join(root, "target/release/ftafm");
 const CHROMIUM = process.env.CHROMIUM ?? "/usr/bin/chromium";
 const SCREENSHOT = path.join(here, "screenshot.png");
 const ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
   "--disable-background-networking", "--disable-component-update", "--disable-sync"];
 const MODULUS = "/sample/youngs_modulus";
 
-const daemons = new Set();
 let daemon, url, context, page, profile;
 const consoleErrors = [];
 const pageErrors = [];
 let restarting = false;
 
-// If the runner dies some other way, do not leave a daemon behind.
-process.on("exit", () => { for (const d of daemons) d.kill("SIGKILL"); });
-
-/** Starts `ftafm serve --bind bind`; resolves with the process and its dashboard URL (first stdout line). */
-function startDaemon(bind) {
-  return new Promise((resolve, reject) => {
-    const proc = spawn(BIN, ["serve", "--bind", bind], { stdio: ["ignore", "pipe", "pipe"] });
-    daemons.add(proc);
-    let out = "", err = "";
-    const timer = setTimeout(() => { proc.kill("SIGKILL"); reject(new Error(`daemon did not print its URL within 20 s; stderr:\n${err}`)); }, 20000);
-    proc.stdout.setEncoding("utf8");
-    proc.stderr.setEncoding("utf8");
-    proc.stderr.on("data", (s) => { err += s; });
-    proc.stdout.on("data", (s) => {
-      out += s;
-      const nl = out.indexOf("\n");
-      if (nl < 0) return;
-      const m = /http:\/\/[^\s]+\//.exec(out.slice(0, nl));
-      clearTimeout(timer);
-      if (m) resolve({ proc, url: m[0], stderr: () => err });
-      else { proc.kill("SIGKILL"); reject(new Error(`no URL in the daemon's first line: ${out.slice(0, nl)}`)); }
-    });
-    proc.on("error", (e) => { clearTimeout(timer); reject(e); });
-    proc.on("exit", (code, sig) => {
-      daemons.delete(proc);
-      clearTimeout(timer);
-      reject(new Error(`daemon exited (${code ?? sig}) before printing its URL; stderr:\n${err}`));
-    });
-  });
-}
-
-/** SIGTERM (the daemon closes its clients with 1001), SIGKILL after 5 s. */
-async function stopDaemon(d) {
-  if (!d || d.proc.exitCode !== null || d.proc.signalCode !== null) return;
-  const exited = new Promise((r) => d.proc.once("exit", r));
-  d.proc.kill("SIGTERM");
-  const timer = setTimeout(() => d.proc.kill("SIGKILL"), 5000);
-  await exited;
-  clearTimeout(timer);
-}
 
 /** Polls fn in the page until it returns a truthy value. */
 async function until(fn, arg, what, timeout = 10000) {

@@ -9,14 +9,30 @@
 //! - [`reconstruct_force`]: the "more sophisticated approach" — every usable harmonic divided
 //!   by the light-lever transfer, the rest filled from the cut-cosine fit, and the force over
 //!   one period by inverse Fourier series.
+//! - [`fit_cut_cosine`]: τ, F and the pulse phase of the cut cosine fitted to every measured
+//!   harmonic by weighted least squares (maximum likelihood for Gaussian lock-in noise), with
+//!   its covariance.
 //! - [`ModulusTable`]: Young's modulus from (F, τ) through the 1-DOF Hertz impact oscillator.
+//!
+//! What the lock-in reads for a given force — the light-lever transfer and the harmonics
+//! aliased by sampling — is [`LockInModel`]; how much noise each reading carries,
+//! [`NoiseModel`] and [`LowPassNoise`].
 //!
 //! Conventions are those of [`super::spectrum`]: two-sided coefficients q(t) = Σ c_k e^{ikΩt},
 //! peak amplitude 2|c_k| for k ≥ 1, phases relative to cos(kθ) with θ the drive phase.
 
+mod fit;
+mod forward;
 mod modulus;
+mod noise;
 mod reconstruct;
 mod two_harmonic;
+
+pub use fit::{CutCosineLsq, CutCosineStart, fit_cut_cosine};
+pub use forward::{
+    ALIAS_HARMONICS, AliasTerm, LockInModel, cut_cosine_phasor, cut_cosine_spectrum,
+};
+pub use noise::{BOLTZMANN, LowPassNoise, NoiseModel, lockin_sigma};
 
 pub use modulus::{
     DEFAULT_TABLE_POINTS, DEFAULT_TABLE_RANGE, ModulusError, ModulusEstimate, ModulusTable,
@@ -25,7 +41,7 @@ pub use modulus::{
 pub use reconstruct::{
     CoefficientSource, CutCosinePrior, ForceCoefficient, ForceReconstruction, HarmonicSample,
     InversionOptions, MAX_AUTO_HARMONIC, TAIL_LOBES, TransferMinimum, force_series,
-    light_lever_minima, reconstruct_force,
+    light_lever_minima, reconstruct_force, reconstruct_force_with, two_harmonic_prior,
 };
 pub use two_harmonic::{
     AMBIGUITY_SCAN_END, AmplitudeMeasurement, CutCosineFit, cut_cosine_from_coefficients,
@@ -53,6 +69,15 @@ pub enum InversionError {
     /// The drive frequency is not positive and finite.
     #[error("the drive frequency must be positive and finite (got {0} Hz)")]
     InvalidDriveFrequency(f64),
+    /// The sample rate is not positive and finite.
+    #[error("the sample rate must be positive and finite (got {0} Hz)")]
+    InvalidSampleRate(f64),
+    /// A harmonic is not one the forward model was built for.
+    #[error("harmonic {0} is not in the lock-in model")]
+    HarmonicNotModelled(usize),
+    /// The least-squares fit of the cut cosine did not find a pulse.
+    #[error("the cut-cosine fit failed: {0}")]
+    FitFailed(&'static str),
     /// No cut cosine with both harmonics before its first spectral zero has this ratio.
     #[error(
         "the force-coefficient ratio |c_{low}|/|c_{high}| = {ratio} is out of range: a cut \

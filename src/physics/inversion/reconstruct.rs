@@ -12,24 +12,34 @@
 //! on the prior, not on the measured |S_k|, so that selecting harmonics does not favour
 //! those where the noise happened to add.
 //!
+//! A sampled signal also carries the harmonics above the Nyquist frequency folded onto the
+//! measured ones ([`LockInModel`]); what the prior predicts for them is subtracted from each
+//! reading before the division (near the pulse's spectral zero the folded harmonics
+//! outweigh the measured one).
+//!
 //! The prior is the two-harmonic cut-cosine fit ([`super::fit_two_harmonics`]) of a pair of
-//! measured harmonics, centred at the pulse phase that best matches the measured phases.
+//! measured harmonics, centred at the pulse phase that best matches the measured phases
+//! ([`two_harmonic_prior`]), or one given by the caller (e.g. the least-squares fit of every
+//! harmonic, [`super::fit_cut_cosine`]).
 
 use std::f64::consts::PI;
 
 use rustfft::num_complex::Complex64;
 
 use super::InversionError;
+use super::forward::{ALIAS_HARMONICS, LockInModel, cut_cosine_phasor, cut_cosine_spectrum};
 use super::two_harmonic::{
     AMBIGUITY_SCAN_END, AmplitudeMeasurement, CutCosineFit, cut_cosine_value, fit_inner,
 };
 use crate::physics::beam::Cantilever;
 use crate::physics::spectrum::photodiode_transfer;
 
-/// With [`InversionOptions::max_harmonic`] = `None`, the series runs to at least
+/// With [`InversionOptions::max_harmonic`] = `None`, the coefficients listed run to at least
 /// ⌈TAIL_LOBES/τ⌉ harmonics: ten periods (2/τ harmonics each) of the cos(πτk) in the cut
-/// cosine's coefficients. For the paper's τ = 0.0518 that is 386 harmonics, and peak and τ
-/// are then within 0.03 % of the infinite series (the coefficients fall only as 1/k²).
+/// cosine's coefficients (386 for the paper's τ = 0.0518). The force itself then sums the
+/// prior's tail to infinity in closed form (the cut cosine in the time domain plus the
+/// measured harmonics' departures from it); a series cut at 386 harmonics would be off by
+/// 0.002 % in peak and 0.03 % in τ (the coefficients fall only as 1/k²).
 pub const TAIL_LOBES: f64 = 20.0;
 
 /// Upper bound of the automatic series length.
@@ -58,12 +68,17 @@ pub struct InversionOptions {
     /// the pair automatically (see [`reconstruct_force`]).
     pub pair: Option<(usize, usize)>,
     /// Highest harmonic K of the reconstructed series. Harmonics above the measured ones
-    /// come from the prior. `None`: max(highest measured, ⌈[`TAIL_LOBES`]/τ_prior⌉), at
-    /// most [`MAX_AUTO_HARMONIC`] — the cut cosine's coefficients fall only as 1/k², so a
-    /// series cut at the 32 measured harmonics misplaces the peak by a few percent.
+    /// come from the prior. `None`: the prior's tail summed to infinity (the coefficients
+    /// listed run to max(highest measured, ⌈[`TAIL_LOBES`]/τ_prior⌉), at most
+    /// [`MAX_AUTO_HARMONIC`]) — the cut cosine's coefficients fall only as 1/k², so a series
+    /// cut at the 32 measured harmonics misplaces the peak by a few percent. `Some(K)`: the
+    /// series cut at K.
     pub max_harmonic: Option<usize>,
     /// Points N of the force grid over one period (θ_j = 2πj/N).
     pub grid_points: usize,
+    /// Whether to find the light-lever minima ([`ForceReconstruction::transfer_minima`]);
+    /// a few thousand evaluations of the transfer function, so a live estimator skips it.
+    pub transfer_minima: bool,
 }
 
 impl Default for InversionOptions {
@@ -73,6 +88,7 @@ impl Default for InversionOptions {
             pair: None,
             max_harmonic: None,
             grid_points: 1024,
+            transfer_minima: true,
         }
     }
 }
@@ -117,17 +133,32 @@ pub struct ForceCoefficient {
 /// The cut cosine used to fill the missing and dropped harmonics.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CutCosinePrior {
-    /// The two-harmonic fit (τ, F and their uncertainties).
-    pub fit: CutCosineFit,
+    /// Contact time ratio τ (1).
+    pub tau: f64,
+    /// Peak force F (N).
+    pub max_force: f64,
     /// Drive phase (rad, in [0, 2π)) of the pulse centre: the maximum of the correlation of
-    /// the measured coefficients with the fitted pulse.
+    /// the measured coefficients with the fitted pulse, or the given one.
     pub pulse_phase: f64,
+    /// The two-harmonic fit it came from (τ, F and their uncertainties), if it did; `None`
+    /// for a prior given to [`reconstruct_force_with`] (e.g. from [`super::fit_cut_cosine`]).
+    pub fit: Option<CutCosineFit>,
 }
 
 impl CutCosinePrior {
+    /// A prior from given values (no two-harmonic fit behind it).
+    pub fn new(tau: f64, max_force: f64, pulse_phase: f64) -> Self {
+        Self {
+            tau,
+            max_force,
+            pulse_phase,
+            fit: None,
+        }
+    }
+
     /// Two-sided coefficient c_k (N) of the prior pulse train.
     pub fn coefficient(&self, k: usize) -> Complex64 {
-        self.fit.coefficient(k) * Complex64::from_polar(1.0, -(k as f64) * self.pulse_phase)
+        cut_cosine_phasor(self.max_force, self.tau, self.pulse_phase, k)
     }
 }
 
@@ -147,7 +178,8 @@ pub struct ForceReconstruction {
     pub coefficients: Vec<ForceCoefficient>,
     /// The cut cosine the missing and dropped harmonics come from.
     pub prior: CutCosinePrior,
-    /// F(θ_j) (N) at θ_j = 2πj/N, j = 0..N: c_0 + Σ_{k≥1} 2·Re(c_k e^{ikθ}).
+    /// F(θ_j) (N) at θ_j = 2πj/N, j = 0..N: c_0 + Σ_{k≥1} 2·Re(c_k e^{ikθ}) (with the
+    /// prior's part summed to infinity unless [`InversionOptions::max_harmonic`] is set).
     pub force: Vec<f64>,
     /// Standard deviation (N) of F(θ) at any θ from the noise of the measured coefficients:
     /// √(σ_0² + 4·Σ_{k≥1} σ_k²) over the used ones.
@@ -166,7 +198,8 @@ pub struct ForceReconstruction {
     pub mean_force: f64,
     /// Most negative (attractive) force on the grid (N).
     pub min_force: f64,
-    /// Minima of |T| up to the highest harmonic of the series.
+    /// Minima of |T| up to the highest harmonic of the series (empty unless
+    /// [`InversionOptions::transfer_minima`]).
     pub transfer_minima: Vec<TransferMinimum>,
 }
 
@@ -279,25 +312,12 @@ fn validate(
 }
 
 /// Reconstructs the tip–sample force from complex photodiode harmonics `samples` measured on
-/// `cantilever` driven at `drive_frequency` (Hz).
-///
-/// 1. **Prior.** The cut cosine of the two-harmonic method on `options.pair`. Without a
-///    pair, the candidates are the measured harmonics k ≥ 2 with |S_k| ≥ min_snr·σ_k; a
-///    least-squares cut cosine over all of them (τ scanned on (0, 0.5], F linear) gives a
-///    rough τ_ls, pairs with both harmonics below 0.9·1.5/τ_ls (safely before the first
-///    spectral zero, which removes the ambiguity of [`super::CutCosineFit::alternatives`])
-///    are fitted, and the pair with the smallest propagated σ_τ/τ wins (with equal σ on all
-///    harmonics when none is given). The pulse phase maximises the correlation
-///    Σ w_k·c_k^prior·Re(c_k e^{ikφ}) over the candidates (w_k = |T_k|²/σ_k², or 1 when
-///    some σ_k is 0): a grid of 4096 phases, then Newton.
-/// 2. **Coefficients.** c_k = S_k/T(kΩ) for every measured k ≠ 1 that passes the noise
-///    floor (module docs); the prior elsewhere, up to `max_harmonic`.
-/// 3. **Force.** F(θ) on the grid; the peak by Newton on the series; the half-maximum
-///    crossings by bisection on the series; τ = 1.5·FWHM.
+/// `cantilever` driven at `drive_frequency` (Hz), with no aliasing (an ideal anti-alias
+/// filter): [`reconstruct_force_with`] on a [`LockInModel`] without a sample rate and the
+/// two-harmonic prior.
 ///
 /// # Errors
-/// [`InversionError`] for invalid inputs, when no usable pair exists, or when the
-/// reconstructed force has no positive peak.
+/// As [`reconstruct_force_with`].
 pub fn reconstruct_force(
     cantilever: &Cantilever,
     drive_frequency: f64,
@@ -305,91 +325,196 @@ pub fn reconstruct_force(
     options: &InversionOptions,
 ) -> Result<ForceReconstruction, InversionError> {
     validate(drive_frequency, samples, options)?;
-    let omega = 2.0 * PI * drive_frequency;
-    let highest_measured = samples.iter().map(|s| s.harmonic).max().unwrap_or(0);
-    let transfer = |k: usize| photodiode_transfer(cantilever, k as f64 * omega);
+    let harmonics: Vec<usize> = samples.iter().map(|s| s.harmonic).collect();
+    let model = LockInModel::new(cantilever, drive_frequency, None, &harmonics)?;
+    reconstruct_force_with(&model, samples, options, None)
+}
 
+/// The cut-cosine prior of the two-harmonic method, with the pulse phase and the aliases
+/// accounted for (step 1 of [`reconstruct_force_with`]).
+///
+/// The pair is `pair`, or chosen automatically: the candidates are the measured harmonics
+/// k ≥ 2 with |S_k| ≥ min_snr·σ_k; a least-squares cut cosine over all of them (τ scanned on
+/// (0, 0.5], F linear) gives a rough τ_ls, pairs with both harmonics below 0.9·1.5/τ_ls
+/// (safely before the first spectral zero, which removes the ambiguity of
+/// [`super::CutCosineFit::alternatives`]) are fitted, and the pair with the smallest
+/// propagated σ_τ/τ wins (with equal σ on all harmonics when none is given). The pulse phase
+/// maximises the correlation Σ w_k·c_k^prior·Re(c_k e^{ikφ}) over the candidates
+/// (w_k = |T_k|²/σ_k², or 1 when some σ_k is 0): a grid of 4096 phases, then Newton. When
+/// the model has aliases, the fit is repeated once on the readings less the aliases the
+/// first fit predicts. The amplitudes are corrected for the mean the noise adds to a
+/// magnitude (|S| → √(|S|² − σ²)). `alternatives`: whether to scan for the pair's other roots
+/// ([`super::CutCosineFit::alternatives`]; most of the cost when a pair is given).
+///
+/// # Errors
+/// [`InversionError`] when a harmonic of the pair is not measured, no usable pair exists or
+/// the pair's amplitudes fit no cut cosine.
+pub fn two_harmonic_prior(
+    model: &LockInModel,
+    samples: &[HarmonicSample],
+    pair: Option<(usize, usize)>,
+    min_snr: f64,
+    alternatives: bool,
+) -> Result<CutCosinePrior, InversionError> {
+    let cantilever = model.cantilever();
+    let omega = 2.0 * PI * model.drive_frequency();
+    let transfer = |k: usize| {
+        model
+            .transfer(k)
+            .unwrap_or_else(|| photodiode_transfer(cantilever, k as f64 * omega))
+    };
     // Candidates for the prior: harmonics ≥ 2 measured above the noise.
-    let candidates: Vec<&HarmonicSample> = samples
+    let candidates: Vec<HarmonicSample> = samples
         .iter()
         .filter(|s| s.harmonic >= 2 && s.value.norm() > 0.0)
-        .filter(|s| s.value.norm() >= options.min_snr * s.sigma)
+        .filter(|s| s.value.norm() >= min_snr * s.sigma)
+        .copied()
         .collect();
     let all_sigma = candidates.iter().all(|s| s.sigma > 0.0);
-    let amplitude = |s: &HarmonicSample, uniform: bool| AmplitudeMeasurement {
+    // The noise adds to |S| on average: E|S + n| ≈ |S| + σ²/(2|S|) for circular noise of σ
+    // per quadrature. √(|S|² − σ²) removes that to first order (floored at |S|/2 where the
+    // signal is lost in the noise anyway); exact data are untouched.
+    let amplitude = |s: &HarmonicSample| AmplitudeMeasurement {
         harmonic: s.harmonic,
-        amplitude: 2.0 * s.value.norm(),
-        sigma: if uniform { 1.0 } else { 2.0 * s.sigma },
+        amplitude: 2.0
+            * (s.value.norm_sqr() - s.sigma * s.sigma)
+                .max(0.25 * s.value.norm_sqr())
+                .sqrt(),
+        sigma: 2.0 * s.sigma,
     };
-
-    let fit = match options.pair {
-        Some((a, b)) => {
-            let find = |k: usize| {
-                samples
-                    .iter()
-                    .find(|s| s.harmonic == k)
-                    .ok_or(InversionError::PairNotMeasured(k))
-            };
-            let (sa, sb) = (find(a)?, find(b)?);
-            super::fit_two_harmonics(
-                cantilever,
-                drive_frequency,
-                amplitude(sa, false),
-                amplitude(sb, false),
-            )?
-        }
+    let pair = match pair {
+        Some(p) => p,
         None => {
-            let (a, b) = choose_pair(cantilever, omega, &candidates, all_sigma)?;
-            super::fit_two_harmonics(
-                cantilever,
-                drive_frequency,
-                amplitude(a, false),
-                amplitude(b, false),
-            )?
+            let refs: Vec<&HarmonicSample> = candidates.iter().collect();
+            let (a, b) = choose_pair(cantilever, omega, &refs, all_sigma)?;
+            (a.harmonic, b.harmonic)
         }
     };
-
-    // Pulse phase: correlation of the measured coefficients with the prior's template.
-    let template: Vec<(usize, f64, Complex64, f64)> = candidates
-        .iter()
-        .map(|s| {
-            let t = transfer(s.harmonic);
-            let weight = if all_sigma {
-                t.norm_sqr() / (s.sigma * s.sigma)
-            } else {
-                1.0
-            };
-            (s.harmonic, fit.coefficient(s.harmonic), s.value / t, weight)
+    let fit_phase = |corrected: &dyn Fn(&HarmonicSample) -> HarmonicSample,
+                     first: Option<&CutCosinePrior>| {
+        let find = |k: usize| {
+            samples
+                .iter()
+                .find(|s| s.harmonic == k)
+                .ok_or(InversionError::PairNotMeasured(k))
+        };
+        let (sa, sb) = (corrected(find(pair.0)?), corrected(find(pair.1)?));
+        let mut fit = fit_inner(
+            cantilever,
+            omega,
+            amplitude(&sa),
+            amplitude(&sb),
+            alternatives && first.is_none(),
+        )?;
+        if let Some(f) = first.and_then(|f| f.fit.as_ref()) {
+            fit.alternatives.clone_from(&f.alternatives);
+        }
+        // Pulse phase: correlation of the measured coefficients with the prior's template.
+        let template: Vec<(usize, f64, Complex64, f64)> = candidates
+            .iter()
+            .map(|s| {
+                let s = corrected(s);
+                let t = transfer(s.harmonic);
+                let weight = if all_sigma {
+                    t.norm_sqr() / (s.sigma * s.sigma)
+                } else {
+                    1.0
+                };
+                (s.harmonic, fit.coefficient(s.harmonic), s.value / t, weight)
+            })
+            .collect();
+        let pulse_phase = correlation_peak(&template, first.map(|f| f.pulse_phase));
+        Ok::<_, InversionError>(CutCosinePrior {
+            tau: fit.tau,
+            max_force: fit.max_force,
+            pulse_phase,
+            fit: Some(fit),
         })
-        .collect();
-    let pulse_phase = correlation_peak(&template);
-    let prior = CutCosinePrior { fit, pulse_phase };
+    };
+    let first = fit_phase(&|s: &HarmonicSample| *s, None)?;
+    if model.sample_rate().is_none() {
+        return Ok(first);
+    }
+    let spectrum = cut_cosine_spectrum(
+        first.max_force,
+        first.tau,
+        first.pulse_phase,
+        ALIAS_HARMONICS,
+    );
+    fit_phase(
+        &|s: &HarmonicSample| HarmonicSample {
+            value: s.value - model.aliased_spectrum(s.harmonic, &spectrum),
+            ..*s
+        },
+        Some(&first),
+    )
+}
+
+/// Reconstructs the tip–sample force from complex photodiode harmonics `samples` (each a
+/// harmonic of `model`) read through `model`.
+///
+/// 1. **Prior.** `prior` if given, else [`two_harmonic_prior`] on `options.pair`.
+/// 2. **Coefficients.** c_k = (S_k − A_k)/T(kΩ) for every measured k ≠ 1 that passes the
+///    noise floor (module docs), A_k the aliases of k computed from the prior; the prior
+///    elsewhere, up to `max_harmonic`.
+/// 3. **Force.** F(θ) on the grid; the peak by Newton on the series; the half-maximum
+///    crossings by bisection on the series; τ = 1.5·FWHM.
+///
+/// # Errors
+/// [`InversionError`] for invalid inputs, a sample the model does not know, when no usable
+/// pair exists, or when the reconstructed force has no positive peak.
+pub fn reconstruct_force_with(
+    model: &LockInModel,
+    samples: &[HarmonicSample],
+    options: &InversionOptions,
+    prior: Option<CutCosinePrior>,
+) -> Result<ForceReconstruction, InversionError> {
+    let drive_frequency = model.drive_frequency();
+    validate(drive_frequency, samples, options)?;
+    if let Some(s) = samples
+        .iter()
+        .find(|s| model.transfer(s.harmonic).is_none())
+    {
+        return Err(InversionError::HarmonicNotModelled(s.harmonic));
+    }
+    let highest_measured = samples.iter().map(|s| s.harmonic).max().unwrap_or(0);
+    let transfer = |k: usize| model.transfer_any(k);
+    let prior = match prior {
+        Some(p) => p,
+        None => two_harmonic_prior(model, samples, options.pair, options.min_snr, true)?,
+    };
     let kmax = options.max_harmonic.unwrap_or_else(|| {
-        let tail = (TAIL_LOBES / prior.fit.tau)
+        let tail = (TAIL_LOBES / prior.tau)
             .ceil()
             .min(MAX_AUTO_HARMONIC as f64) as usize;
         highest_measured.max(tail)
     });
 
     // Coefficients.
+    let spectrum = cut_cosine_spectrum(
+        prior.max_force,
+        prior.tau,
+        prior.pulse_phase,
+        kmax.max(ALIAS_HARMONICS),
+    );
     let mut coefficients = Vec::with_capacity(kmax + 1);
     for k in 0..=kmax {
         let t = transfer(k);
-        let prior_k = prior.coefficient(k);
+        let prior_k = spectrum[k];
         let sample = samples.iter().find(|s| s.harmonic == k);
-        let measured = sample.map(|s| s.value / t);
+        let measured = sample.map(|s| (s.value - model.aliased_spectrum(k, &spectrum)) / t);
         let expected_snr = match sample {
             Some(s) if s.sigma > 0.0 => t.norm() * prior_k.norm() / s.sigma,
             Some(_) => f64::INFINITY,
             None => f64::NAN,
         };
-        let (value, sigma, source) = match sample {
-            None => (prior_k, 0.0, CoefficientSource::NotMeasured),
-            Some(_) if k == 1 => (prior_k, 0.0, CoefficientSource::Fundamental),
-            Some(s) if s.sigma == 0.0 || expected_snr >= options.min_snr => {
-                (s.value / t, s.sigma / t.norm(), CoefficientSource::Measured)
+        let (value, sigma, source) = match (sample, measured) {
+            (Some(_), _) if k == 1 => (prior_k, 0.0, CoefficientSource::Fundamental),
+            (Some(s), Some(m)) if s.sigma == 0.0 || expected_snr >= options.min_snr => {
+                (m, s.sigma / t.norm(), CoefficientSource::Measured)
             }
-            Some(_) => (prior_k, 0.0, CoefficientSource::BelowNoiseFloor),
+            (Some(_), _) => (prior_k, 0.0, CoefficientSource::BelowNoiseFloor),
+            (None, _) => (prior_k, 0.0, CoefficientSource::NotMeasured),
         };
         // The mean is real: only its real part enters the series.
         let value = if k == 0 {
@@ -409,6 +534,27 @@ pub fn reconstruct_force(
         });
     }
     let c: Vec<Complex64> = coefficients.iter().map(|c| c.value).collect();
+    let mean_force = c.first().map_or(0.0, |c0| c0.re);
+    // With the automatic length, the prior's tail is summed to infinity in closed form: the
+    // force is the prior pulse itself plus the measured harmonics' departures from it.
+    let wave = if options.max_harmonic.is_none() {
+        let mut departures: Vec<Complex64> = coefficients[..=highest_measured.min(kmax)]
+            .iter()
+            .map(|c| c.value - c.prior)
+            .collect();
+        if let Some(d0) = departures.first_mut() {
+            *d0 = Complex64::new(d0.re, 0.0);
+        }
+        Waveform {
+            series: departures,
+            pulse: Some(prior.clone()),
+        }
+    } else {
+        Waveform {
+            series: c,
+            pulse: None,
+        }
+    };
     let force_sigma = coefficients
         .iter()
         .map(|c| {
@@ -424,11 +570,11 @@ pub fn reconstruct_force(
     // Force on the grid, its peak and its half-maximum width.
     let n = options.grid_points;
     let step = 2.0 * PI / n as f64;
-    let force: Vec<f64> = (0..n).map(|j| force_series(&c, j as f64 * step)).collect();
+    let force: Vec<f64> = (0..n).map(|j| wave.value(j as f64 * step)).collect();
     let jmax = (0..n)
         .max_by(|&a, &b| force[a].total_cmp(&force[b]))
         .unwrap_or(0);
-    let (theta_peak, peak_force) = refine_peak(&c, jmax as f64 * step, step);
+    let (theta_peak, peak_force) = refine_peak(&wave, jmax as f64 * step, step);
     if peak_force.is_nan() || peak_force <= 0.0 {
         return Err(InversionError::NoPulse);
     }
@@ -438,14 +584,14 @@ pub fn reconstruct_force(
         let mut inside = theta_peak;
         for i in 1..=n {
             let theta = theta_peak + direction * i as f64 * step;
-            if force_series(&c, theta) < half {
+            if wave.value(theta) < half {
                 let (lo, hi) = if direction > 0.0 {
                     (inside, theta)
                 } else {
                     (theta, inside)
                 };
                 return Some(super::two_harmonic::bisect(
-                    |x| direction * (half - force_series(&c, x)),
+                    |x| direction * (half - wave.value(x)),
                     lo,
                     hi,
                 ));
@@ -461,7 +607,11 @@ pub fn reconstruct_force(
     let fwhm = (right - left) / (2.0 * PI);
     let min_force = force.iter().copied().fold(f64::INFINITY, f64::min);
     Ok(ForceReconstruction {
-        transfer_minima: light_lever_minima(cantilever, (kmax as f64 + 0.5) * drive_frequency),
+        transfer_minima: if options.transfer_minima {
+            light_lever_minima(model.cantilever(), (kmax as f64 + 0.5) * drive_frequency)
+        } else {
+            Vec::new()
+        },
         coefficients,
         prior,
         force,
@@ -470,18 +620,56 @@ pub fn reconstruct_force(
         pulse_phase: theta_peak.rem_euclid(2.0 * PI),
         fwhm,
         contact_time_ratio: 1.5 * fwhm,
-        mean_force: c.first().map_or(0.0, |c0| c0.re),
+        mean_force,
         min_force,
     })
 }
 
-/// Maximum of the series near `theta` (within a grid step either side) by Newton's method
+/// The reconstructed force as a function of the drive phase: a Fourier series, plus the
+/// prior's cut cosine in closed form when the series holds departures from it.
+struct Waveform {
+    series: Vec<Complex64>,
+    pulse: Option<CutCosinePrior>,
+}
+
+impl Waveform {
+    /// F at θ.
+    fn value(&self, theta: f64) -> f64 {
+        let mut f = force_series(&self.series, theta);
+        if let Some(p) = &self.pulse {
+            let delta = (theta - p.pulse_phase + PI).rem_euclid(2.0 * PI) - PI;
+            if delta.abs() < PI * p.tau {
+                f += p.max_force * (0.5 * delta / p.tau).cos();
+            }
+        }
+        f
+    }
+
+    /// F, dF/dθ and d²F/dθ² at θ.
+    fn eval(&self, theta: f64) -> (f64, f64, f64) {
+        let (mut f, mut d1, mut d2) = series(&self.series, theta);
+        if let Some(p) = &self.pulse {
+            // F·cos(δ/(2τ)) for |δ| < πτ, δ the phase from the pulse centre in (−π, π].
+            let delta = (theta - p.pulse_phase + PI).rem_euclid(2.0 * PI) - PI;
+            if delta.abs() < PI * p.tau {
+                let a = 0.5 / p.tau;
+                let (sin, cos) = (a * delta).sin_cos();
+                f += p.max_force * cos;
+                d1 -= p.max_force * a * sin;
+                d2 -= p.max_force * a * a * cos;
+            }
+        }
+        (f, d1, d2)
+    }
+}
+
+/// Maximum of the force near `theta` (within a grid step either side) by Newton's method
 /// on F′ = 0, falling back to the grid point if Newton leaves the bracket.
-fn refine_peak(c: &[Complex64], theta: f64, step: f64) -> (f64, f64) {
-    let (f0, _, _) = series(c, theta);
+fn refine_peak(wave: &Waveform, theta: f64, step: f64) -> (f64, f64) {
+    let (f0, _, _) = wave.eval(theta);
     let mut x = theta;
     for _ in 0..50 {
-        let (_, d1, d2) = series(c, x);
+        let (_, d1, d2) = wave.eval(x);
         if d2.is_nan() || d2 >= 0.0 {
             break;
         }
@@ -495,12 +683,15 @@ fn refine_peak(c: &[Complex64], theta: f64, step: f64) -> (f64, f64) {
             break;
         }
     }
-    let fx = series(c, x).0;
+    let fx = wave.eval(x).0;
     if fx >= f0 { (x, fx) } else { (theta, f0) }
 }
 
-/// Phase φ maximising Σ w_k·t_k·Re(m_k e^{ikφ}) for entries (k, t_k, m_k, w_k).
-fn correlation_peak(entries: &[(usize, f64, Complex64, f64)]) -> f64 {
+/// Phase φ maximising Σ w_k·t_k·Re(m_k e^{ikφ}) for entries (k, t_k, m_k, w_k): Newton's
+/// method from `start` when it is given and lands on a maximum within a quarter period of
+/// the highest harmonic; otherwise a grid of 16 points per period of the highest harmonic
+/// (at least 256), its three largest local maxima refined by Newton.
+fn correlation_peak(entries: &[(usize, f64, Complex64, f64)], start: Option<f64>) -> f64 {
     let eval = |phi: f64| {
         let (mut f, mut d1, mut d2) = (0.0, 0.0, 0.0);
         for &(k, t, m, w) in entries {
@@ -512,8 +703,35 @@ fn correlation_peak(entries: &[(usize, f64, Complex64, f64)]) -> f64 {
         }
         (f, d1, d2)
     };
-    const GRID: usize = 4096;
-    let step = 2.0 * PI / GRID as f64;
+    let highest = entries.iter().map(|e| e.0).max().unwrap_or(1).max(1);
+    if let Some(x0) = start {
+        let reach = 0.25 * 2.0 * PI / highest as f64;
+        let mut x = x0;
+        let mut ok = false;
+        for _ in 0..50 {
+            let (_, d1, d2) = eval(x);
+            if d2.is_nan() || d2 >= 0.0 {
+                break;
+            }
+            let next = x - d1 / d2;
+            if (next - x0).abs() > reach {
+                break;
+            }
+            let done = (next - x).abs() < 1e-15;
+            x = next;
+            if done {
+                ok = true;
+                break;
+            }
+        }
+        if ok {
+            return x.rem_euclid(2.0 * PI);
+        }
+    }
+    // A grid of 16 points per period of the highest harmonic (at least 256), the three
+    // largest local maxima on it refined by Newton's method, the best one kept.
+    let grid = (16 * highest).max(256);
+    let step = 2.0 * PI / grid as f64;
     // The grid by rotation: term k advances by e^{ik·step} per point, re-anchored every
     // 256 points.
     let rotations: Vec<Complex64> = entries
@@ -521,8 +739,8 @@ fn correlation_peak(entries: &[(usize, f64, Complex64, f64)]) -> f64 {
         .map(|&(k, ..)| Complex64::from_polar(1.0, k as f64 * step))
         .collect();
     let mut terms: Vec<Complex64> = Vec::with_capacity(entries.len());
-    let (mut best, mut best_value) = (0.0, f64::NEG_INFINITY);
-    for i in 0..GRID {
+    let mut values = Vec::with_capacity(grid);
+    for i in 0..grid {
         let phi = i as f64 * step;
         if i % 256 == 0 {
             terms.clear();
@@ -532,35 +750,48 @@ fn correlation_peak(entries: &[(usize, f64, Complex64, f64)]) -> f64 {
                     .map(|&(k, t, m, w)| m * Complex64::from_polar(w * t, k as f64 * phi)),
             );
         }
-        let value: f64 = terms.iter().map(|z| z.re).sum();
-        if value > best_value {
-            (best, best_value) = (phi, value);
-        }
+        values.push(terms.iter().map(|z| z.re).sum::<f64>());
         for (z, r) in terms.iter_mut().zip(&rotations) {
             *z *= r;
         }
     }
-    let mut x = best;
-    for _ in 0..50 {
-        let (_, d1, d2) = eval(x);
-        if d2.is_nan() || d2 >= 0.0 {
-            break;
+    let mut peaks: Vec<usize> = (0..grid)
+        .filter(|&i| {
+            let (prev, next) = (values[(i + grid - 1) % grid], values[(i + 1) % grid]);
+            values[i] >= prev && values[i] >= next
+        })
+        .collect();
+    peaks.sort_by(|&a, &b| values[b].total_cmp(&values[a]));
+    let refine = |i: usize| {
+        let start = i as f64 * step;
+        let mut x = start;
+        for _ in 0..50 {
+            let (_, d1, d2) = eval(x);
+            if d2.is_nan() || d2 >= 0.0 {
+                break;
+            }
+            let next = x - d1 / d2;
+            if (next - start).abs() > step {
+                break;
+            }
+            let done = (next - x).abs() < 1e-15;
+            x = next;
+            if done {
+                break;
+            }
         }
-        let next = x - d1 / d2;
-        if (next - best).abs() > step {
-            break;
+        if eval(x).0 >= values[i] {
+            (x, eval(x).0)
+        } else {
+            (start, values[i])
         }
-        let done = (next - x).abs() < 1e-15;
-        x = next;
-        if done {
-            break;
-        }
-    }
-    if eval(x).0 >= eval(best).0 {
-        x.rem_euclid(2.0 * PI)
-    } else {
-        best
-    }
+    };
+    peaks
+        .iter()
+        .take(3)
+        .map(|&i| refine(i))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .map_or(0.0, |(x, _)| x.rem_euclid(2.0 * PI))
 }
 
 /// Automatic pair for the prior (see [`reconstruct_force`]).

@@ -1,5 +1,6 @@
 //! Data messages: JSON text and the binary framing (see `docs/protocol.md`, "Binary frames").
 
+use crate::imaging::ImageLine;
 use crate::inversion::ForceEstimate;
 use crate::pipeline::{DemodFrame, ScopeBuffer, SpectrumBuffer};
 use crate::server::status::StatusReport;
@@ -44,7 +45,7 @@ impl BinaryHeader {
             StreamKind::Demods => count * DEMOD_RECORD_BYTES,
             StreamKind::Spectrum => 8 + 4 * count,
             StreamKind::Scope => 24 + 4 * count,
-            StreamKind::Status | StreamKind::Force => count,
+            StreamKind::Status | StreamKind::Force | StreamKind::Image => count,
         }
     }
 }
@@ -255,6 +256,71 @@ pub fn force_binary(seq: u64, estimate: &ForceEstimate) -> Vec<u8> {
         seq,
         estimate.t,
         estimate.t_synth_ns,
+        count,
+    );
+    out.extend_from_slice(json);
+    out
+}
+
+/// `{"stream":"image","seq":n,"t":s,"t_synth_ns":ns,"generation":g,"frame":f,"line":l,
+/// "pixels":P,"size":m,"line_rate":Hz,"direction":"trace","units":{…},"channels":{…}}`:
+/// one finished trace line, every channel an array of `pixels` values (`null`: missing).
+pub fn image_json(seq: u64, line: &ImageLine) -> String {
+    let values: usize = line.channels.iter().map(|(_, _, v)| v.len()).sum();
+    let mut out = JsonBuf::with_capacity(512 + values * 24);
+    json_header(&mut out, StreamKind::Image, seq, line.t, line.t_synth_ns);
+    out.raw(",\"generation\":");
+    out.u64(line.generation.into());
+    out.raw(",\"frame\":");
+    out.u64(line.frame);
+    out.raw(",\"line\":");
+    out.u64(line.line.into());
+    out.raw(",\"pixels\":");
+    out.u64(line.pixels.into());
+    out.raw(",\"size\":");
+    out.f64(line.size);
+    out.raw(",\"line_rate\":");
+    out.f64(line.line_rate);
+    out.raw(",\"direction\":\"trace\",\"units\":{");
+    for (i, (name, unit, _)) in line.channels.iter().enumerate() {
+        if i > 0 {
+            out.raw(",");
+        }
+        out.string(name);
+        out.raw(":");
+        out.string(unit);
+    }
+    out.raw("},\"channels\":{");
+    for (i, (name, _, data)) in line.channels.iter().enumerate() {
+        if i > 0 {
+            out.raw(",");
+        }
+        out.string(name);
+        out.raw(":[");
+        for (j, v) in data.iter().enumerate() {
+            if j > 0 {
+                out.raw(",");
+            }
+            out.f64(*v);
+        }
+        out.raw("]");
+    }
+    out.raw("}}");
+    out.into_string()
+}
+
+/// Header, then `count` bytes of UTF-8: the same JSON object as [`image_json`].
+pub fn image_binary(seq: u64, line: &ImageLine) -> Vec<u8> {
+    let json = image_json(seq, line);
+    let count = count_of(json.len());
+    let json = &json.as_bytes()[..count as usize];
+    let mut out = Vec::with_capacity(BINARY_HEADER_BYTES + json.len());
+    binary_header(
+        &mut out,
+        StreamKind::Image,
+        seq,
+        line.t,
+        line.t_synth_ns,
         count,
     );
     out.extend_from_slice(json);

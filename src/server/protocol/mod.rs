@@ -20,8 +20,8 @@ use crate::config::NodeError;
 
 pub use data::{
     BINARY_HEADER_BYTES, BINARY_MAGIC, BINARY_VERSION, BinaryHeader, DEMOD_RECORD_BYTES,
-    decode_header, demods_binary, demods_json, force_binary, force_json, scope_binary, scope_json,
-    spectrum_binary, spectrum_json, status_binary, status_json,
+    decode_header, demods_binary, demods_json, force_binary, force_json, image_binary, image_json,
+    scope_binary, scope_json, spectrum_binary, spectrum_json, status_binary, status_json,
 };
 pub use reply::{error_reply, ok_reply};
 pub use request::{Op, Request, parse_request};
@@ -45,16 +45,19 @@ pub enum StreamKind {
     Status,
     /// FT-AFM force estimates (τ, F, modulus, waveform).
     Force,
+    /// Scan images, one message per finished trace line.
+    Image,
 }
 
 impl StreamKind {
     /// Every stream, in the order of their binary codes.
-    pub const ALL: [StreamKind; 5] = [
+    pub const ALL: [StreamKind; 6] = [
         StreamKind::Demods,
         StreamKind::Spectrum,
         StreamKind::Scope,
         StreamKind::Status,
         StreamKind::Force,
+        StreamKind::Image,
     ];
 
     /// The name used in requests and in the `stream` field of data messages.
@@ -65,6 +68,7 @@ impl StreamKind {
             StreamKind::Scope => "scope",
             StreamKind::Status => "status",
             StreamKind::Force => "force",
+            StreamKind::Image => "image",
         }
     }
 
@@ -74,7 +78,7 @@ impl StreamKind {
     }
 
     /// The stable code in byte 6 of the binary header: demods 1, spectrum 2, scope 3,
-    /// status 4, force 5.
+    /// status 4, force 5, image 6.
     pub const fn code(self) -> u8 {
         match self {
             StreamKind::Demods => 1,
@@ -82,6 +86,7 @@ impl StreamKind {
             StreamKind::Scope => 3,
             StreamKind::Status => 4,
             StreamKind::Force => 5,
+            StreamKind::Image => 6,
         }
     }
 

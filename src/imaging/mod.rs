@@ -1,0 +1,308 @@
+//! Scan images: joins the synthesiser's per-pixel topography and the DSP's per-pixel
+//! harmonics into image lines and frames, with the FT-AFM channels (contact time, peak force,
+//! modulus per pixel, by the live inversion's estimator), and writes them as files
+//! ([`export`]). Used by the daemon's `image` stream and by `ftafm scan`.
+
+pub mod export;
+
+use std::collections::{BTreeMap, VecDeque};
+
+pub use export::ImageChannel;
+
+use crate::config::Settings;
+use crate::dsp::PREDECIMATION;
+use crate::inversion::ForceEstimator;
+use crate::pipeline::PixelHarmonics;
+use crate::synth::{PixelTopography, Raster};
+
+/// One finished trace line, as the `image` stream sends it.
+#[derive(Clone, Debug)]
+pub struct ImageLine {
+    /// Simulated time of the line's last sample (s).
+    pub t: f64,
+    /// Unix time (ns) at which that sample was synthesised.
+    pub t_synth_ns: u64,
+    /// Raster generation (a new one: a new image).
+    pub generation: u32,
+    /// Frame number within the generation.
+    pub frame: u64,
+    /// Line, 0 at the top.
+    pub line: u32,
+    /// Pixels per line (and lines per frame).
+    pub pixels: u32,
+    /// Side of the scan area (m).
+    pub size: f64,
+    /// Lines per second as realised (Hz).
+    pub line_rate: f64,
+    /// Channel name, unit, values (NaN: missing).
+    pub channels: Vec<(String, &'static str, Vec<f64>)>,
+}
+
+/// A finished frame, every channel.
+#[derive(Clone, Debug)]
+pub struct ImageFrame {
+    pub generation: u32,
+    pub frame: u64,
+    pub pixels: u32,
+    pub size: f64,
+    /// Lower-left corner of the scan area (m), for the file's offsets.
+    pub origin: (f64, f64),
+    pub channels: Vec<ImageChannel>,
+}
+
+/// The frame being filled.
+struct Frame {
+    generation: u32,
+    frame: u64,
+    /// Per channel: name, unit, pixels² values.
+    channels: Vec<(String, &'static str, Vec<f64>)>,
+    lines_done: u32,
+    /// The line being filled, its last time stamps.
+    open_line: Option<u32>,
+    t: f64,
+    t_synth_ns: u64,
+}
+
+/// Builds lines and frames from pixels (topography first, then harmonics, per pixel).
+pub struct Assembler {
+    pixels: u32,
+    size: f64,
+    origin: (f64, f64),
+    line_rate: f64,
+    sample_rate: f64,
+    estimator: Option<ForceEstimator>,
+    topography: BTreeMap<(u32, u64), PixelTopography>,
+    /// Newest topography key seen.
+    latest_topography: Option<(u32, u64)>,
+    /// Harmonics waiting for their pixel's topography: the synthesiser closes a pixel's
+    /// feedback average at the end of the drive period that straddles the pixel's end, which
+    /// can come after the DSP has handed out the pixel's harmonics.
+    pending: VecDeque<PixelHarmonics>,
+    current: Option<Frame>,
+    finished: Option<ImageFrame>,
+    /// Pixels whose inversion failed (their FT-AFM channels are NaN).
+    pub inversion_failed: u64,
+}
+
+impl Assembler {
+    /// An assembler for the scan of `settings`.
+    pub fn new(settings: &Settings) -> Self {
+        let mut a = Self {
+            pixels: 0,
+            size: 0.0,
+            origin: (0.0, 0.0),
+            line_rate: 0.0,
+            sample_rate: 0.0,
+            estimator: None,
+            topography: BTreeMap::new(),
+            latest_topography: None,
+            pending: VecDeque::new(),
+            current: None,
+            finished: None,
+            inversion_failed: 0,
+        };
+        a.configure(settings);
+        a
+    }
+
+    /// Follows new settings (raster geometry, estimator).
+    pub fn configure(&mut self, settings: &Settings) {
+        let raster = Raster::new(
+            &settings.scan,
+            settings.synth.sample_rate,
+            settings.drive.frequency,
+            0,
+            0,
+        );
+        self.pixels = raster.pixels;
+        self.size = raster.size;
+        self.origin = (
+            raster.centre.0 - 0.5 * raster.size,
+            raster.centre.1 - 0.5 * raster.size,
+        );
+        self.line_rate = raster.line_rate(settings.synth.sample_rate);
+        self.sample_rate = settings.synth.sample_rate;
+        // One estimate per pixel, whatever the live stream averages.
+        let mut s = settings.clone();
+        s.inversion.averaging = 1;
+        self.estimator = ForceEstimator::new(&s).ok().flatten();
+    }
+
+    /// Takes a pixel's topography.
+    pub fn topography(&mut self, t: PixelTopography) {
+        let key = (t.generation, t.pixel.serial);
+        self.latest_topography = self.latest_topography.max(Some(key));
+        self.topography.insert(key, t);
+        // Its harmonics come later (the DSP runs behind the synthesiser, and its consumer
+        // may lag further); entries are removed as the harmonics pass them. A bound for a
+        // consumer that never takes harmonics: two frames' worth.
+        let bound = 4 * (self.pixels.max(8) as usize).pow(2);
+        while self.topography.len() > bound {
+            self.topography.pop_first();
+        }
+    }
+
+    /// Takes a pixel; returns the line it finishes, if any.
+    /// Takes a pixel's harmonics; returns the lines finished by it or by pixels that were
+    /// waiting for their topography (usually none or one).
+    pub fn pixel(&mut self, p: &PixelHarmonics) -> Vec<ImageLine> {
+        self.pending.push_back(*p);
+        let mut lines = Vec::new();
+        while let Some(front) = self.pending.front() {
+            let key = (front.generation, front.pixel.serial);
+            let ready = self.topography.contains_key(&key)
+                || self.latest_topography.is_some_and(|k| k > key)
+                // Topography stopped coming (dropped, or a scan without it): go on.
+                || self.pending.len() > 2 * self.pixels.max(8) as usize;
+            if !ready {
+                break;
+            }
+            let front = self.pending.pop_front().expect("front exists");
+            lines.extend(self.place(&front));
+        }
+        lines
+    }
+
+    /// Puts one pixel into the frame; returns the line it finishes, if any.
+    fn place(&mut self, p: &PixelHarmonics) -> Option<ImageLine> {
+        let id = p.pixel;
+        // This pixel's topography, and none older: those pixels' harmonics were lost.
+        let mut rest = self.topography.split_off(&(p.generation, id.serial));
+        let topo = rest.remove(&(p.generation, id.serial));
+        self.topography = rest;
+        if id.retrace {
+            return None;
+        }
+        let n = self.pixels as usize;
+        let fresh = self
+            .current
+            .as_ref()
+            .is_none_or(|f| f.generation != p.generation || f.frame != id.frame);
+        if fresh {
+            self.current = Some(Frame {
+                generation: p.generation,
+                frame: id.frame,
+                channels: Vec::new(),
+                lines_done: 0,
+                open_line: None,
+                t: 0.0,
+                t_synth_ns: 0,
+            });
+        }
+        let mut values: Vec<(String, &'static str, f64)> = Vec::with_capacity(40);
+        values.push(("height".into(), "m", topo.map_or(f64::NAN, |t| t.height)));
+        let fundamental = p.frame.values().iter().find(|v| v.harmonic == 1);
+        values.push((
+            "amplitude".into(),
+            "m",
+            fundamental.map_or(f64::NAN, |v| v.r()),
+        ));
+        values.push((
+            "phase".into(),
+            "rad",
+            fundamental.map_or(f64::NAN, |v| v.phase()),
+        ));
+        let mut harmonics: Vec<_> = p
+            .frame
+            .values()
+            .iter()
+            .filter(|v| v.harmonic >= 2)
+            .collect();
+        harmonics.sort_by_key(|v| v.harmonic);
+        harmonics.dedup_by_key(|v| v.harmonic);
+        for v in harmonics {
+            values.push((format!("h{}", v.harmonic), "m", v.r()));
+        }
+        if let Some(e) = &self.estimator {
+            // The boxcar over the pixel's decimated samples: bandwidth 1/(2T).
+            let bandwidth =
+                self.sample_rate / (2.0 * PREDECIMATION as f64 * f64::from(p.samples.max(1)));
+            let (tau, force, modulus) = match e.estimate_frame(&p.frame, bandwidth) {
+                Ok(est) => (est.contact_time_ratio, est.max_force, est.youngs_modulus),
+                Err(_) => {
+                    self.inversion_failed += 1;
+                    (f64::NAN, f64::NAN, f64::NAN)
+                }
+            };
+            values.push(("contact_time_ratio".into(), "1", tau));
+            values.push(("max_force".into(), "N", force));
+            values.push(("youngs_modulus".into(), "Pa", modulus));
+        }
+
+        let frame = self.current.as_mut().expect("a frame is open");
+        let mut finished = None;
+        if frame.open_line.is_some_and(|l| l != id.line) {
+            // The previous line lost its last pixels: send what it has.
+            finished = frame.open_line.take();
+        }
+        for (name, unit, value) in values {
+            let slot = match frame.channels.iter().position(|(n, _, _)| *n == name) {
+                Some(i) => i,
+                None => {
+                    frame.channels.push((name, unit, vec![f64::NAN; n * n]));
+                    frame.channels.len() - 1
+                }
+            };
+            let index = id.line as usize * n + id.column as usize;
+            if let Some(cell) = frame.channels[slot].2.get_mut(index) {
+                *cell = value;
+            }
+        }
+        frame.open_line = Some(id.line);
+        frame.t = p.frame.t;
+        frame.t_synth_ns = p.frame.t_synth_ns;
+        if id.column + 1 == self.pixels {
+            finished = frame.open_line.take();
+        }
+        let line = finished?;
+        let out = ImageLine {
+            t: frame.t,
+            t_synth_ns: frame.t_synth_ns,
+            generation: frame.generation,
+            frame: frame.frame,
+            line,
+            pixels: self.pixels,
+            size: self.size,
+            line_rate: self.line_rate,
+            channels: frame
+                .channels
+                .iter()
+                .map(|(name, unit, data)| {
+                    (
+                        name.clone(),
+                        *unit,
+                        data[line as usize * n..(line as usize + 1) * n].to_vec(),
+                    )
+                })
+                .collect(),
+        };
+        frame.lines_done += 1;
+        if line + 1 == self.pixels {
+            let done = ImageFrame {
+                generation: frame.generation,
+                frame: frame.frame,
+                pixels: self.pixels,
+                size: self.size,
+                origin: self.origin,
+                channels: frame
+                    .channels
+                    .iter()
+                    .map(|(name, unit, data)| ImageChannel {
+                        name: name.clone(),
+                        unit,
+                        data: data.clone(),
+                    })
+                    .collect(),
+            };
+            self.finished = Some(done);
+        }
+        Some(out)
+    }
+}
+
+impl Assembler {
+    /// The frame the last line finished, once.
+    pub fn take_finished(&mut self) -> Option<ImageFrame> {
+        self.finished.take()
+    }
+}

@@ -1,0 +1,275 @@
+//! `ftafm scan`: records scan frames without the daemon, free-running (as fast as the
+//! machine goes) or paced, writes each channel as `.gsf` and `.npy`, and reports per channel
+//! the contrast and contrast-to-noise ratio of each inclusion against the base material.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use ringbuf::traits::Consumer;
+use serde::Serialize;
+
+use crate::config::Settings;
+use crate::imaging::{Assembler, ImageFrame, export};
+use crate::pipeline::{CountersSnapshot, Pipeline, PipelineError};
+use crate::synth::{Raster, sample_map};
+
+/// How a region of the image compares with the base material in one channel.
+#[derive(Clone, Debug, Serialize)]
+pub struct RegionContrast {
+    /// Region index: 1 + the index among enabled inclusions.
+    pub region: usize,
+    /// Interior pixels (all four corners in the region) averaged.
+    pub pixels: usize,
+    /// Mean over the region (channel unit).
+    pub mean: f64,
+    /// Standard deviation over the region (channel unit).
+    pub std: f64,
+    /// The paper's relative contrast `1 − mean_base/mean_region` (1).
+    pub contrast: f64,
+    /// `|mean_base − mean_region| / √((std_base² + std_region²)/2)` (1).
+    pub cnr: f64,
+}
+
+/// One channel of a recorded frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct ChannelReport {
+    pub name: String,
+    pub unit: &'static str,
+    /// Mean and standard deviation over the base material's interior pixels.
+    pub base_mean: f64,
+    pub base_std: f64,
+    pub base_pixels: usize,
+    pub regions: Vec<RegionContrast>,
+}
+
+/// What `ftafm scan` reports; `--json` prints it as one object.
+#[derive(Clone, Debug, Serialize)]
+pub struct ScanReport {
+    pub pixels: u32,
+    /// Side of the scan area (m).
+    pub size: f64,
+    /// Lines per second as realised (Hz).
+    pub line_rate: f64,
+    /// Simulated time one frame takes (s): the instrument's scan time.
+    pub frame_time: f64,
+    /// Wall-clock time the recording took (s).
+    pub wall_seconds: f64,
+    /// Frames recorded.
+    pub frames: usize,
+    /// Files written.
+    pub files: Vec<PathBuf>,
+    /// Per channel, of the last frame.
+    pub channels: Vec<ChannelReport>,
+    /// Pixels whose inversion failed.
+    pub inversion_failed: u64,
+    /// The pipeline's counters at the end (overruns, pixels dropped, ...).
+    pub counters: CountersSnapshot,
+}
+
+/// Why a scan could not be recorded.
+#[derive(Debug, thiserror::Error)]
+pub enum ScanError {
+    #[error(transparent)]
+    Pipeline(#[from] PipelineError),
+    #[error("cannot write {0}: {1}")]
+    Write(PathBuf, std::io::Error),
+}
+
+/// Records `frames` frames of the scan `settings` describe (`/scan/enable` is forced on);
+/// free-running unless `settings.synth.realtime`. Writes `<out>/<channel>[-fN].{gsf,npy}`
+/// when `out` is given. `progress(line, lines, frame, wall_s)` is called about once a second.
+pub fn run(
+    settings: &Settings,
+    frames: usize,
+    out: Option<&Path>,
+    mut progress: impl FnMut(u32, u32, u64, f64),
+) -> Result<ScanReport, ScanError> {
+    let mut settings = settings.clone();
+    settings.scan.enable = true;
+    // The images need neither spectra nor traces.
+    settings.spectrum.enable = false;
+    settings.scope.enable = false;
+    let fs = settings.synth.sample_rate;
+    let raster = Raster::new(&settings.scan, fs, settings.drive.frequency, 0, 0);
+    let (pipeline, mut output) = Pipeline::start(&settings)?;
+    let mut assembler = Assembler::new(&settings);
+    let start = Instant::now();
+    let mut next_progress = 1.0;
+    let mut recorded: Vec<ImageFrame> = Vec::new();
+    let mut last_line = (0, 0);
+    while recorded.len() < frames {
+        let mut idle = true;
+        while let Some(t) = output.topography.try_pop() {
+            assembler.topography(t);
+            idle = false;
+        }
+        // In bounded batches, so topography keeps being taken while the DSP races ahead.
+        for _ in 0..256 {
+            let Some(p) = output.pixels.try_pop() else {
+                break;
+            };
+            idle = false;
+            for line in assembler.pixel(&p) {
+                last_line = (line.line, line.frame);
+                if let Some(frame) = assembler.take_finished() {
+                    recorded.push(frame);
+                }
+            }
+            if recorded.len() >= frames {
+                break;
+            }
+        }
+        output.demods.skip(usize::MAX);
+        let wall = start.elapsed().as_secs_f64();
+        if wall >= next_progress {
+            progress(last_line.0 + 1, raster.pixels, last_line.1, wall);
+            next_progress += 1.0;
+        }
+        if idle {
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+    }
+    let wall_seconds = start.elapsed().as_secs_f64();
+    let counters = pipeline.stop();
+    let mut files = Vec::new();
+    if let Some(dir) = out {
+        std::fs::create_dir_all(dir).map_err(|e| ScanError::Write(dir.to_owned(), e))?;
+        for (i, frame) in recorded.iter().enumerate() {
+            let suffix = if frames > 1 {
+                format!("-f{i}")
+            } else {
+                String::new()
+            };
+            for c in &frame.channels {
+                for (ext, bytes) in [
+                    (
+                        "gsf",
+                        export::gsf(c, frame.pixels, frame.size, frame.origin),
+                    ),
+                    ("npy", export::npy(c, frame.pixels)),
+                ] {
+                    let path = dir.join(format!("{}{suffix}.{ext}", c.name));
+                    std::fs::write(&path, bytes).map_err(|e| ScanError::Write(path.clone(), e))?;
+                    files.push(path);
+                }
+            }
+        }
+    }
+    let last = recorded.last().expect("at least one frame");
+    Ok(ScanReport {
+        pixels: raster.pixels,
+        size: raster.size,
+        line_rate: raster.line_rate(fs),
+        frame_time: raster.frame_time(fs),
+        wall_seconds,
+        frames: recorded.len(),
+        files,
+        channels: contrast(&settings, &raster, last),
+        inversion_failed: assembler.inversion_failed,
+        counters,
+    })
+}
+
+/// Per channel: base statistics and each region's contrast and CNR, over interior pixels
+/// (whose four corners lie in the same region), so edge pixels do not blur the numbers.
+pub fn contrast(settings: &Settings, raster: &Raster, frame: &ImageFrame) -> Vec<ChannelReport> {
+    let map = sample_map(settings);
+    let n = frame.pixels;
+    let half = 0.5 * raster.pixel_size();
+    let mut region_of = vec![None; (n * n) as usize];
+    for line in 0..n {
+        for column in 0..n {
+            let (x, y) = raster.pixel_centre(column, line);
+            let corners = [(-half, -half), (-half, half), (half, -half), (half, half)]
+                .map(|(dx, dy)| map.region_at(x + dx, y + dy));
+            if corners.iter().all(|&r| r == corners[0]) {
+                region_of[(line * n + column) as usize] = Some(corners[0]);
+            }
+        }
+    }
+    let stats = |data: &[f64], region: usize| -> (f64, f64, usize) {
+        let v: Vec<f64> = data
+            .iter()
+            .zip(&region_of)
+            .filter(|(x, r)| **r == Some(region) && x.is_finite())
+            .map(|(x, _)| *x)
+            .collect();
+        let count = v.len();
+        if count == 0 {
+            return (f64::NAN, f64::NAN, 0);
+        }
+        let mean = v.iter().sum::<f64>() / count as f64;
+        let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (count.max(2) - 1) as f64;
+        (mean, var.sqrt(), count)
+    };
+    frame
+        .channels
+        .iter()
+        .map(|c| {
+            let (base_mean, base_std, base_pixels) = stats(&c.data, 0);
+            let regions = (1..map.regions().len())
+                .map(|r| {
+                    let (mean, std, pixels) = stats(&c.data, r);
+                    RegionContrast {
+                        region: r,
+                        pixels,
+                        mean,
+                        std,
+                        contrast: 1.0 - base_mean / mean,
+                        cnr: (base_mean - mean).abs()
+                            / ((base_std.powi(2) + std.powi(2)) / 2.0).sqrt(),
+                    }
+                })
+                .collect();
+            ChannelReport {
+                name: c.name.clone(),
+                unit: c.unit,
+                base_mean,
+                base_std,
+                base_pixels,
+                regions,
+            }
+        })
+        .collect()
+}
+
+/// The report as text: the scan, then a table of channels.
+pub fn render_text(r: &ScanReport) -> String {
+    let mut s = format!(
+        "scan: {} x {} pixels, {:.3} um square, {:.3} lines/s: {:.1} s per frame (simulated); recorded {} frame(s) in {:.1} s wall\n",
+        r.pixels,
+        r.pixels,
+        r.size * 1e6,
+        r.line_rate,
+        r.frame_time,
+        r.frames,
+        r.wall_seconds
+    );
+    s += &format!(
+        "overruns {} samples, pixels dropped {} (DSP) {} (topography), inversion failed on {} pixels\n\n",
+        r.counters.overrun_samples,
+        r.counters.pixels_dropped,
+        r.counters.topography_pixels_dropped,
+        r.inversion_failed
+    );
+    s += "channel              unit   base mean     base std      region  mean          contrast    CNR\n";
+    for c in &r.channels {
+        for reg in &c.regions {
+            s += &format!(
+                "{:<20} {:<5} {:>12.5e} {:>12.5e}  {:>6}  {:>12.5e} {:>+9.3} % {:>8.2}\n",
+                c.name,
+                c.unit,
+                c.base_mean,
+                c.base_std,
+                reg.region,
+                reg.mean,
+                reg.contrast * 100.0,
+                reg.cnr
+            );
+        }
+    }
+    for f in &r.files {
+        s += &format!("wrote {}\n", f.display());
+    }
+    s
+}

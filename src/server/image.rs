@@ -1,0 +1,120 @@
+//! The `image` stream's worker: a thread that joins the synthesiser's topography and the
+//! DSP's pixel harmonics into image lines, adds the FT-AFM channels (contact time, peak
+//! force, modulus per pixel, by the live inversion's estimator), sends each finished trace
+//! line and keeps the last finished frame for export (`GET /image/<channel>.gsf|.npy`).
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError, channel, sync_channel};
+use std::sync::{Arc, Mutex};
+
+use crate::config::Settings;
+use crate::imaging::{Assembler, ImageFrame, ImageLine};
+use crate::pipeline::PixelHarmonics;
+use crate::synth::PixelTopography;
+
+/// Pixels waiting for the worker: 16 s at the default scan's 256 pixels/s (trace and
+/// retrace), 0.8 s at the fastest allowed.
+const QUEUE: usize = 1 << 14;
+
+#[allow(clippy::large_enum_variant)]
+enum Input {
+    Pixel(PixelHarmonics),
+    Topography(PixelTopography),
+    Settings(Box<Settings>),
+}
+
+/// Counts of the worker's work.
+#[derive(Default)]
+pub(crate) struct ImageCounters {
+    pub lines: AtomicU64,
+    pub frames: AtomicU64,
+    /// Pixel records the worker's queue refused.
+    pub dropped: AtomicU64,
+    /// Pixels whose inversion failed (their FT-AFM channels are missing).
+    pub inversion_failed: AtomicU64,
+}
+
+/// The hub's and the HTTP handlers' ends of the worker.
+pub(crate) struct ImageLink {
+    input: SyncSender<Input>,
+    pub counters: Arc<ImageCounters>,
+    /// The last finished frame.
+    pub last_frame: Arc<Mutex<Option<Arc<ImageFrame>>>>,
+}
+
+impl ImageLink {
+    /// Starts the worker for `settings`; lines come out of the returned receiver.
+    pub fn start(settings: &Settings) -> (Self, Receiver<ImageLine>) {
+        let (input, rx) = sync_channel::<Input>(QUEUE);
+        let (out, lines) = channel();
+        let counters = Arc::new(ImageCounters::default());
+        let last_frame = Arc::new(Mutex::new(None));
+        let mut assembler = Assembler::new(settings);
+        let (c, done) = (counters.clone(), last_frame.clone());
+        std::thread::Builder::new()
+            .name("image".into())
+            .spawn(move || {
+                while let Ok(msg) = rx.recv() {
+                    match msg {
+                        Input::Settings(s) => assembler.configure(&s),
+                        Input::Topography(t) => assembler.topography(t),
+                        Input::Pixel(p) => {
+                            let before = assembler.inversion_failed;
+                            let lines = assembler.pixel(&p);
+                            let failed = assembler.inversion_failed - before;
+                            c.inversion_failed.fetch_add(failed, Ordering::Relaxed);
+                            for line in lines {
+                                c.lines.fetch_add(1, Ordering::Relaxed);
+                                if let Some(frame) = assembler.take_finished() {
+                                    c.frames.fetch_add(1, Ordering::Relaxed);
+                                    if let Ok(mut last) = done.lock() {
+                                        *last = Some(Arc::new(frame));
+                                    }
+                                }
+                                if out.send(line).is_err() {
+                                    return;
+                                }
+                            }
+                        }
+                    }
+                }
+            })
+            .expect("the image thread starts");
+        (
+            Self {
+                input,
+                counters,
+                last_frame,
+            },
+            lines,
+        )
+    }
+
+    fn offer(&self, msg: Input) {
+        if let Err(TrySendError::Full(_)) = self.input.try_send(msg) {
+            self.counters.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Offers a pixel's harmonics; a full queue drops it (counted).
+    pub fn pixel(&self, p: &PixelHarmonics) {
+        self.offer(Input::Pixel(*p));
+    }
+
+    /// Offers a pixel's topography.
+    pub fn topography(&self, t: &PixelTopography) {
+        self.offer(Input::Topography(*t));
+    }
+
+    /// New settings: the worker rebuilds its estimator (blocking only itself).
+    pub fn configure(&self, settings: &Settings) {
+        let _ = self.input.send(Input::Settings(Box::new(settings.clone())));
+    }
+}
+
+/// Whether a change of `path` concerns the image worker.
+pub(crate) fn affects_images(path: &str) -> bool {
+    super::force::affects_estimator(path)
+        || path.starts_with("/scan")
+        || path.starts_with("/sample")
+}

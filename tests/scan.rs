@@ -1,0 +1,180 @@
+//! The scan in the synthesiser: tap tables over distance, the amplitude feedback's step
+//! response, and the material and height under the tip reaching the signal.
+
+use std::time::Instant;
+
+use ftafm::config::{Settings, default_settings};
+use ftafm::model;
+use ftafm::synth::{PixelTopography, ScanRuntime, SynthPlan, SynthState};
+
+fn quiet(mut s: Settings) -> Settings {
+    s.noise.enable = false;
+    s
+}
+
+fn scanning(mut s: Settings) -> Settings {
+    s.scan.enable = true;
+    s
+}
+
+/// Runs `plan` for `seconds` of simulated time in blocks, returning per-period
+/// (time, distance, amplitude) every `every` samples and the pixels' topography.
+fn run(
+    plan: &SynthPlan,
+    state: &mut SynthState,
+    rt: &mut ScanRuntime,
+    seconds: f64,
+    every: usize,
+) -> (Vec<(f64, f64, f64)>, Vec<PixelTopography>) {
+    let mut block = vec![0.0; every];
+    let mut trace = Vec::new();
+    let mut pixels = Vec::new();
+    let n = (seconds * plan.sample_rate) as usize / every;
+    for _ in 0..n {
+        plan.process_scan(state, rt, &mut block, &mut |p| pixels.push(p));
+        trace.push((
+            state.sample_index() as f64 / plan.sample_rate,
+            rt.distance,
+            rt.amplitude,
+        ));
+    }
+    (trace, pixels)
+}
+
+#[test]
+fn tap_tables_cover_the_operating_range_and_match_direct_solves() {
+    let settings = scanning(quiet(default_settings()));
+    let started = Instant::now();
+    let plan = SynthPlan::new(&settings).unwrap();
+    let built = started.elapsed();
+    let scan = plan.scan.as_ref().unwrap();
+    assert_eq!(scan.tables.regions.len(), 2, "base + the default disc");
+    assert_eq!(scan.tables.failed, 0, "every grid point solves");
+    eprintln!("plan with tap tables built in {built:?}");
+    let cantilever = model::cantilever(&settings).unwrap();
+    // Off the grid nodes, interpolation agrees with a direct solve to 0.2 %.
+    for (region, material) in [
+        (0, settings.sample),
+        (1, {
+            let mut m = settings.sample;
+            m.youngs_modulus = 116.1e9;
+            m
+        }),
+    ] {
+        for d in [17.3e-9, 20.0e-9, 21.7e-9] {
+            let mut s = settings.clone();
+            s.surface.distance = d;
+            let direct = model::impact_oscillator(&s, &cantilever, material)
+                .solve()
+                .unwrap();
+            let t = scan.tables.regions[region].at(d);
+            let rel = |a: f64, b: f64| (a - b).abs() / b;
+            assert!(
+                rel(t.max_force, direct.max_force) < 2e-3,
+                "F at {d}: {} vs {}",
+                t.max_force,
+                direct.max_force
+            );
+            assert!(rel(t.tau, direct.contact_time_ratio) < 2e-3, "τ at {d}");
+            assert!(
+                (t.centre_phase - direct.pulse_phase).abs() < 2e-3,
+                "phase at {d}"
+            );
+        }
+    }
+    // Beyond the free amplitude the tip does not reach the surface.
+    assert_eq!(scan.tables.regions[0].at(31e-9).max_force, 0.0);
+}
+
+#[test]
+fn the_feedback_holds_the_setpoint_and_settles_after_a_step_without_ringing() {
+    let mut settings = scanning(quiet(default_settings()));
+    // A scan area far from the inclusion: the base material only.
+    settings.scan.x = 5e-6;
+    let plan = SynthPlan::new(&settings).unwrap();
+    let mut state = SynthState::steady(&plan, 1);
+    let mut rt = ScanRuntime::new(&plan);
+    rt.retarget(&plan, &plan, 0);
+    let setpoint = plan.scan.as_ref().unwrap().setpoint;
+    let (trace, _) = run(&plan, &mut state, &mut rt, 0.01, 1000);
+    // The auto setpoint is the steady amplitude at /surface/distance: the controller stays
+    // there (the synthesised fundamental matches the model it was computed from).
+    let (_, d, a) = *trace.last().unwrap();
+    assert!(
+        (a - setpoint).abs() / setpoint < 1e-3,
+        "amplitude {a} vs setpoint {setpoint}"
+    );
+    assert!((d - 20e-9).abs() < 0.2e-9, "distance {d}");
+
+    // Step the setpoint down by 1 nm.
+    let mut stepped = settings.clone();
+    stepped.feedback.setpoint = setpoint - 1e-9;
+    let next = SynthPlan::with_tables(&stepped, Some(&plan.scan.as_ref().unwrap().tables)).unwrap();
+    state.retarget(&plan, &next);
+    rt.retarget(&plan, &next, state.sample_index());
+    let t0 = state.sample_index() as f64 / next.sample_rate;
+    let (trace, _) = run(&next, &mut state, &mut rt, 0.02, 500);
+    let (_, d_end, a_end) = *trace.last().unwrap();
+    let target = setpoint - 1e-9;
+    assert!(
+        (a_end - target).abs() < 5e-12,
+        "settles to the new setpoint: {a_end} vs {target}"
+    );
+    let step = 20e-9 - d_end;
+    assert!(step > 0.5e-9, "the sample comes closer: {step}");
+    // Settling: within 2 % of the step after 5 ms; overshoot below 10 %.
+    let overshoot = trace
+        .iter()
+        .map(|&(_, d, _)| (d_end - d) / step)
+        .fold(0.0f64, f64::max);
+    let settle = trace
+        .iter()
+        .rev()
+        .find(|&&(_, d, _)| ((d - d_end) / step).abs() > 0.02)
+        .map_or(t0, |&(t, _, _)| t)
+        - t0;
+    eprintln!(
+        "setpoint step -1 nm: distance step {:.3} nm, settled (2 %) after {:.2} ms, overshoot {:.1} %",
+        step * 1e9,
+        settle * 1e3,
+        overshoot * 100.0
+    );
+    assert!(settle < 5e-3, "settling time {settle}");
+    assert!(overshoot < 0.10, "overshoot {overshoot}");
+}
+
+#[test]
+fn a_raised_inclusion_shows_as_height_and_the_softer_one_not_at_all() {
+    let mut settings = scanning(quiet(default_settings()));
+    settings.scan.pixels = 16;
+    settings.scan.line_rate = 10.0;
+    settings.inclusions[0].height = 2e-9;
+    settings.inclusions[0].youngs_modulus = 129e9;
+    let plan = SynthPlan::new(&settings).unwrap();
+    let mut state = SynthState::steady(&plan, 1);
+    let mut rt = ScanRuntime::new(&plan);
+    rt.retarget(&plan, &plan, 0);
+    // Lines 7 and 8 cross the centre of the disc.
+    let (_, pixels) = run(&plan, &mut state, &mut rt, 9.0 / 10.0, 4096);
+    let line: Vec<&PixelTopography> = pixels
+        .iter()
+        .filter(|p| p.pixel.line == 7 && !p.pixel.retrace)
+        .collect();
+    assert_eq!(line.len(), 16);
+    let heights: Vec<f64> = line.iter().map(|p| p.height).collect();
+    eprintln!(
+        "line 7 heights (nm): {:?}",
+        heights
+            .iter()
+            .map(|h| (h * 1e11).round() / 100.0)
+            .collect::<Vec<_>>()
+    );
+    // Columns 6–9 lie in the disc (radius 167 nm around the centre, pixels 62.5 nm); 7
+    // and 8 are clear of the edges, where the feedback is still catching up.
+    for (c, h) in heights.iter().enumerate().take(9).skip(7) {
+        assert!((h - 2e-9).abs() < 0.1e-9, "column {c}: {h}");
+    }
+    for c in [0, 1, 14, 15] {
+        assert!(heights[c].abs() < 0.1e-9, "column {c}: {}", heights[c]);
+    }
+}
