@@ -129,7 +129,12 @@ async fn eight_clients_for_twenty_seconds_lose_nothing() {
                 .contains("ftafm_process_resident_bytes")
         );
     }
-    for path in ["synth_to_dsp", "synth_to_send", "synth_to_socket"] {
+    for path in [
+        "synth_to_dsp",
+        "synth_to_send",
+        "dsp_to_socket",
+        "synth_to_socket",
+    ] {
         let l = report.server.latency_ns[path];
         assert!(l.count > 0 && l.p50 > 0 && l.p50 <= l.max, "{path}: {l:?}");
     }

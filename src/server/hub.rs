@@ -14,7 +14,7 @@ use tokio::sync::mpsc::error::TrySendError;
 
 use super::latency::Latency;
 use super::protocol::{self, Format, StreamKind};
-use super::state::{AppState, stream_index};
+use super::state::{AppState, Stamps, stream_index};
 use super::status::StatusReport;
 use crate::pipeline::{CountersSnapshot, PipelineOutput, SAMPLE_RING, unix_ns};
 
@@ -24,10 +24,12 @@ const TICK: Duration = Duration::from_millis(1);
 const STATUS_PERIOD: Duration = Duration::from_millis(500);
 
 /// Offers one message of `stream` to its subscribers; `json` and `binary` build the two
-/// encodings, each at most once.
+/// encodings, each at most once. `(t_synth_ns, t_dsp_ns)` go with it to every client's
+/// socket, where its latency is measured (0 = unknown).
 fn distribute(
     state: &AppState,
     stream: StreamKind,
+    (t_synth_ns, t_dsp_ns): (u64, u64),
     json: impl FnOnce(u64) -> String,
     binary: impl FnOnce(u64) -> Vec<u8>,
 ) {
@@ -36,6 +38,11 @@ fn distribute(
     let clients = match state.clients.lock() {
         Ok(c) => c.clone(),
         Err(_) => return,
+    };
+    let stamps = Stamps {
+        stream: Some(s),
+        t_synth_ns,
+        t_dsp_ns,
     };
     let (mut json, mut binary) = (Some(json), Some(binary));
     let (mut text_msg, mut bin_msg): (Option<Message>, Option<Message>) = (None, None);
@@ -57,7 +64,7 @@ fn distribute(
                 })
                 .clone(),
         };
-        match client.data.try_send(msg) {
+        match client.data.offer(msg, stamps) {
             Ok(()) => {
                 state.streams[s].sent.fetch_add(1, Ordering::Relaxed);
             }
@@ -98,6 +105,7 @@ pub(crate) async fn run(
             distribute(
                 &state,
                 StreamKind::Demods,
+                (frame.t_synth_ns, frame.t_dsp_ns),
                 |seq| protocol::demods_json(seq, &frame),
                 |seq| protocol::demods_binary(seq, &frame),
             );
@@ -114,6 +122,7 @@ pub(crate) async fn run(
             distribute(
                 &state,
                 StreamKind::Image,
+                (line.t_synth_ns, 0),
                 |seq| protocol::image_json(seq, &line),
                 |seq| protocol::image_binary(seq, &line),
             );
@@ -122,6 +131,7 @@ pub(crate) async fn run(
             distribute(
                 &state,
                 StreamKind::Force,
+                (estimate.t_synth_ns, 0),
                 |seq| protocol::force_json(seq, &estimate),
                 |seq| protocol::force_binary(seq, &estimate),
             );
@@ -130,6 +140,7 @@ pub(crate) async fn run(
             distribute(
                 &state,
                 StreamKind::Spectrum,
+                (buffer.t_synth_ns, buffer.t_dsp_ns),
                 |seq| protocol::spectrum_json(seq, &buffer),
                 |seq| protocol::spectrum_binary(seq, &buffer),
             );
@@ -139,6 +150,7 @@ pub(crate) async fn run(
             distribute(
                 &state,
                 StreamKind::Scope,
+                (buffer.t_synth_ns, buffer.t_dsp_ns),
                 |seq| protocol::scope_json(seq, &buffer),
                 |seq| protocol::scope_binary(seq, &buffer),
             );
@@ -162,6 +174,7 @@ pub(crate) async fn run(
                 latency_synth_to_dsp: synth_to_dsp.take_interval(),
                 latency_synth_to_send: synth_to_send.take_interval(),
                 counters,
+                ..state.status_fields()
             };
             if let Ok(mut totals) = state.latency_totals.lock() {
                 *totals = [synth_to_dsp.total(), synth_to_send.total()];
@@ -171,6 +184,7 @@ pub(crate) async fn run(
             distribute(
                 &state,
                 StreamKind::Status,
+                (t_synth, 0),
                 |seq| protocol::status_json(seq, t, t_synth, &report),
                 |seq| protocol::status_binary(seq, t, t_synth, &report),
             );

@@ -12,8 +12,8 @@ use tokio::sync::mpsc::error::TrySendError;
 use tokio::sync::{mpsc, watch};
 
 use super::latency::Latency;
-use super::protocol::{self, ErrorCode, Format, ProtocolError, StreamKind};
-use super::status::{ClientReport, LatencySummary};
+use super::protocol::{ErrorCode, Format, ProtocolError, StreamKind};
+use super::status::{ClientReport, LatencySummary, ProcessMemory, StatusReport};
 use crate::config::Settings;
 use crate::pipeline::{CountersSnapshot, Pipeline, PipelineError};
 
@@ -78,48 +78,6 @@ pub(crate) struct Stamps {
     pub t_dsp_ns: u64,
 }
 
-impl Stamps {
-    /// The stream and `t_synth_ns` from an encoded data message's header (JSON or binary);
-    /// the DSP's time is not in a message.
-    pub fn from_message(msg: &Message) -> Self {
-        let (stream, t_synth_ns) = match msg {
-            Message::Binary(b) => match protocol::decode_header(b) {
-                Some(h) => (Some(h.stream), h.t_synth_ns),
-                None => (None, 0),
-            },
-            Message::Text(t) => json_header(t.as_str()),
-            _ => (None, 0),
-        };
-        Self {
-            stream: stream.map(stream_index),
-            t_synth_ns,
-            t_dsp_ns: 0,
-        }
-    }
-}
-
-/// `stream` and `t_synth_ns` of `{"stream":"…","seq":…,"t":…,"t_synth_ns":…` (the header
-/// every JSON data message starts with).
-fn json_header(text: &str) -> (Option<StreamKind>, u64) {
-    let mut end = text.len().min(160);
-    while !text.is_char_boundary(end) {
-        end -= 1;
-    }
-    let head = &text[..end];
-    let stream = head
-        .strip_prefix("{\"stream\":\"")
-        .and_then(|r| r.split('"').next())
-        .and_then(StreamKind::from_name);
-    let t_synth_ns = head
-        .split_once("\"t_synth_ns\":")
-        .map(|(_, r)| {
-            let digits = r.bytes().take_while(u8::is_ascii_digit).count();
-            r[..digits].parse().unwrap_or(0)
-        })
-        .unwrap_or(0);
-    (stream, t_synth_ns)
-}
-
 /// A data message queued for one client, with its stamps.
 pub(crate) struct Outgoing {
     pub msg: Message,
@@ -136,12 +94,6 @@ impl DataQueue {
     pub fn new(capacity: usize) -> (Self, mpsc::Receiver<Outgoing>) {
         let (tx, rx) = mpsc::channel(capacity);
         (Self { tx }, rx)
-    }
-
-    /// Queues `msg` without waiting, stamped from its own header.
-    pub fn try_send(&self, msg: Message) -> Result<(), TrySendError<Message>> {
-        let stamps = Stamps::from_message(&msg);
-        self.offer(msg, stamps)
     }
 
     /// Queues `msg` with `stamps` without waiting; a full queue refuses it.
@@ -309,6 +261,18 @@ impl StreamStats {
         }
     }
 
+    /// (synth → socket, DSP → socket) since the last call, all clients; the interval then
+    /// starts afresh.
+    pub fn take_socket_interval(&self) -> (LatencySummary, LatencySummary) {
+        match self.socket.lock().as_deref_mut() {
+            Ok(Some(s)) => (
+                s.synth_to_socket.take_interval(),
+                s.dsp_to_socket.take_interval(),
+            ),
+            _ => Default::default(),
+        }
+    }
+
     /// (synth → socket, DSP → socket) since start, all clients.
     pub fn socket_totals(&self) -> (LatencySummary, LatencySummary) {
         match self.socket.lock().as_deref() {
@@ -353,6 +317,20 @@ impl AppState {
             .lock()
             .map(|c| c.iter().any(|c| c.format(s).is_some()))
             .unwrap_or(false)
+    }
+
+    /// The `status` fields measured outside the hub: latency at the sockets over the
+    /// interval since the last call, memory, thread scheduling and the clients.
+    pub fn status_fields(&self) -> StatusReport {
+        let (synth, dsp) = self.streams[stream_index(StreamKind::Demods)].take_socket_interval();
+        StatusReport {
+            latency_dsp_to_socket: dsp,
+            latency_synth_to_socket: synth,
+            memory: ProcessMemory::read(),
+            threads: crate::pipeline::realtime::promotions(),
+            clients_detail: self.client_reports(),
+            ..StatusReport::default()
+        }
     }
 
     /// Every connected client's figures, by id.

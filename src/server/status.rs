@@ -4,6 +4,7 @@ use hdrhistogram::Histogram;
 use serde::{Deserialize, Serialize};
 
 use crate::pipeline::CountersSnapshot;
+use crate::pipeline::realtime::Promotion;
 
 /// Latency percentiles (ns) of one path: the daemon's (status interval or since start) and
 /// `ftafm soak`'s receive latency.
@@ -110,10 +111,22 @@ pub struct StatusReport {
     pub messages_dropped: u64,
     /// synth → DSP-done latency of demodulator frames.
     pub latency_synth_to_dsp: LatencySummary,
-    /// synth → handed to a client's socket.
+    /// synth → handed to every client's queue.
     pub latency_synth_to_send: LatencySummary,
+    /// DSP done → handed to a client's socket, all clients.
+    pub latency_dsp_to_socket: LatencySummary,
+    /// synth → handed to a client's socket, all clients.
+    pub latency_synth_to_socket: LatencySummary,
     /// The pipeline's counters.
     pub counters: CountersSnapshot,
+    /// The daemon's resident memory; absent where the system does not say (not Linux).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub memory: Option<ProcessMemory>,
+    /// How the real-time threads are scheduled.
+    pub threads: Vec<Promotion>,
+    /// Every connected client: messages written to its socket and dropped for it, and the
+    /// latency at its socket since it connected.
+    pub clients_detail: Vec<ClientReport>,
 }
 
 #[cfg(test)]
