@@ -12,7 +12,7 @@
 use std::time::Instant;
 
 use ftafm::config::default_settings;
-use ftafm::dsp::{Demodulator, LockInBank};
+use ftafm::dsp::LockInBank;
 use ftafm::synth::{SynthPlan, SynthState};
 
 fn env_usize(name: &str, default: usize) -> usize {
@@ -41,17 +41,7 @@ fn lockin_bank_on_synthesised_samples() {
     let bytes: Vec<u8> = samples.iter().flat_map(|x| x.to_le_bytes()).collect();
     std::fs::write(&path, bytes).expect("write the samples");
 
-    let demods: Vec<Demodulator> = settings
-        .demods
-        .iter()
-        .map(|d| Demodulator {
-            enable: d.enable,
-            harmonic: d.harmonic,
-            order: d.order,
-            time_constant: d.timeconstant,
-            output_rate: d.rate,
-        })
-        .collect();
+    let demods = ftafm::pipeline::demodulators(&settings);
     let new_bank = || {
         let mut bank = LockInBank::new(fs, settings.drive.frequency, &demods).expect("bank");
         bank.align_drive(phase0, plan.frequency_word);

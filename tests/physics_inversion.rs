@@ -9,7 +9,7 @@ use std::f64::consts::PI;
 use std::sync::OnceLock;
 
 use ftafm::config::{InversionMethod, Material, Settings};
-use ftafm::dsp::{Demodulator, LockInBank};
+use ftafm::dsp::LockInBank;
 use ftafm::inversion::ForceEstimator;
 use ftafm::physics::inversion::{
     ALIAS_HARMONICS, AmplitudeMeasurement, BOLTZMANN, CoefficientSource, CutCosineStart,
@@ -702,17 +702,7 @@ fn full_inversion_uses_a_measured_mean_and_rejects_bad_input() {
 fn chain_frames(settings: &Settings, settle: f64, seconds: f64) -> Vec<DemodFrame> {
     let plan = SynthPlan::new(settings).unwrap();
     let mut state = SynthState::steady(&plan, settings.synth.seed);
-    let demods: Vec<Demodulator> = settings
-        .demods
-        .iter()
-        .map(|d| Demodulator {
-            enable: d.enable,
-            harmonic: d.harmonic,
-            order: d.order,
-            time_constant: d.timeconstant,
-            output_rate: d.rate,
-        })
-        .collect();
+    let demods = ftafm::pipeline::demodulators(settings);
     let fs = settings.synth.sample_rate;
     let mut bank = LockInBank::new(fs, settings.drive.frequency, &demods).unwrap();
     bank.align_drive(0, plan.frequency_word);

@@ -26,18 +26,7 @@ impl DspPlan {
     /// Builds the bank and spectrum of `settings` (plans FFTs, allocates every buffer).
     pub fn new(settings: &Settings) -> Result<Self, DspError> {
         let fs = settings.synth.sample_rate;
-        let demods: Vec<Demodulator> = settings
-            .demods
-            .iter()
-            .map(|d| Demodulator {
-                enable: d.enable,
-                harmonic: d.harmonic,
-                order: d.order,
-                time_constant: d.timeconstant,
-                output_rate: d.rate,
-            })
-            .collect();
-        let bank = LockInBank::new(fs, settings.drive.frequency, &demods)?;
+        let bank = LockInBank::new(fs, settings.drive.frequency, &demodulators(settings))?;
         let spectrum = if settings.spectrum.enable {
             let hop = (fs / settings.spectrum.rate).round().max(1.0) as usize;
             Some(SlidingSpectrum::new(SpectrumConfig {
@@ -135,6 +124,21 @@ impl DspPlan {
             });
         }
     }
+}
+
+/// The lock-in bank's demodulators for `/demods/...`, in index order.
+pub fn demodulators(settings: &Settings) -> Vec<Demodulator> {
+    settings
+        .demods
+        .iter()
+        .map(|d| Demodulator {
+            enable: d.enable,
+            harmonic: d.harmonic,
+            order: d.order,
+            time_constant: d.timeconstant,
+            output_rate: d.rate,
+        })
+        .collect()
 }
 
 fn window(w: SpectrumWindow) -> Window {

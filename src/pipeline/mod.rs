@@ -30,7 +30,7 @@ use ringbuf::{HeapCons, HeapProd, HeapRb};
 
 pub use block::{BlockHeader, unix_ns};
 pub use counters::{Counters, CountersSnapshot};
-pub use dsp_plan::DspPlan;
+pub use dsp_plan::{DspPlan, demodulators};
 pub use frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
 pub use scope::MAX_SCOPE_SAMPLES;
 pub use synth_worker::BLOCK_SAMPLES;
