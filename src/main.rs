@@ -308,12 +308,17 @@ fn run_bench(
         eprintln!("ftafm: {e}");
         ExitCode::FAILURE
     })?;
-    if json {
-        println!("{}", serde_json::to_string(&report).expect("plain numbers"));
-    } else {
-        print!("{}", ftafm::bench::render_text(&report));
-    }
+    print_report(json, &report, ftafm::bench::render_text);
     Ok(ExitCode::SUCCESS)
+}
+
+/// A command's report: one JSON object with `--json`, else its text form.
+fn print_report<R: serde::Serialize>(json: bool, report: &R, text: impl FnOnce(&R) -> String) {
+    if json {
+        println!("{}", serde_json::to_string(report).expect("plain numbers"));
+    } else {
+        print!("{}", text(report));
+    }
 }
 
 fn run_scan(
@@ -341,11 +346,7 @@ fn run_scan(
         eprintln!("ftafm: {e}");
         ExitCode::FAILURE
     })?;
-    if json {
-        println!("{}", serde_json::to_string(&report).expect("plain numbers"));
-    } else {
-        print!("{}", ftafm::scan::render_text(&report));
-    }
+    print_report(json, &report, ftafm::scan::render_text);
     Ok(ExitCode::SUCCESS)
 }
 
