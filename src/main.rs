@@ -126,7 +126,8 @@ enum Command {
         /// Print exactly one JSON object as the last line of stdout (progress on stderr).
         #[arg(long)]
         json: bool,
-        /// Exit with status 1 if any overrun or seq gap occurred (for CI).
+        /// Exit with status 1 if any overrun, late block (the synthesiser fell more than
+        /// 0.1 s behind the clock and skipped that signal time) or seq gap occurred (for CI).
         #[arg(long)]
         fail_on_loss: bool,
         /// Write the HTML report (summary, latency histogram, latency over time) here;
@@ -429,8 +430,11 @@ fn run_soak(
     }
     if fail_on_loss && report.lost_anything() {
         eprintln!(
-            "ftafm: loss: {} seq gaps, {} overrun samples in {} blocks",
-            report.gaps, report.server.overruns, report.server.overrun_blocks
+            "ftafm: loss: {} seq gaps, {} overrun samples in {} blocks, {} late blocks",
+            report.gaps,
+            report.server.overruns,
+            report.server.overrun_blocks,
+            report.server.late_blocks
         );
         return Err(ExitCode::FAILURE);
     }

@@ -7,13 +7,17 @@
 //! the daemon's resident memory). Clients that lose their connection are counted and
 //! reconnect. The report keeps the latency histogram and a per-second timeline, which
 //! [`html::render`] draws as a self-contained HTML page.
+//!
+//! A stall meter ([`StallMeter`]) runs beside the clients, and the daemon runs its own: the
+//! report says how long this machine (and the daemon's) failed to run a ready thread, and
+//! how many of the slow messages were in flight during such a stall.
 
 pub mod html;
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 use crate::server::status::LatencySummary;
 use futures_util::{SinkExt, StreamExt};
@@ -23,6 +27,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 
+use crate::pipeline::{StallEvent, StallMeter, unix_ns as now_ns};
 use crate::server::protocol::StreamKind;
 
 /// Largest number of clients a soak may open.
@@ -35,6 +40,15 @@ const MAX_LATENCY_NS: u64 = 60_000_000_000;
 const BINS_PER_DECADE: u32 = 10;
 /// How long connecting and subscribing may take per client.
 const SETUP_TIMEOUT: Duration = Duration::from_secs(10);
+/// A message this late is slow: the max-latency goal of docs/benchmarks.md (20 ms).
+pub const SLOW_NS: u64 = 20_000_000;
+/// A slow message counts as held up by the machine when a stall at least this long (half
+/// the slow threshold) of the soak's stall meter fell within its flight.
+pub const MACHINE_STALL_NS: u64 = 10_000_000;
+/// Slow messages kept per client for that comparison; more are only counted.
+const SLOW_KEPT: usize = 10_000;
+/// Machine stalls listed in the report, longest first.
+const STALLS_LISTED: usize = 100;
 
 /// What to run.
 #[derive(Clone, Debug)]
@@ -261,6 +275,37 @@ pub struct ServerReport {
     /// `synth_to_socket`); paths with no data are left out.
     #[serde(default)]
     pub latency_ns: BTreeMap<String, LatencySummary>,
+    /// The daemon's stall meter since it started (ns), if `/metrics` reports it
+    /// (`ftafm_machine_stall_seconds`).
+    #[serde(default)]
+    pub machine_stall_ns: Option<LatencySummary>,
+}
+
+/// How the machine itself behaved during the run: the soak's stall meter, the slow messages
+/// that a stall explains, and the CPU time the hypervisor took.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct MachineReport {
+    /// Oversleep of the soak's 1 ms naps (ns): how late this machine ran a ready thread.
+    pub stall_ns: LatencySummary,
+    /// Stalls of at least 5 ms, longest first (at most 100), with their times.
+    pub stalls: Vec<StallEvent>,
+    /// Stalls of at least 5 ms in all.
+    pub stalls_over_5ms: u64,
+    /// Messages at least [`SLOW_NS`] late.
+    pub slow_messages: u64,
+    /// Of those, the ones in flight while this machine stalled for at least
+    /// [`MACHINE_STALL_NS`] (among the first 10 000 slow messages of each client).
+    pub slow_messages_in_stalls: u64,
+    /// Slow messages not compared (over 10 000 at one client).
+    pub slow_messages_not_compared: u64,
+    /// Seconds of the timeline whose largest latency was at least [`SLOW_NS`].
+    pub slow_seconds: u64,
+    /// Of those, the ones in which, or in the second before, this machine stalled for at
+    /// least [`MACHINE_STALL_NS`]. (A message can be late after the stall has ended: the
+    /// backlog the stall left takes a while to drain.)
+    pub slow_seconds_with_stall: u64,
+    /// CPU time stolen by the hypervisor during the run, all CPUs (s; Linux `/proc/stat`).
+    pub cpu_steal_s: Option<f64>,
 }
 
 /// What `ftafm soak` reports; `--json` prints it as one object.
@@ -299,6 +344,9 @@ pub struct SoakReport {
     /// One point per second of the measurement (the last may be shorter).
     #[serde(default)]
     pub timeline: Vec<TimelinePoint>,
+    /// The machine's own stalls during the run.
+    #[serde(default)]
+    pub machine: MachineReport,
 }
 
 /// One bin of the latency histogram: latencies in `[lo_ns, hi_ns)`.
@@ -327,12 +375,20 @@ pub struct TimelinePoint {
     pub p99_ns: u64,
     /// Largest (ns).
     pub max_ns: u64,
+    /// The soak machine's longest stall in the interval (ns): how late its stall meter
+    /// woke from a 1 ms nap.
+    #[serde(default)]
+    pub stall_max_ns: u64,
 }
 
 impl SoakReport {
-    /// Whether anything was lost: overruns on the server or gaps at a client.
+    /// Whether anything was lost: overruns or late blocks (signal time skipped) on the
+    /// server, or gaps at a client.
     pub fn lost_anything(&self) -> bool {
-        self.gaps > 0 || self.server.overruns > 0 || self.server.overrun_blocks > 0
+        self.gaps > 0
+            || self.server.overruns > 0
+            || self.server.overrun_blocks > 0
+            || self.server.late_blocks > 0
     }
 }
 
@@ -360,6 +416,10 @@ struct ClientStats {
     interval_gaps: u64,
     per_stream: Vec<(u64, u64, u64)>, // messages, gaps, bytes; index of `streams`
     disconnects: u64,
+    /// Slow messages as (received Unix ns, latency ns), the first [`SLOW_KEPT`].
+    slow: Vec<(u64, u64)>,
+    /// Slow messages in all.
+    slow_count: u64,
 }
 
 /// The histogram of one timeline interval: 1 µs resolution, 2 significant digits.
@@ -376,6 +436,8 @@ impl ClientStats {
             interval_gaps: 0,
             per_stream: vec![(0, 0, 0); streams],
             disconnects: 0,
+            slow: Vec::new(),
+            slow_count: 0,
         }
     }
 }
@@ -391,13 +453,6 @@ struct Envelope {
     t_synth_ns: Option<u64>,
     ok: Option<serde::de::IgnoredAny>,
     error: Option<serde_json::Value>,
-}
-
-fn now_ns() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_nanos() as u64)
-        .unwrap_or(0)
 }
 
 type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<TcpStream>>;
@@ -467,6 +522,12 @@ fn on_text(
             let latency = received_ns.saturating_sub(t).clamp(1, MAX_LATENCY_NS);
             s.histogram.saturating_record(latency);
             s.interval.saturating_record(latency);
+            if latency >= SLOW_NS {
+                s.slow_count += 1;
+                if s.slow.len() < SLOW_KEPT {
+                    s.slow.push((received_ns, latency));
+                }
+            }
         }
     }
     Ok(())
@@ -620,6 +681,23 @@ impl Metrics {
         out
     }
 
+    /// The daemon's stall meter (`ftafm_machine_stall_seconds`, converted to ns).
+    fn stall(&self) -> Option<LatencySummary> {
+        let count = self.get("ftafm_machine_stall_seconds_count")?;
+        let q = |q: &str| {
+            let k = format!("ftafm_machine_stall_seconds{{quantile=\"{q}\"}}");
+            (self.get(&k).unwrap_or(0.0) * 1e9).round() as u64
+        };
+        Some(LatencySummary {
+            count: count as u64,
+            p50: q("0.5"),
+            p90: q("0.9"),
+            p99: q("0.99"),
+            p999: q("0.999"),
+            max: q("1"),
+        })
+    }
+
     /// The daemon's resident memory, under any of the usual names.
     fn memory(&self) -> Option<(u64, &'static str)> {
         [
@@ -734,6 +812,7 @@ fn server_report(before: &Metrics, during: &Metrics, after: &Metrics) -> ServerR
             .map(|v| v as u64),
         memory_growth_bytes,
         latency_ns: after.latencies(),
+        machine_stall_ns: after.stall(),
     }
 }
 
@@ -801,6 +880,9 @@ pub async fn run(
     }
 
     let before = fetch_metrics(&target).await?;
+    let steal_before = cpu_steal_s();
+    let meter = StallMeter::start("ftafm-soak-stall")
+        .map_err(|e| SoakError::Connect(format!("cannot start the stall meter's thread: {e}")))?;
     let start = Instant::now();
     state.store(MEASURING, Ordering::Release);
     let duration = Duration::from_secs_f64(options.seconds);
@@ -852,6 +934,7 @@ pub async fn run(
             } else {
                 interval.max()
             },
+            stall_max_ns: meter.take_interval_max(),
         });
     };
     loop {
@@ -886,6 +969,8 @@ pub async fn run(
     let seconds = start.elapsed().as_secs_f64();
     take_interval(seconds);
     let (histogram, per, disconnects) = summarize();
+    let machine = machine_report(&meter, &all_stats, &timeline, steal_before);
+    drop(meter);
     if during.values.is_empty() {
         during = fetch_metrics(&target).await.unwrap_or_default();
     }
@@ -945,7 +1030,80 @@ pub async fn run(
         server,
         latency_histogram: histogram_bins(&histogram),
         timeline,
+        machine,
     })
+}
+
+/// The machine's side of the run: the stall meter's figures and the slow messages that a
+/// stall of this machine explains.
+fn machine_report(
+    meter: &StallMeter,
+    clients: &[Arc<Mutex<ClientStats>>],
+    timeline: &[TimelinePoint],
+    steal_before: Option<f64>,
+) -> MachineReport {
+    let mut slow = Vec::new();
+    let mut slow_messages = 0;
+    for c in clients {
+        let c = c.lock().unwrap_or_else(|e| e.into_inner());
+        slow.extend_from_slice(&c.slow);
+        slow_messages += c.slow_count;
+    }
+    let events = meter.events();
+    let mut stalls = events.clone();
+    stalls.sort_by_key(|e| std::cmp::Reverse(e.stall_ns));
+    stalls.truncate(STALLS_LISTED);
+    let (slow_seconds, slow_seconds_with_stall) = slow_seconds(timeline);
+    MachineReport {
+        stall_ns: LatencySummary::from_histogram(&meter.histogram()),
+        stalls,
+        stalls_over_5ms: meter.stalls(),
+        slow_messages,
+        slow_messages_in_stalls: crate::pipeline::stall::overlapping(
+            &slow,
+            &events,
+            MACHINE_STALL_NS,
+        ) as u64,
+        slow_messages_not_compared: slow_messages - slow.len() as u64,
+        slow_seconds,
+        slow_seconds_with_stall,
+        cpu_steal_s: cpu_steal_s()
+            .zip(steal_before)
+            .map(|(after, before)| after - before),
+    }
+}
+
+/// Seconds of `timeline` with a slow message, and how many of them follow a machine stall
+/// (in the same second or the one before).
+fn slow_seconds(timeline: &[TimelinePoint]) -> (u64, u64) {
+    let mut slow = 0;
+    let mut with_stall = 0;
+    for (i, p) in timeline.iter().enumerate() {
+        if p.max_ns < SLOW_NS {
+            continue;
+        }
+        slow += 1;
+        let before = i.checked_sub(1).map_or(0, |j| timeline[j].stall_max_ns);
+        if p.stall_max_ns.max(before) >= MACHINE_STALL_NS {
+            with_stall += 1;
+        }
+    }
+    (slow, with_stall)
+}
+
+/// CPU time the hypervisor has taken from this machine since boot, all CPUs (s): the
+/// `steal` column of `/proc/stat` (Linux; `None` elsewhere).
+fn cpu_steal_s() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let ticks: f64 = stat
+        .lines()
+        .next()?
+        .split_whitespace()
+        .nth(8)?
+        .parse()
+        .ok()?;
+    // The kernel reports in USER_HZ, 100 on every Linux ABI.
+    Some(ticks / 100.0)
 }
 
 /// Readable summary.
@@ -1008,6 +1166,36 @@ pub fn render_text(r: &SoakReport) -> String {
             l.count
         );
     }
+    let m = &r.machine;
+    out += &format!(
+        "machine   stalls of this machine (1 ms naps): p99 {:.3} ms  max {:.3} ms, {} over 5 ms{}{}\n\
+         slow      {} messages over {:.0} ms, {} of them in flight during a stall ≥ {:.0} ms of this machine{}; \
+         {} seconds had one, {} of them right after such a stall\n",
+        ms(m.stall_ns.p99),
+        ms(m.stall_ns.max),
+        m.stalls_over_5ms,
+        s.machine_stall_ns
+            .map(|d| format!(
+                "; the daemon's: p99 {:.3} ms  max {:.3} ms since it started",
+                ms(d.p99),
+                ms(d.max)
+            ))
+            .unwrap_or_default(),
+        m.cpu_steal_s
+            .map(|t| format!("; CPU steal {t:.2} s"))
+            .unwrap_or_default(),
+        m.slow_messages,
+        ms(SLOW_NS),
+        m.slow_messages_in_stalls,
+        ms(MACHINE_STALL_NS),
+        if m.slow_messages_not_compared > 0 {
+            format!(" ({} not compared)", m.slow_messages_not_compared)
+        } else {
+            String::new()
+        },
+        m.slow_seconds,
+        m.slow_seconds_with_stall,
+    );
     let mib = |b: u64| b as f64 / 1048576.0;
     out += &match (s.rss_bytes_before, s.memory_bytes, s.memory_growth_bytes) {
         (Some(before), Some(after), Some(growth)) => format!(
@@ -1052,6 +1240,19 @@ mod tests {
     }
 
     #[test]
+    fn slow_seconds_are_matched_to_stalls_in_them_or_just_before() {
+        let p = |max_ms: u64, stall_ms: u64| TimelinePoint {
+            max_ns: max_ms * 1_000_000,
+            stall_max_ns: stall_ms * 1_000_000,
+            ..Default::default()
+        };
+        // Slow seconds: 1 (stall in it), 3 (stall the second before), 5 (none near).
+        let timeline = [p(2, 1), p(60, 55), p(3, 40), p(25, 2), p(1, 1), p(30, 9)];
+        assert_eq!(slow_seconds(&timeline), (3, 2));
+        assert_eq!(slow_seconds(&[]), (0, 0));
+    }
+
+    #[test]
     fn metrics_text_parses_and_dechunks() {
         let m = Metrics::parse(
             "# HELP x\nftafm_overrun_samples_total 3\nftafm_messages_dropped_total{stream=\"demods\"} 2\n",
@@ -1059,6 +1260,15 @@ mod tests {
         assert_eq!(m.int("ftafm_overrun_samples_total"), 3);
         assert_eq!(m.sum("ftafm_messages_dropped_total"), 2);
         assert_eq!(m.memory(), None);
+        assert_eq!(m.stall(), None);
+        let m = Metrics::parse(
+            "ftafm_machine_stall_seconds{quantile=\"0.99\"} 0.0004\nftafm_machine_stall_seconds{quantile=\"1\"} 0.05\nftafm_machine_stall_seconds_count 10\n",
+        );
+        let stall = m.stall().unwrap();
+        assert_eq!(
+            (stall.count, stall.p99, stall.max),
+            (10, 400_000, 50_000_000)
+        );
         assert_eq!(dechunk("5\r\nhello\r\n3\r\nabc\r\n0\r\n\r\n"), "helloabc");
     }
 }

@@ -138,6 +138,23 @@ async fn eight_clients_for_twenty_seconds_lose_nothing() {
         let l = report.server.latency_ns[path];
         assert!(l.count > 0 && l.p50 > 0 && l.p50 <= l.max, "{path}: {l:?}");
     }
+    // Both stall meters ran all along: the soak's napped about once a millisecond (at
+    // least a third as often, whatever the machine does), the daemon's since it started.
+    let m = &report.machine;
+    let naps = m.stall_ns.count as f64 / report.seconds;
+    assert!((300.0..1_100.0).contains(&naps), "{naps} naps/s: {m:?}");
+    assert!(
+        m.stall_ns.p50 <= m.stall_ns.max && m.stall_ns.max > 0,
+        "{m:?}"
+    );
+    assert!(m.stalls_over_5ms >= m.stalls.len() as u64, "{m:?}");
+    let daemon = report
+        .server
+        .machine_stall_ns
+        .expect("the daemon's stall meter");
+    assert!(daemon.count as f64 >= 300.0 * report.seconds, "{daemon:?}");
+    assert!(m.slow_messages_in_stalls <= m.slow_messages);
+    assert!(m.slow_seconds_with_stall <= m.slow_seconds);
 
     // The JSON report has the documented fields and reads back.
     let v = serde_json::to_value(&report).unwrap();
@@ -201,8 +218,8 @@ async fn eight_clients_for_twenty_seconds_lose_nothing() {
     assert_eq!(bars, non_empty);
     assert_eq!(
         page.matches("<polyline class=").count(),
-        4,
-        "p50, p99, max and the rate"
+        5,
+        "p50, p99, max, the machine's stalls and the rate"
     );
     let start = page.find("id=\"soak-report\">").unwrap() + "id=\"soak-report\">".len();
     let end = start + page[start..].find("</script>").unwrap();

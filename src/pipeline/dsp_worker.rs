@@ -13,8 +13,9 @@ use super::counters::Counters;
 use super::dsp_plan::DspPlan;
 use super::frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
 
-/// How long the DSP thread sleeps when the ring is empty: well under a block (410 µs).
-const IDLE: Duration = Duration::from_micros(50);
+/// Longest the DSP thread sleeps when the ring is empty. The synthesiser wakes it as each
+/// block lands, so this only bounds how late it notices a stop or a new plan.
+const IDLE: Duration = Duration::from_millis(1);
 
 pub(crate) struct DspWorker {
     pub plan: Box<DspPlan>,
@@ -72,7 +73,7 @@ impl DspWorker {
                 Counters::add(&self.counters.dsp_plans_applied, 1);
             }
             let Some(header) = self.headers.try_pop() else {
-                std::thread::sleep(IDLE);
+                std::thread::park_timeout(IDLE);
                 continue;
             };
             let fill = self.samples.occupied_len() as u64;

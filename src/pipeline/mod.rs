@@ -19,6 +19,7 @@ mod dsp_worker;
 mod frames;
 pub mod realtime;
 mod scope;
+pub mod stall;
 mod synth_worker;
 
 use std::sync::Arc;
@@ -33,6 +34,7 @@ pub use counters::{Counters, CountersSnapshot};
 pub use dsp_plan::{DspPlan, demodulators};
 pub use frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
 pub use scope::MAX_SCOPE_SAMPLES;
+pub use stall::{StallEvent, StallMeter};
 pub use synth_worker::BLOCK_SAMPLES;
 
 use crate::config::{MAX_SPECTRUM_SIZE, Settings};
@@ -224,7 +226,7 @@ impl Pipeline {
         let stop_dsp = Arc::new(AtomicBool::new(false));
         let realtime = Arc::new(AtomicBool::new(settings.synth.realtime));
         let scan = ScanRuntime::new(&synth_plan);
-        let synth = SynthWorker {
+        let mut synth = SynthWorker {
             plan: synth_plan,
             state,
             scan,
@@ -236,6 +238,7 @@ impl Pipeline {
             counters: counters.clone(),
             stop: stop_synth.clone(),
             realtime: realtime.clone(),
+            consumer: None,
         };
         let dsp = DspWorker {
             plan: dsp_plan,
@@ -279,7 +282,9 @@ impl Pipeline {
                 })
                 .map_err(|e| PipelineError::Thread(name, e))
         };
-        pipeline.dsp_thread = Some(spawn("dsp", Box::new(move || dsp.run()))?);
+        let dsp_thread = spawn("dsp", Box::new(move || dsp.run()))?;
+        synth.consumer = Some(dsp_thread.thread().clone());
+        pipeline.dsp_thread = Some(dsp_thread);
         pipeline.synth_thread = Some(spawn("synth", Box::new(move || synth.run()))?);
         let output = PipelineOutput {
             demods: demods_out,

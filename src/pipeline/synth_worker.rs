@@ -28,6 +28,9 @@ pub(crate) struct SynthWorker {
     pub counters: Arc<Counters>,
     pub stop: Arc<AtomicBool>,
     pub realtime: Arc<AtomicBool>,
+    /// The DSP thread, woken when a block is ready so that it can sleep until then instead
+    /// of polling (`unpark` is a flag and, only if the thread sleeps, one futex wake).
+    pub consumer: Option<std::thread::Thread>,
 }
 
 impl SynthWorker {
@@ -109,6 +112,9 @@ impl SynthWorker {
             if self.samples.vacant_len() >= block.len() && self.headers.vacant_len() >= 1 {
                 self.samples.push_slice(block);
                 let _ = self.headers.try_push(header);
+                if let Some(consumer) = &self.consumer {
+                    consumer.unpark();
+                }
                 return true;
             }
             if realtime || self.stop.load(Ordering::Relaxed) {

@@ -42,11 +42,15 @@ pub async fn run(
     settings: Settings,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), ServerError> {
-    let (pipeline, output) = Pipeline::start(&settings)?;
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
     let (force, estimates) = super::force::ForceLink::start();
     force.rebuild(settings.clone());
     let (image, image_lines) = super::image::ImageLink::start(&settings);
+    let stall = crate::pipeline::StallMeter::start("ftafm-stall")
+        .inspect_err(|e| tracing::warn!(error = %e, "no stall meter: its thread would not start"))
+        .ok();
+    // Last, so that no frame waits for the rest of the start-up before the hub takes it.
+    let (pipeline, output) = Pipeline::start(&settings)?;
     let state = Arc::new(AppState {
         sample_rate: settings.synth.sample_rate,
         control: Mutex::new(Control {
@@ -65,6 +69,7 @@ pub async fn run(
         latency_totals: Mutex::new(Default::default()),
         force,
         image,
+        stall,
     });
     let hub = tokio::spawn(hub::run(state.clone(), output, estimates, image_lines));
     let app = Router::new()

@@ -355,6 +355,34 @@ pub(crate) fn render(state: &AppState) -> String {
     for (labels, value) in latency {
         let _ = writeln!(out, "ftafm_latency_seconds{labels} {value}");
     }
+    if let Some(meter) = &state.stall {
+        let s = super::status::LatencySummary::from_histogram(&meter.histogram());
+        let _ = writeln!(
+            out,
+            "# HELP ftafm_machine_stall_seconds How much later than asked a thread that naps 1 ms at a time woke up, since start: the machine's own scheduling stalls (other processes, the hypervisor)."
+        );
+        let _ = writeln!(out, "# TYPE ftafm_machine_stall_seconds summary");
+        for (q, v) in [
+            ("0.5", s.p50),
+            ("0.9", s.p90),
+            ("0.99", s.p99),
+            ("0.999", s.p999),
+            ("1", s.max),
+        ] {
+            let _ = writeln!(
+                out,
+                "ftafm_machine_stall_seconds{{quantile=\"{q}\"}} {}",
+                v as f64 * 1e-9
+            );
+        }
+        let _ = writeln!(out, "ftafm_machine_stall_seconds_count {}", s.count);
+        let _ = writeln!(
+            out,
+            "# HELP ftafm_machine_stalls_total Stalls of the machine of at least 5 ms since start."
+        );
+        let _ = writeln!(out, "# TYPE ftafm_machine_stalls_total counter");
+        let _ = writeln!(out, "ftafm_machine_stalls_total {}", meter.stalls());
+    }
     let _ = writeln!(
         out,
         "# HELP ftafm_uptime_seconds Seconds since the daemon started."

@@ -303,6 +303,9 @@ pub(crate) struct AppState {
     /// The `force` stream's worker.
     pub force: super::force::ForceLink,
     pub image: super::image::ImageLink,
+    /// The machine's stalls, measured beside the server (None if its thread would not
+    /// start; the daemon runs without it).
+    pub stall: Option<crate::pipeline::StallMeter>,
 }
 
 impl AppState {
@@ -328,6 +331,11 @@ impl AppState {
             latency_synth_to_socket: synth,
             memory: ProcessMemory::read(),
             threads: crate::pipeline::realtime::promotions(),
+            machine_stall_max_ns: self
+                .stall
+                .as_ref()
+                .map(|m| m.take_interval_max())
+                .unwrap_or(0),
             clients_detail: self.client_reports(),
             ..StatusReport::default()
         }

@@ -124,6 +124,10 @@ pub struct StatusReport {
     pub memory: Option<ProcessMemory>,
     /// How the real-time threads are scheduled.
     pub threads: Vec<Promotion>,
+    /// The machine's longest stall in the interval (ns): how much later than asked a thread
+    /// of the daemon that only naps 1 ms at a time woke up. Latency spikes that coincide
+    /// with one were the machine's (other processes, the hypervisor), not the chain's.
+    pub machine_stall_max_ns: u64,
     /// Every connected client: messages written to its socket and dropped for it, and the
     /// latency at its socket since it connected.
     pub clients_detail: Vec<ClientReport>,

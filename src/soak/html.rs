@@ -250,7 +250,8 @@ fn timeline(out: &mut String, r: &SoakReport) {
     svg_open(
         out,
         "latency-timeline",
-        "Receive latency over time: p50, p99 and max of each second (logarithmic)",
+        "Receive latency over time: p50, p99 and max of each second, and this machine's longest \
+         stall in it (logarithmic)",
     );
     let points: Vec<_> = r.timeline.iter().filter(|p| p.messages > 0).collect();
     if points.is_empty() {
@@ -264,7 +265,7 @@ fn timeline(out: &mut String, r: &SoakReport) {
             .max(1_000) as f64;
         let hi = points
             .iter()
-            .map(|p| p.max_ns)
+            .map(|p| p.max_ns.max(p.stall_max_ns))
             .max()
             .unwrap_or(1_000)
             .max(1_000) as f64;
@@ -293,6 +294,7 @@ fn timeline(out: &mut String, r: &SoakReport) {
             ),
             ("p99", |p| p.p99_ns),
             ("p50", |p| p.p50_ns),
+            ("stall", |p| p.stall_max_ns),
         ] {
             let pts: Vec<String> = points
                 .iter()
@@ -308,11 +310,13 @@ fn timeline(out: &mut String, r: &SoakReport) {
             out,
             "<text class=\"max\" x=\"{0:.1}\" y=\"{1:.1}\">max</text>\
              <text class=\"p99\" x=\"{0:.1}\" y=\"{2:.1}\">p99</text>\
-             <text class=\"p50\" x=\"{0:.1}\" y=\"{3:.1}\">p50</text>",
-            WIDTH - RIGHT - 40.0,
+             <text class=\"p50\" x=\"{0:.1}\" y=\"{3:.1}\">p50</text>\
+             <text class=\"stall\" x=\"{0:.1}\" y=\"{4:.1}\">machine stall</text>",
+            WIDTH - RIGHT - 80.0,
             TOP + 14.0,
             TOP + 28.0,
-            TOP + 42.0
+            TOP + 42.0,
+            TOP + 56.0
         );
     }
     axis_labels(out, "time since the measurement started", "latency");
@@ -440,6 +444,42 @@ fn summary(out: &mut String, r: &SoakReport) {
             ),
         ),
         (
+            "this machine's stalls (1 ms naps) p99 / max, count over 5 ms",
+            format!(
+                "{} / {}, {}",
+                duration(r.machine.stall_ns.p99 as f64),
+                duration(r.machine.stall_ns.max as f64),
+                r.machine.stalls_over_5ms
+            ),
+        ),
+        (
+            "the daemon's stalls p99 / max (since it started)",
+            s.machine_stall_ns
+                .map(|d| format!("{} / {}", duration(d.p99 as f64), duration(d.max as f64)))
+                .unwrap_or_else(|| "not reported".into()),
+        ),
+        (
+            "messages over 20 ms / in flight during a stall ≥ 10 ms of this machine",
+            format!(
+                "{} / {}",
+                r.machine.slow_messages, r.machine.slow_messages_in_stalls
+            ),
+        ),
+        (
+            "seconds with a message over 20 ms / right after a stall ≥ 10 ms",
+            format!(
+                "{} / {}",
+                r.machine.slow_seconds, r.machine.slow_seconds_with_stall
+            ),
+        ),
+        (
+            "CPU time stolen by the hypervisor",
+            r.machine
+                .cpu_steal_s
+                .map(|t| format!("{t:.2} s"))
+                .unwrap_or_else(|| "unknown".into()),
+        ),
+        (
             "memory growth",
             s.memory_growth_bytes
                 .map(|g| format!("{g} bytes ({:+.2} MiB)", g as f64 / 1048576.0))
@@ -476,6 +516,7 @@ pub fn render(r: &SoakReport) -> String {
          line.p50, polyline.p50 {{ stroke: #1f77b4; stroke-width: 1.5; }} text.p50 {{ fill: #1f77b4; }}\n\
          line.p99, polyline.p99 {{ stroke: #ff7f0e; stroke-width: 1.5; }} text.p99 {{ fill: #ff7f0e; }}\n\
          line.max, polyline.max {{ stroke: #d62728; stroke-width: 1; }} text.max {{ fill: #d62728; }}\n\
+         polyline.stall {{ stroke: #7f7f7f; stroke-width: 1; stroke-dasharray: 3 2; }} text.stall {{ fill: #7f7f7f; }}\n\
          </style></head><body>\n<h1>ftafm soak</h1>\n",
         r.clients, r.seconds
     );
@@ -535,6 +576,7 @@ mod tests {
             server: Default::default(),
             latency_histogram: Vec::new(),
             timeline: Vec::new(),
+            machine: Default::default(),
         };
         let page = render(&r);
         assert_eq!(page.matches("no data").count(), 3);
@@ -551,9 +593,13 @@ mod tests {
             p50_ns: 1_000_000,
             p99_ns: 1_100_000,
             max_ns: 1_200_000,
+            stall_max_ns: 30_000_000,
         }];
         let page = render(&r);
         assert!(page.contains("<title>1 ms – 1.26 ms: 7 messages</title>"));
         assert!(page.contains("class=\"gap\""));
+        // The stall (30 ms) sets the top of the timeline's axis: 100 ms.
+        assert!(page.contains("polyline class=\"stall\""));
+        assert!(page.contains(">100 ms</text>"));
     }
 }
