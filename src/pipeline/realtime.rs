@@ -8,12 +8,13 @@
 //! (`/metrics`) and returned.
 //!
 //! The default (`FTAFM_SCHED` unset, or `off`) changes nothing. On the 2-core development
-//! machine promotion made things worse (docs/benchmarks.md): the DSP thread wakes every
-//! 50 µs while it waits for samples, and promoted it preempts the server's async threads
-//! at each wake-up, so the fan-out fell behind (a slow-client test lost messages of the
-//! good client) while the chain itself never needed the help (no overruns either way).
-//! On a machine with cores to spare, or with the chain pinned away from the server, try
-//! `fifo`.
+//! machine promotion does not pay (docs/benchmarks.md): it shortens the chain's own path
+//! (synth → DSP p99 0.51 → 0.17 ms) but not the clients' latency, which the server's async
+//! threads set, and those it delays a little (receive p99.9 3.8 → 4.8 ms in a 16-client
+//! soak). When the DSP thread still polled the ring every 50 µs, promotion made a
+//! slow-client test fail; it now sleeps until the synthesiser wakes it, and that test
+//! passes either way. On a machine with cores to spare, or with the chain pinned away from
+//! the server, try `fifo`.
 //!
 //! Only a chain that starts paced by the wall clock is promoted: a free-running chain
 //! (`ftafm bench` without `--realtime`) keeps both threads busy all the time, and two
