@@ -97,6 +97,21 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Measure this machine's own stalls, with nothing of ftafm running: a thread naps 1 ms
+    /// at a time and reports how much later than asked it woke up.
+    Stalls {
+        /// Duration of the measurement in seconds (0 < S ≤ 86400).
+        #[arg(
+            long,
+            value_name = "S",
+            default_value_t = 60.0,
+            allow_negative_numbers = true
+        )]
+        seconds: f64,
+        /// Print exactly one JSON object on stdout (progress still goes to stderr).
+        #[arg(long)]
+        json: bool,
+    },
     /// Soak a running daemon with N WebSocket clients: receive latency, seq gaps,
     /// disconnects, and the server's overruns and drops from /metrics.
     Soak {
@@ -189,6 +204,7 @@ fn main() -> ExitCode {
             fail_on_loss,
             report,
         } => run_soak(url, clients, seconds, &streams, json, fail_on_loss, report),
+        Command::Stalls { seconds, json } => run_stalls(seconds, json),
     };
     result.unwrap_or_else(|code| code)
 }
@@ -310,6 +326,25 @@ fn run_bench(
         ExitCode::FAILURE
     })?;
     print_report(json, &report, ftafm::bench::render_text);
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_stalls(seconds: f64, json: bool) -> Result<ExitCode, ExitCode> {
+    if !(seconds.is_finite() && seconds > 0.0 && seconds <= 86_400.0) {
+        eprintln!("ftafm: --seconds = {seconds} is out of range: allowed 0 < S ≤ 86400");
+        return Err(ExitCode::from(EXIT_USAGE));
+    }
+    let report = ftafm::soak::measure_stalls(seconds, |t, max_ns, over| {
+        eprintln!(
+            "[{t:>5.0} s] longest stall so far {:.3} ms, {over} of at least 5 ms",
+            max_ns as f64 / 1e6
+        );
+    })
+    .map_err(|e| {
+        eprintln!("ftafm: {e}");
+        ExitCode::FAILURE
+    })?;
+    print_report(json, &report, ftafm::soak::render_stalls);
     Ok(ExitCode::SUCCESS)
 }
 

@@ -1106,6 +1106,98 @@ fn cpu_steal_s() -> Option<f64> {
     Some(ticks / 100.0)
 }
 
+/// What `ftafm stalls` reports: the machine's stalls with nothing of ftafm running.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct StallReport {
+    /// Measured duration (s).
+    pub seconds: f64,
+    /// Oversleep of the 1 ms naps (ns).
+    pub stall_ns: LatencySummary,
+    /// Stalls of at least 5 ms.
+    pub stalls_over_5ms: u64,
+    /// Stalls of at least [`SLOW_NS`] (20 ms).
+    pub stalls_over_20ms: u64,
+    /// The longest stalls of at least 5 ms, longest first (at most 100), with their times.
+    pub longest: Vec<StallEvent>,
+    /// CPU time the hypervisor took during the run, all CPUs (s; Linux `/proc/stat`).
+    pub cpu_steal_s: Option<f64>,
+}
+
+/// Runs a stall meter alone for `seconds`; `progress(elapsed s, longest stall so far ns,
+/// stalls ≥ 5 ms so far)` is called about once a second.
+pub fn measure_stalls(
+    seconds: f64,
+    mut progress: impl FnMut(f64, u64, u64),
+) -> std::io::Result<StallReport> {
+    let steal_before = cpu_steal_s();
+    let meter = StallMeter::start("ftafm-stall")?;
+    let start = Instant::now();
+    let duration = Duration::from_secs_f64(seconds);
+    let mut longest = 0;
+    let mut next = Duration::from_secs(1);
+    while start.elapsed() < duration {
+        std::thread::sleep(next.min(duration).saturating_sub(start.elapsed()));
+        longest = longest.max(meter.take_interval_max());
+        if next < duration {
+            progress(start.elapsed().as_secs_f64(), longest, meter.stalls());
+        }
+        next += Duration::from_secs(1);
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    let events = meter.events();
+    let histogram = meter.histogram();
+    let stalls_over_5ms = meter.stalls();
+    drop(meter);
+    let mut top = events.clone();
+    top.sort_by_key(|e| std::cmp::Reverse(e.stall_ns));
+    top.truncate(STALLS_LISTED);
+    Ok(StallReport {
+        seconds,
+        stall_ns: LatencySummary::from_histogram(&histogram),
+        stalls_over_5ms,
+        stalls_over_20ms: events.iter().filter(|e| e.stall_ns >= SLOW_NS).count() as u64,
+        longest: top,
+        cpu_steal_s: cpu_steal_s()
+            .zip(steal_before)
+            .map(|(after, before)| after - before),
+    })
+}
+
+/// Readable form of [`StallReport`].
+pub fn render_stalls(r: &StallReport) -> String {
+    let ms = |ns: u64| ns as f64 / 1e6;
+    let l = &r.stall_ns;
+    let longest: Vec<_> = r
+        .longest
+        .iter()
+        .take(10)
+        .map(|e| format!("{:.1}", ms(e.stall_ns)))
+        .collect();
+    format!(
+        "ftafm stalls: {} naps of 1 ms in {:.1} s\n\
+         oversleep p50 {:.3} ms  p90 {:.3} ms  p99 {:.3} ms  p99.9 {:.3} ms  max {:.3} ms\n\
+         stalls    {} of at least 5 ms, {} of at least 20 ms; longest (ms): {}\n\
+         steal     {}\n",
+        l.count,
+        r.seconds,
+        ms(l.p50),
+        ms(l.p90),
+        ms(l.p99),
+        ms(l.p999),
+        ms(l.max),
+        r.stalls_over_5ms,
+        r.stalls_over_20ms,
+        if longest.is_empty() {
+            "none".to_string()
+        } else {
+            longest.join(", ")
+        },
+        r.cpu_steal_s
+            .map(|t| format!("{t:.2} s of CPU time taken by the hypervisor"))
+            .unwrap_or_else(|| "unknown (no /proc/stat)".into()),
+    )
+}
+
 /// Readable summary.
 pub fn render_text(r: &SoakReport) -> String {
     let ms = |ns: u64| ns as f64 / 1e6;

@@ -267,3 +267,30 @@ fn nothing_listening_exits_1() {
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("cannot connect"), "{stderr}");
 }
+
+#[test]
+fn stalls_measures_the_machine_alone() {
+    let out = ftafm(&["stalls", "--seconds", "1.5", "--json"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let report: ftafm::soak::StallReport =
+        serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    assert!((1.4..3.0).contains(&report.seconds), "{report:?}");
+    // About one nap a millisecond; at least a third of that whatever the machine does.
+    let naps = report.stall_ns.count as f64 / report.seconds;
+    assert!((300.0..1_100.0).contains(&naps), "{naps} naps/s");
+    assert!(report.stall_ns.p50 <= report.stall_ns.max);
+    assert!(report.stalls_over_5ms >= report.stalls_over_20ms);
+    assert!(report.longest.len() as u64 <= report.stalls_over_5ms);
+    assert!(
+        stderr.contains("longest stall so far"),
+        "progress: {stderr}"
+    );
+    for bad in ["0", "-1", "86401", "NaN"] {
+        let out = ftafm(&["stalls", "--seconds", bad]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{bad}: {stderr}");
+        assert!(stderr.contains("--seconds"), "{bad}: {stderr}");
+    }
+}

@@ -44,6 +44,8 @@ pub(crate) struct DspWorker {
     pub pixel_open: Option<(u32, u64)>,
     /// Scratch for a pixel's values.
     pub pixel_frame: DemodFrame,
+    /// Wakes the consumer after a block that produced demodulator frames.
+    pub signal: Option<Arc<super::FrameSignal>>,
 }
 
 /// Stream samples `lo..hi` of a block held in the ring as two slices.
@@ -97,6 +99,7 @@ impl DspWorker {
                 }
             }
             let busy = Instant::now();
+            let frames_before = self.counters.demod_frames.load(Ordering::Relaxed);
             self.plan.align(header.phase, header.frequency_word);
             let len = header.len as usize;
             let (a, b) = self.samples.as_slices();
@@ -177,6 +180,11 @@ impl DspWorker {
                 self.pixel_open = None;
             }
             emit.flush();
+            if let Some(signal) = &self.signal
+                && self.counters.demod_frames.load(Ordering::Relaxed) != frames_before
+            {
+                signal.notify();
+            }
             if let Some(scope) = &mut self.plan.scope {
                 let counters = &self.counters;
                 let (spare, free, out) = (

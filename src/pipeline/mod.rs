@@ -16,6 +16,7 @@ mod block;
 mod counters;
 mod dsp_plan;
 mod dsp_worker;
+mod frame_signal;
 mod frames;
 pub mod realtime;
 mod scope;
@@ -32,6 +33,7 @@ use ringbuf::{HeapCons, HeapProd, HeapRb};
 pub use block::{BlockHeader, unix_ns};
 pub use counters::{Counters, CountersSnapshot};
 pub use dsp_plan::{DspPlan, demodulators};
+pub use frame_signal::FrameSignal;
 pub use frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
 pub use scope::MAX_SCOPE_SAMPLES;
 pub use stall::{StallEvent, StallMeter};
@@ -90,6 +92,9 @@ pub struct PipelineOutput {
     pub pixels: HeapCons<PixelHarmonics>,
     /// Scan pixels' height and amplitude from the synthesiser, in scan order.
     pub topography: HeapCons<PixelTopography>,
+    /// Signalled by the DSP thread after each block that produced demodulator frames
+    /// (`None` where the system has no such signal: poll instead).
+    pub signal: Option<Arc<FrameSignal>>,
 }
 
 impl PipelineOutput {
@@ -222,6 +227,7 @@ impl Pipeline {
         let (dsp_link, dsp_plans_in, dsp_plans_out) = plan_link();
 
         let counters = Arc::new(Counters::default());
+        let signal = FrameSignal::new().map(Arc::new);
         let stop_synth = Arc::new(AtomicBool::new(false));
         let stop_dsp = Arc::new(AtomicBool::new(false));
         let realtime = Arc::new(AtomicBool::new(settings.synth.realtime));
@@ -259,6 +265,7 @@ impl Pipeline {
             pixels: pixels_in,
             pixel_open: None,
             pixel_frame: DemodFrame::empty(),
+            signal: signal.clone(),
         };
         let mut pipeline = Self {
             settings: settings.clone(),
@@ -294,6 +301,7 @@ impl Pipeline {
             free_scopes: free_scopes_in,
             pixels: pixels_out,
             topography: topography_out,
+            signal,
         };
         Ok((pipeline, output))
     }

@@ -9,9 +9,8 @@
 //!
 //! The default (`FTAFM_SCHED` unset, or `off`) changes nothing. On the 2-core development
 //! machine promotion does not pay (docs/benchmarks.md): it shortens the chain's own path
-//! (synth → DSP p99 0.51 → 0.17 ms) but not the clients' latency, which the server's async
-//! threads set, and those it delays a little (receive p99.9 3.8 → 4.8 ms in a 16-client
-//! soak). When the DSP thread still polled the ring every 50 µs, promotion made a
+//! (synth → DSP p99 0.40 → 0.26 ms) but not the clients' latency, which the server's async
+//! threads set, and those it delays (receive p99 1.81 → 2.56 ms in a 16-client soak). When the DSP thread still polled the ring every 50 µs, promotion made a
 //! slow-client test fail; it now sleeps until the synthesiser wakes it, and that test
 //! passes either way. On a machine with cores to spare, or with the chain pinned away from
 //! the server, try `fifo`.

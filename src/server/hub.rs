@@ -16,9 +16,12 @@ use super::latency::Latency;
 use super::protocol::{self, Format, StreamKind};
 use super::state::{AppState, Stamps, stream_index};
 use super::status::StatusReport;
-use crate::pipeline::{CountersSnapshot, PipelineOutput, SAMPLE_RING, unix_ns};
+use crate::pipeline::{CountersSnapshot, FrameSignal, PipelineOutput, SAMPLE_RING, unix_ns};
 
-/// How often the hub looks for frames: the demodulators' 1 kHz output period.
+/// How often the hub looks for frames without being woken: the demodulators' 1 kHz output
+/// period. The DSP thread wakes it as soon as it has demodulator frames (where the system
+/// allows, [`FrameSignal`](crate::pipeline::FrameSignal)); the tick serves the other
+/// streams and the status.
 const TICK: Duration = Duration::from_millis(1);
 /// How often a `status` message goes out.
 const STATUS_PERIOD: Duration = Duration::from_millis(500);
@@ -77,6 +80,53 @@ fn distribute(
     }
 }
 
+/// The DSP thread's wake-up, as a future.
+struct Wake {
+    #[cfg(target_os = "linux")]
+    fd: Option<tokio::io::unix::AsyncFd<Arc<FrameSignal>>>,
+}
+
+impl Wake {
+    fn new(signal: Option<Arc<FrameSignal>>) -> Self {
+        #[cfg(target_os = "linux")]
+        {
+            let fd = signal.and_then(|s| {
+                // SAFETY: the descriptor is the eventfd that `FrameSignal` owns and closes
+                // only when dropped; the Arc held here keeps it open, and its `as_raw_fd`
+                // always returns that one descriptor.
+                unsafe {
+                    tokio::io::unix::AsyncFd::register_with_interest(
+                        s,
+                        tokio::io::Interest::READABLE,
+                    )
+                }
+                .inspect_err(|e| tracing::warn!(error = %e, "polling for frames: no wake-up"))
+                .ok()
+            });
+            Self { fd }
+        }
+        #[cfg(not(target_os = "linux"))]
+        {
+            let _ = signal;
+            Self {}
+        }
+    }
+
+    /// Resolves when the DSP thread has signalled (never, without a signal).
+    async fn wait(&self) {
+        #[cfg(target_os = "linux")]
+        if let Some(fd) = &self.fd {
+            if let Ok(mut guard) = fd.readable().await {
+                // Take the wake-ups; `drain` ends with WouldBlock, which clears the
+                // readiness until the DSP thread signals again.
+                let _ = guard.try_io(|s| s.get_ref().drain());
+            }
+            return;
+        }
+        std::future::pending::<()>().await
+    }
+}
+
 /// Runs until shutdown: frames in, messages out, a status message every 0.5 s.
 pub(crate) async fn run(
     state: Arc<AppState>,
@@ -86,6 +136,7 @@ pub(crate) async fn run(
 ) {
     let mut tick = tokio::time::interval(TICK);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let wake = Wake::new(output.signal.clone());
     let mut shutdown = state.shutdown.clone();
     let mut synth_to_dsp = Latency::new();
     let mut synth_to_send = Latency::new();
@@ -94,6 +145,7 @@ pub(crate) async fn run(
     loop {
         tokio::select! {
             _ = tick.tick() => {}
+            _ = wake.wait() => {}
             _ = shutdown.changed() => return,
         }
         let force_wanted = state.subscribed(StreamKind::Force);
