@@ -662,21 +662,10 @@ impl Metrics {
             if v < 1.0 {
                 continue;
             }
-            let q = |q: &str| {
-                let k = format!("ftafm_latency_seconds{{path=\"{labels}\",quantile=\"{q}\"}}");
-                (self.get(&k).unwrap_or(0.0) * 1e9).round() as u64
-            };
-            out.insert(
-                labels.to_string(),
-                LatencySummary {
-                    count: v as u64,
-                    p50: q("0.5"),
-                    p90: q("0.9"),
-                    p99: q("0.99"),
-                    p999: q("0.999"),
-                    max: q("1"),
-                },
-            );
+            let summary = self.summary(v, |q| {
+                format!("ftafm_latency_seconds{{path=\"{labels}\",quantile=\"{q}\"}}")
+            });
+            out.insert(labels.to_string(), summary);
         }
         out
     }
@@ -684,18 +673,22 @@ impl Metrics {
     /// The daemon's stall meter (`ftafm_machine_stall_seconds`, converted to ns).
     fn stall(&self) -> Option<LatencySummary> {
         let count = self.get("ftafm_machine_stall_seconds_count")?;
-        let q = |q: &str| {
-            let k = format!("ftafm_machine_stall_seconds{{quantile=\"{q}\"}}");
-            (self.get(&k).unwrap_or(0.0) * 1e9).round() as u64
-        };
-        Some(LatencySummary {
+        Some(self.summary(count, |q| {
+            format!("ftafm_machine_stall_seconds{{quantile=\"{q}\"}}")
+        }))
+    }
+
+    /// A summary of `count` values whose quantile `q` (in seconds) is at `key(q)`, in ns.
+    fn summary(&self, count: f64, key: impl Fn(&str) -> String) -> LatencySummary {
+        let q = |q: &str| (self.get(&key(q)).unwrap_or(0.0) * 1e9).round() as u64;
+        LatencySummary {
             count: count as u64,
             p50: q("0.5"),
             p90: q("0.9"),
             p99: q("0.99"),
             p999: q("0.999"),
             max: q("1"),
-        })
+        }
     }
 
     /// The daemon's resident memory, under any of the usual names.

@@ -332,13 +332,7 @@ pub(crate) fn render(state: &AppState) -> String {
         ("dsp_to_socket", dsp_to_socket),
         ("synth_to_socket", synth_to_socket),
     ] {
-        for (q, v) in [
-            ("0.5", s.p50),
-            ("0.9", s.p90),
-            ("0.99", s.p99),
-            ("0.999", s.p999),
-            ("1", s.max),
-        ] {
+        for (q, v) in s.quantiles() {
             latency.push((
                 format!("{{path=\"{path}\",quantile=\"{q}\"}}"),
                 v as f64 * 1e-9,
@@ -362,13 +356,7 @@ pub(crate) fn render(state: &AppState) -> String {
             "# HELP ftafm_machine_stall_seconds How much later than asked a thread that naps 1 ms at a time woke up, since start: the machine's own scheduling stalls (other processes, the hypervisor)."
         );
         let _ = writeln!(out, "# TYPE ftafm_machine_stall_seconds summary");
-        for (q, v) in [
-            ("0.5", s.p50),
-            ("0.9", s.p90),
-            ("0.99", s.p99),
-            ("0.999", s.p999),
-            ("1", s.max),
-        ] {
+        for (q, v) in s.quantiles() {
             let _ = writeln!(
                 out,
                 "ftafm_machine_stall_seconds{{quantile=\"{q}\"}} {}",

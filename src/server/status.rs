@@ -25,6 +25,17 @@ pub struct LatencySummary {
 }
 
 impl LatencySummary {
+    /// The percentiles under their Prometheus `quantile` labels (ns).
+    pub fn quantiles(&self) -> [(&'static str, u64); 5] {
+        [
+            ("0.5", self.p50),
+            ("0.9", self.p90),
+            ("0.99", self.p99),
+            ("0.999", self.p999),
+            ("1", self.max),
+        ]
+    }
+
     /// Percentiles of `h` (ns); all zero when it is empty.
     pub fn from_histogram<T: hdrhistogram::Counter>(h: &Histogram<T>) -> Self {
         if h.is_empty() {
