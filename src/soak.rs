@@ -15,7 +15,7 @@
 pub mod html;
 
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -243,7 +243,8 @@ pub struct ServerReport {
     pub messages_dropped_by_stream: BTreeMap<String, u64>,
     /// Demodulator/spectrum/scope frames the DSP dropped during the run.
     pub frames_dropped: u64,
-    /// Clients the server saw with all soak clients connected.
+    /// Clients the server saw with all soak clients connected (not counting the soak's own
+    /// connection that follows the daemon's `status`).
     pub clients_during: u64,
     /// Clients after the soak clients closed.
     pub clients_after: u64,
@@ -300,10 +301,13 @@ pub struct MachineReport {
     pub slow_messages_not_compared: u64,
     /// Seconds of the timeline whose largest latency was at least [`SLOW_NS`].
     pub slow_seconds: u64,
-    /// Of those, the ones in which, or in the second before, this machine stalled for at
-    /// least [`MACHINE_STALL_NS`]. (A message can be late after the stall has ended: the
-    /// backlog the stall left takes a while to drain.)
+    /// Of those, the ones next to a stall of at least [`MACHINE_STALL_NS`] of this machine
+    /// or the daemon's: in the second before, the same or the next. (A message can be late
+    /// after the stall has ended, while the backlog drains; the daemon reports its stalls
+    /// every 0.5 s, so its figure can land in the next second.)
     pub slow_seconds_with_stall: u64,
+    /// Whether the daemon reported its stalls (`machine_stall_max_ns` in `status`).
+    pub daemon_stalls_reported: bool,
     /// CPU time stolen by the hypervisor during the run, all CPUs (s; Linux `/proc/stat`).
     pub cpu_steal_s: Option<f64>,
 }
@@ -379,6 +383,10 @@ pub struct TimelinePoint {
     /// woke from a 1 ms nap.
     #[serde(default)]
     pub stall_max_ns: u64,
+    /// The daemon's longest stall reported in the interval (`machine_stall_max_ns` of its
+    /// `status` messages; 0 if none arrived).
+    #[serde(default)]
+    pub daemon_stall_max_ns: u64,
 }
 
 impl SoakReport {
@@ -556,6 +564,51 @@ async fn setup(
         }
     }
     Ok(conn)
+}
+
+/// The daemon's stalls as its `status` messages report them.
+#[derive(Default)]
+struct DaemonStalls {
+    /// Largest `machine_stall_max_ns` since the collector last took it.
+    max: AtomicU64,
+    /// Whether any status message carried the figure.
+    reported: AtomicBool,
+}
+
+/// Follows the daemon's `status` stream on a connection of its own until `done`.
+async fn follow_daemon_stalls(
+    mut conn: Conn,
+    stalls: Arc<DaemonStalls>,
+    mut done: tokio::sync::watch::Receiver<bool>,
+) {
+    #[derive(Deserialize)]
+    struct Status {
+        stream: Option<String>,
+        machine_stall_max_ns: Option<u64>,
+    }
+    loop {
+        let msg = tokio::select! {
+            m = conn.ws.next() => m,
+            _ = done.wait_for(|d| *d) => break,
+        };
+        match msg {
+            Some(Ok(Message::Text(t))) => {
+                if let Ok(Status {
+                    stream: Some(stream),
+                    machine_stall_max_ns: Some(v),
+                }) = serde_json::from_str(&t)
+                    && stream == "status"
+                {
+                    stalls.max.fetch_max(v, Ordering::Relaxed);
+                    stalls.reported.store(true, Ordering::Relaxed);
+                }
+            }
+            Some(Ok(_)) => {}
+            // Lost: the daemon's figures stop; the soak goes on.
+            _ => return,
+        }
+    }
+    let _ = tokio::time::timeout(Duration::from_secs(2), conn.ws.close(None)).await;
 }
 
 /// Receives until the state is DONE, reconnecting after a lost connection.
@@ -872,6 +925,19 @@ pub async fn run(
         )));
     }
 
+    // The daemon's own stalls, from its status stream (an older daemon has none).
+    let daemon_stalls = Arc::new(DaemonStalls::default());
+    let follower: Option<tokio::task::JoinHandle<()>> =
+        match open(&target.ws_url, &["status".to_string()]).await {
+            Ok(conn) => Some(tokio::spawn(follow_daemon_stalls(
+                conn,
+                daemon_stalls.clone(),
+                done_rx.clone(),
+            ))),
+            Err(_) => None,
+        };
+    let follower_connected = follower.is_some();
+
     let before = fetch_metrics(&target).await?;
     let steal_before = cpu_steal_s();
     let meter = StallMeter::start("ftafm-soak-stall")
@@ -928,6 +994,7 @@ pub async fn run(
                 interval.max()
             },
             stall_max_ns: meter.take_interval_max(),
+            daemon_stall_max_ns: daemon_stalls.max.swap(0, Ordering::Relaxed),
         });
     };
     loop {
@@ -962,7 +1029,13 @@ pub async fn run(
     let seconds = start.elapsed().as_secs_f64();
     take_interval(seconds);
     let (histogram, per, disconnects) = summarize();
-    let machine = machine_report(&meter, &all_stats, &timeline, steal_before);
+    let machine = machine_report(
+        &meter,
+        &all_stats,
+        &timeline,
+        steal_before,
+        daemon_stalls.reported.load(Ordering::Relaxed),
+    );
     drop(meter);
     if during.values.is_empty() {
         during = fetch_metrics(&target).await.unwrap_or_default();
@@ -972,6 +1045,9 @@ pub async fn run(
     let _ = done_tx.send(true);
     for t in tasks {
         let _ = t.await;
+    }
+    if let Some(f) = follower {
+        let _ = f.await;
     }
     let mut after = after_open.unwrap_or_default();
     // The clients gauge once the soak's own clients have gone.
@@ -984,6 +1060,9 @@ pub async fn run(
     }
 
     let mut server = server_report(&before, &during, &after);
+    if follower_connected {
+        server.clients_during = server.clients_during.saturating_sub(1);
+    }
     if let Some(rate) = after.get("ftafm_sample_rate_hertz").filter(|r| *r > 0.0) {
         let synthesised = after
             .int("ftafm_samples_synthesized_total")
@@ -1028,12 +1107,13 @@ pub async fn run(
 }
 
 /// The machine's side of the run: the stall meter's figures and the slow messages that a
-/// stall of this machine explains.
+/// stall explains.
 fn machine_report(
     meter: &StallMeter,
     clients: &[Arc<Mutex<ClientStats>>],
     timeline: &[TimelinePoint],
     steal_before: Option<f64>,
+    daemon_stalls_reported: bool,
 ) -> MachineReport {
     let mut slow = Vec::new();
     let mut slow_messages = 0;
@@ -1060,14 +1140,15 @@ fn machine_report(
         slow_messages_not_compared: slow_messages - slow.len() as u64,
         slow_seconds,
         slow_seconds_with_stall,
+        daemon_stalls_reported,
         cpu_steal_s: cpu_steal_s()
             .zip(steal_before)
             .map(|(after, before)| after - before),
     }
 }
 
-/// Seconds of `timeline` with a slow message, and how many of them follow a machine stall
-/// (in the same second or the one before).
+/// Seconds of `timeline` with a slow message, and how many of them are next to a stall of
+/// this machine or the daemon's (in the second before, the same or the next).
 fn slow_seconds(timeline: &[TimelinePoint]) -> (u64, u64) {
     let mut slow = 0;
     let mut with_stall = 0;
@@ -1076,8 +1157,11 @@ fn slow_seconds(timeline: &[TimelinePoint]) -> (u64, u64) {
             continue;
         }
         slow += 1;
-        let before = i.checked_sub(1).map_or(0, |j| timeline[j].stall_max_ns);
-        if p.stall_max_ns.max(before) >= MACHINE_STALL_NS {
+        let near = &timeline[i.saturating_sub(1)..(i + 2).min(timeline.len())];
+        if near
+            .iter()
+            .any(|q| q.stall_max_ns.max(q.daemon_stall_max_ns) >= MACHINE_STALL_NS)
+        {
             with_stall += 1;
         }
     }
@@ -1255,15 +1339,16 @@ pub fn render_text(r: &SoakReport) -> String {
     out += &format!(
         "machine   stalls of this machine (1 ms naps): p99 {:.3} ms  max {:.3} ms, {} over 5 ms{}{}\n\
          slow      {} messages over {:.0} ms, {} of them in flight during a stall ≥ {:.0} ms of this machine{}; \
-         {} seconds had one, {} of them right after such a stall\n",
+         {} seconds had one, {} of them next to a stall ≥ {:.0} ms of this machine or the daemon's\n",
         ms(m.stall_ns.p99),
         ms(m.stall_ns.max),
         m.stalls_over_5ms,
         s.machine_stall_ns
             .map(|d| format!(
-                "; the daemon's: p99 {:.3} ms  max {:.3} ms since it started",
+                "; the daemon's: p99 {:.3} ms  max {:.3} ms since it started, {:.3} ms during the run",
                 ms(d.p99),
-                ms(d.max)
+                ms(d.max),
+                ms(r.timeline.iter().map(|p| p.daemon_stall_max_ns).max().unwrap_or(0))
             ))
             .unwrap_or_default(),
         m.cpu_steal_s
@@ -1280,6 +1365,7 @@ pub fn render_text(r: &SoakReport) -> String {
         },
         m.slow_seconds,
         m.slow_seconds_with_stall,
+        ms(MACHINE_STALL_NS),
     );
     let mib = |b: u64| b as f64 / 1048576.0;
     out += &match (s.rss_bytes_before, s.memory_bytes, s.memory_growth_bytes) {
@@ -1335,6 +1421,11 @@ mod tests {
         let timeline = [p(2, 1), p(60, 55), p(3, 40), p(25, 2), p(1, 1), p(30, 9)];
         assert_eq!(slow_seconds(&timeline), (3, 2));
         assert_eq!(slow_seconds(&[]), (0, 0));
+        // The daemon's stall, reported in the next second, explains second 0; nothing
+        // explains second 3, two seconds after it.
+        let mut timeline = [p(25, 1), p(1, 1), p(1, 1), p(25, 1)];
+        timeline[1].daemon_stall_max_ns = 30_000_000;
+        assert_eq!(slow_seconds(&timeline), (2, 1));
     }
 
     #[test]

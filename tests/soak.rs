@@ -153,6 +153,17 @@ async fn eight_clients_for_twenty_seconds_lose_nothing() {
         .machine_stall_ns
         .expect("the daemon's stall meter");
     assert!(daemon.count as f64 >= 300.0 * report.seconds, "{daemon:?}");
+    // The daemon's stalls came with its status messages (every 0.5 s) into the timeline.
+    assert!(m.daemon_stalls_reported, "{m:?}");
+    let with_daemon = report
+        .timeline
+        .iter()
+        .filter(|p| p.daemon_stall_max_ns > 0)
+        .count();
+    assert!(
+        with_daemon * 2 >= report.timeline.len(),
+        "{with_daemon} seconds"
+    );
     assert!(m.slow_messages_in_stalls <= m.slow_messages);
     assert!(m.slow_seconds_with_stall <= m.slow_seconds);
 
@@ -218,8 +229,8 @@ async fn eight_clients_for_twenty_seconds_lose_nothing() {
     assert_eq!(bars, non_empty);
     assert_eq!(
         page.matches("<polyline class=").count(),
-        5,
-        "p50, p99, max, the machine's stalls and the rate"
+        6,
+        "p50, p99, max, the two machines' stalls and the rate"
     );
     let start = page.find("id=\"soak-report\">").unwrap() + "id=\"soak-report\">".len();
     let end = start + page[start..].find("</script>").unwrap();

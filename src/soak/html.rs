@@ -250,8 +250,8 @@ fn timeline(out: &mut String, r: &SoakReport) {
     svg_open(
         out,
         "latency-timeline",
-        "Receive latency over time: p50, p99 and max of each second, and this machine's longest \
-         stall in it (logarithmic)",
+        "Receive latency over time: p50, p99 and max of each second, and the longest stall in it \
+         of this machine and of the daemon's (logarithmic)",
     );
     let points: Vec<_> = r.timeline.iter().filter(|p| p.messages > 0).collect();
     if points.is_empty() {
@@ -265,7 +265,7 @@ fn timeline(out: &mut String, r: &SoakReport) {
             .max(1_000) as f64;
         let hi = points
             .iter()
-            .map(|p| p.max_ns.max(p.stall_max_ns))
+            .map(|p| p.max_ns.max(p.stall_max_ns).max(p.daemon_stall_max_ns))
             .max()
             .unwrap_or(1_000)
             .max(1_000) as f64;
@@ -295,6 +295,7 @@ fn timeline(out: &mut String, r: &SoakReport) {
             ("p99", |p| p.p99_ns),
             ("p50", |p| p.p50_ns),
             ("stall", |p| p.stall_max_ns),
+            ("daemon-stall", |p| p.daemon_stall_max_ns),
         ] {
             let pts: Vec<String> = points
                 .iter()
@@ -311,12 +312,14 @@ fn timeline(out: &mut String, r: &SoakReport) {
             "<text class=\"max\" x=\"{0:.1}\" y=\"{1:.1}\">max</text>\
              <text class=\"p99\" x=\"{0:.1}\" y=\"{2:.1}\">p99</text>\
              <text class=\"p50\" x=\"{0:.1}\" y=\"{3:.1}\">p50</text>\
-             <text class=\"stall\" x=\"{0:.1}\" y=\"{4:.1}\">machine stall</text>",
+             <text class=\"stall\" x=\"{0:.1}\" y=\"{4:.1}\">machine stall</text>\
+             <text class=\"daemon-stall\" x=\"{0:.1}\" y=\"{5:.1}\">daemon's stall</text>",
             WIDTH - RIGHT - 80.0,
             TOP + 14.0,
             TOP + 28.0,
             TOP + 42.0,
-            TOP + 56.0
+            TOP + 56.0,
+            TOP + 70.0
         );
     }
     axis_labels(out, "time since the measurement started", "latency");
@@ -466,7 +469,7 @@ fn summary(out: &mut String, r: &SoakReport) {
             ),
         ),
         (
-            "seconds with a message over 20 ms / right after a stall ≥ 10 ms",
+            "seconds with a message over 20 ms / next to a stall ≥ 10 ms (this machine or the daemon's)",
             format!(
                 "{} / {}",
                 r.machine.slow_seconds, r.machine.slow_seconds_with_stall
@@ -517,6 +520,7 @@ pub fn render(r: &SoakReport) -> String {
          line.p99, polyline.p99 {{ stroke: #ff7f0e; stroke-width: 1.5; }} text.p99 {{ fill: #ff7f0e; }}\n\
          line.max, polyline.max {{ stroke: #d62728; stroke-width: 1; }} text.max {{ fill: #d62728; }}\n\
          polyline.stall {{ stroke: #7f7f7f; stroke-width: 1; stroke-dasharray: 3 2; }} text.stall {{ fill: #7f7f7f; }}\n\
+         polyline.daemon-stall {{ stroke: #9467bd; stroke-width: 1; stroke-dasharray: 1 2; }} text.daemon-stall {{ fill: #9467bd; }}\n\
          </style></head><body>\n<h1>ftafm soak</h1>\n",
         r.clients, r.seconds
     );
@@ -594,12 +598,14 @@ mod tests {
             p99_ns: 1_100_000,
             max_ns: 1_200_000,
             stall_max_ns: 30_000_000,
+            daemon_stall_max_ns: 2_000_000,
         }];
         let page = render(&r);
         assert!(page.contains("<title>1 ms – 1.26 ms: 7 messages</title>"));
         assert!(page.contains("class=\"gap\""));
         // The stall (30 ms) sets the top of the timeline's axis: 100 ms.
         assert!(page.contains("polyline class=\"stall\""));
+        assert!(page.contains("polyline class=\"daemon-stall\""));
         assert!(page.contains(">100 ms</text>"));
     }
 }
