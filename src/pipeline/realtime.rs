@@ -10,10 +10,11 @@
 //! The default (`FTAFM_SCHED` unset, or `off`) changes nothing. On the 2-core development
 //! machine promotion does not pay (docs/benchmarks.md): it shortens the chain's own path
 //! (synth → DSP p99 0.40 → 0.26 ms) but not the clients' latency, which the server's async
-//! threads set, and those it delays (receive p99 1.81 → 2.56 ms in a 16-client soak). When the DSP thread still polled the ring every 50 µs, promotion made a
-//! slow-client test fail; it now sleeps until the synthesiser wakes it, and that test
-//! passes either way. On a machine with cores to spare, or with the chain pinned away from
-//! the server, try `fifo`.
+//! threads set, and those it delays (receive p99 1.81 → 2.56 ms in a 16-client soak).
+//! When the DSP thread still polled the ring every 50 µs, promotion made a slow-client
+//! test fail; it now sleeps until the synthesiser wakes it, and that test passes either
+//! way. On a machine with cores to spare, or with the chain pinned away from the server,
+//! try `fifo`.
 //!
 //! Only a chain that starts paced by the wall clock is promoted: a free-running chain
 //! (`ftafm bench` without `--realtime`) keeps both threads busy all the time, and two

@@ -115,14 +115,15 @@ impl Wake {
     /// Resolves when the DSP thread has signalled (never, without a signal).
     async fn wait(&self) {
         #[cfg(target_os = "linux")]
-        if let Some(fd) = &self.fd {
-            if let Ok(mut guard) = fd.readable().await {
-                // Take the wake-ups; `drain` ends with WouldBlock, which clears the
-                // readiness until the DSP thread signals again.
-                let _ = guard.try_io(|s| s.get_ref().drain());
-            }
+        if let Some(fd) = &self.fd
+            && let Ok(mut guard) = fd.readable().await
+        {
+            // Take the wake-ups; `drain` ends with WouldBlock, which clears the readiness
+            // until the DSP thread signals again.
+            let _ = guard.try_io(|s| s.get_ref().drain());
             return;
         }
+        // No signal (or the reactor is gone): only the tick wakes the hub.
         std::future::pending::<()>().await
     }
 }
