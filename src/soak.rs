@@ -1123,13 +1123,10 @@ fn machine_report(
         slow_messages += c.slow_count;
     }
     let events = meter.events();
-    let mut stalls = events.clone();
-    stalls.sort_by_key(|e| std::cmp::Reverse(e.stall_ns));
-    stalls.truncate(STALLS_LISTED);
     let (slow_seconds, slow_seconds_with_stall) = slow_seconds(timeline);
     MachineReport {
         stall_ns: LatencySummary::from_histogram(&meter.histogram()),
-        stalls,
+        stalls: longest_stalls(&events),
         stalls_over_5ms: meter.stalls(),
         slow_messages,
         slow_messages_in_stalls: crate::pipeline::stall::overlapping(
@@ -1141,9 +1138,7 @@ fn machine_report(
         slow_seconds,
         slow_seconds_with_stall,
         daemon_stalls_reported,
-        cpu_steal_s: cpu_steal_s()
-            .zip(steal_before)
-            .map(|(after, before)| after - before),
+        cpu_steal_s: steal_since(steal_before),
     }
 }
 
@@ -1166,6 +1161,21 @@ fn slow_seconds(timeline: &[TimelinePoint]) -> (u64, u64) {
         }
     }
     (slow, with_stall)
+}
+
+/// The [`STALLS_LISTED`] longest of `events`, longest first.
+fn longest_stalls(events: &[StallEvent]) -> Vec<StallEvent> {
+    let mut top = events.to_vec();
+    top.sort_by_key(|e| std::cmp::Reverse(e.stall_ns));
+    top.truncate(STALLS_LISTED);
+    top
+}
+
+/// CPU steal since `before` (a reading of [`cpu_steal_s`]), in seconds.
+fn steal_since(before: Option<f64>) -> Option<f64> {
+    cpu_steal_s()
+        .zip(before)
+        .map(|(after, before)| after - before)
 }
 
 /// CPU time the hypervisor has taken from this machine since boot, all CPUs (s): the
@@ -1225,18 +1235,13 @@ pub fn measure_stalls(
     let histogram = meter.histogram();
     let stalls_over_5ms = meter.stalls();
     drop(meter);
-    let mut top = events.clone();
-    top.sort_by_key(|e| std::cmp::Reverse(e.stall_ns));
-    top.truncate(STALLS_LISTED);
     Ok(StallReport {
         seconds,
         stall_ns: LatencySummary::from_histogram(&histogram),
         stalls_over_5ms,
         stalls_over_20ms: events.iter().filter(|e| e.stall_ns >= SLOW_NS).count() as u64,
-        longest: top,
-        cpu_steal_s: cpu_steal_s()
-            .zip(steal_before)
-            .map(|(after, before)| after - before),
+        longest: longest_stalls(&events),
+        cpu_steal_s: steal_since(steal_before),
     })
 }
 
@@ -1411,7 +1416,7 @@ mod tests {
     }
 
     #[test]
-    fn slow_seconds_are_matched_to_stalls_in_them_or_just_before() {
+    fn slow_seconds_are_matched_to_stalls_next_to_them() {
         let p = |max_ms: u64, stall_ms: u64| TimelinePoint {
             max_ns: max_ms * 1_000_000,
             stall_max_ns: stall_ms * 1_000_000,
