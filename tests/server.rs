@@ -1,141 +1,18 @@
 //! The daemon over real sockets: real WebSocket clients (tokio-tungstenite) and plain
 //! HTTP on 127.0.0.1:0, the server started as mini-redis does, `run(listener, ...)`.
 
-use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use ftafm::config::{Settings, default_settings};
 use ftafm::server::protocol::decode_header;
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{Value, json};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::oneshot;
-use tokio::task::JoinHandle;
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 use tokio_tungstenite::tungstenite::http::HeaderValue;
 use tokio_tungstenite::tungstenite::{self, Message};
-use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
-type Ws = WebSocketStream<MaybeTlsStream<TcpStream>>;
-
-struct Daemon {
-    addr: SocketAddr,
-    stop: Option<oneshot::Sender<()>>,
-    task: JoinHandle<Result<(), ftafm::server::ServerError>>,
-}
-
-impl Daemon {
-    async fn start(settings: Settings) -> Self {
-        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let addr = listener.local_addr().unwrap();
-        let (stop, stopped) = oneshot::channel::<()>();
-        let task = tokio::spawn(ftafm::server::run(listener, settings, async move {
-            let _ = stopped.await;
-        }));
-        Self {
-            addr,
-            stop: Some(stop),
-            task,
-        }
-    }
-
-    async fn shutdown(mut self) -> Duration {
-        let start = Instant::now();
-        let _ = self.stop.take().unwrap().send(());
-        (&mut self.task).await.unwrap().unwrap();
-        start.elapsed()
-    }
-}
-
-/// Instrument settings for tests: real time at 2 MS/s (cheap), demodulators at 200 Hz.
-fn light() -> Settings {
-    let mut s = default_settings();
-    s.synth.sample_rate = 2e6;
-    for d in &mut s.demods {
-        d.harmonic = d.harmonic.min(9);
-        d.rate = 200.0;
-    }
-    s.demods[16].harmonic = 9; // stays valid below Nyquist
-    s.spectrum.size = 4096;
-    // Its harmonic 17 is not measured here; the force stream has its own test.
-    s.inversion.enable = false;
-    s
-}
-
-async fn connect(addr: SocketAddr) -> Ws {
-    let (ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/ws"))
-        .await
-        .unwrap();
-    ws
-}
-
-/// Sends `request` and returns its reply (skipping data messages).
-async fn call(ws: &mut Ws, request: Value) -> Value {
-    ws.send(Message::Text(request.to_string().into()))
-        .await
-        .unwrap();
-    reply(ws).await
-}
-
-async fn reply(ws: &mut Ws) -> Value {
-    let deadline = Instant::now() + Duration::from_secs(10);
-    loop {
-        let msg = tokio::time::timeout_at(deadline.into(), ws.next())
-            .await
-            .expect("a reply in time")
-            .unwrap()
-            .unwrap();
-        if let Message::Text(t) = msg {
-            let v: Value = serde_json::from_str(&t).unwrap();
-            // Replies carry "ok"; data messages never do.
-            if v.get("ok").is_some() {
-                return v;
-            }
-        }
-    }
-}
-
-/// Next data message of `stream` (JSON).
-async fn next_of(ws: &mut Ws, stream: &str) -> Value {
-    let deadline = Instant::now() + Duration::from_secs(10);
-    loop {
-        let msg = tokio::time::timeout_at(deadline.into(), ws.next())
-            .await
-            .expect("data in time")
-            .unwrap()
-            .unwrap();
-        if let Message::Text(t) = msg {
-            let v: Value = serde_json::from_str(&t).unwrap();
-            if v["stream"] == stream && v.get("ok").is_none() {
-                return v;
-            }
-        }
-    }
-}
-
-async fn http_get(addr: SocketAddr, path: &str) -> (u16, String) {
-    let mut s = TcpStream::connect(addr).await.unwrap();
-    s.write_all(
-        format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n").as_bytes(),
-    )
-    .await
-    .unwrap();
-    // Bodies may be binary (image export): read bytes, show them lossily.
-    let mut bytes = Vec::new();
-    s.read_to_end(&mut bytes).await.unwrap();
-    let text = String::from_utf8_lossy(&bytes).into_owned();
-    let status = text[9..12].parse().unwrap();
-    let body = text
-        .split_once("\r\n\r\n")
-        .map(|(_, b)| b.to_string())
-        .unwrap_or_default();
-    (status, body)
-}
-
-fn code(v: &Value) -> &str {
-    v["error"]["code"].as_str().unwrap_or("")
-}
+mod common;
+use common::*;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_op_answers_and_ids_are_echoed() {
