@@ -50,6 +50,9 @@ use synth_worker::SynthWorker;
 pub const SAMPLE_RING: usize = 1 << 21;
 /// Plans in flight per thread (queued plus waiting to be freed).
 const PLAN_SLOTS: usize = 4;
+/// How long [`Pipeline::apply`] waits for the threads to take queued plans before it
+/// answers busy: many blocks, even on a loaded machine.
+const PLAN_WAIT: std::time::Duration = std::time::Duration::from_millis(250);
 /// Demodulator frames queued for the consumer: 4 s at 1 kHz.
 const DEMOD_QUEUE: usize = 4096;
 /// Scan pixels queued for the consumer, from each thread: 2 s at the fastest scan.
@@ -344,10 +347,19 @@ impl Pipeline {
             .then(|| SynthPlan::with_tables(settings, self.tap_tables.as_ref()))
             .transpose()?;
         let dsp = dsp_changed.then(|| DspPlan::new(settings)).transpose()?;
-        let synth_room = synth.is_none() || self.synth_link.has_room();
-        let dsp_room = dsp.is_none() || self.dsp_link.has_room();
-        if !(synth_room && dsp_room) {
-            return Err(PipelineError::Busy);
+        // The threads take a plan between blocks: a burst of changes waits for them a
+        // little rather than failing at once.
+        let waiting_since = std::time::Instant::now();
+        loop {
+            let synth_room = synth.is_none() || self.synth_link.has_room();
+            let dsp_room = dsp.is_none() || self.dsp_link.has_room();
+            if synth_room && dsp_room {
+                break;
+            }
+            if waiting_since.elapsed() > PLAN_WAIT {
+                return Err(PipelineError::Busy);
+            }
+            std::thread::sleep(std::time::Duration::from_micros(200));
         }
         if let Some(plan) = synth {
             if let Some(scan) = &plan.scan {

@@ -6,6 +6,9 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, channel, sync_channel};
+use std::time::{Duration, Instant};
+
+use super::latest::Latest;
 
 use crate::config::Settings;
 use crate::inversion::{ForceEstimate, ForceEstimator};
@@ -19,8 +22,8 @@ const QUEUE: usize = 256;
 #[allow(clippy::large_enum_variant)]
 pub(crate) enum Input {
     Frame(DemodFrame),
-    /// A new estimator and its generation: builds finish in any order, the newest wins.
-    Replace(u64, Option<Box<ForceEstimator>>),
+    /// A new estimator (from the one builder thread, so in the order requested).
+    Replace(Option<Box<ForceEstimator>>),
 }
 
 /// Counts of the worker's work.
@@ -30,6 +33,8 @@ pub(crate) struct ForceCounters {
     pub failed: AtomicU64,
     pub dropped: AtomicU64,
     pub rebuilds: AtomicU64,
+    /// Time spent building estimators, in ns (the builder's CPU budget, measured).
+    pub rebuild_ns: AtomicU64,
     /// Why the estimator or the last estimate failed, if it did (for logs).
     pub last_error: std::sync::Mutex<String>,
 }
@@ -38,9 +43,24 @@ pub(crate) struct ForceCounters {
 pub(crate) struct ForceLink {
     input: SyncSender<Input>,
     pub counters: Arc<ForceCounters>,
-    /// Generation of the latest rebuild requested.
-    generation: AtomicU64,
+    /// The newest settings to build an estimator for; a flood of changes costs one build
+    /// at a time (the rest are counted in its `coalesced`).
+    pub pending: Arc<Latest<Settings>>,
 }
+
+impl Drop for ForceLink {
+    fn drop(&mut self) {
+        // Ends the builder, which ends the worker once the hub's sender is gone too.
+        self.pending.close();
+    }
+}
+
+/// Nice value of the estimator builder: it yields the CPU to the real-time threads and the
+/// hub when they need it (a build is ~0.1 s of work that nothing waits on in real time).
+const BUILDER_NICE: i32 = 10;
+/// The builder spends at most this fraction of a core building, however many changes come:
+/// after a build of `d` it rests `d · (1/BUILD_DUTY − 1)` before the next.
+pub(crate) const BUILD_DUTY: f64 = 0.25;
 
 impl ForceLink {
     /// Starts the worker thread; estimates come out of the returned receiver.
@@ -53,15 +73,9 @@ impl ForceLink {
             .name("inversion".into())
             .spawn(move || {
                 let mut estimator: Option<Box<ForceEstimator>> = None;
-                let mut applied = 0;
                 while let Ok(msg) = rx.recv() {
                     match msg {
-                        Input::Replace(generation, next) => {
-                            if generation > applied {
-                                applied = generation;
-                                estimator = next;
-                            }
-                        }
+                        Input::Replace(next) => estimator = next,
                         Input::Frame(frame) => {
                             let Some(e) = estimator.as_mut() else {
                                 continue;
@@ -86,11 +100,17 @@ impl ForceLink {
                 }
             })
             .expect("the inversion thread starts");
+        let pending = Arc::new(Latest::new());
+        let (p, c, to_worker) = (pending.clone(), counters.clone(), input.clone());
+        std::thread::Builder::new()
+            .name("force-build".into())
+            .spawn(move || build_loop(&p, &c, &to_worker))
+            .expect("the estimator builder thread starts");
         (
             Self {
                 input,
                 counters,
-                generation: AtomicU64::new(0),
+                pending,
             },
             estimates,
         )
@@ -103,27 +123,62 @@ impl ForceLink {
         }
     }
 
-    /// Builds the estimator for `settings` on a blocking thread and hands it over
-    /// (the modulus table and the lock-in model take ~0.1 s).
+    /// Asks for the estimator of `settings`, built off the request path (the modulus table
+    /// and the lock-in model take ~0.1 s); only the newest of the changes made meanwhile is
+    /// built.
     pub fn rebuild(&self, settings: Settings) {
-        let generation = self.generation.fetch_add(1, Ordering::SeqCst) + 1;
-        let input = self.input.clone();
-        let counters = self.counters.clone();
-        tokio::task::spawn_blocking(move || {
-            let next = match ForceEstimator::new(&settings) {
-                Ok(e) => e.map(Box::new),
-                Err(err) => {
-                    tracing::warn!(error = %err, "force estimator unavailable");
-                    if let Ok(mut last) = counters.last_error.lock() {
-                        *last = err;
-                    }
-                    None
-                }
-            };
-            counters.rebuilds.fetch_add(1, Ordering::Relaxed);
-            let _ = input.send(Input::Replace(generation, next));
-        });
+        self.pending.put(settings);
     }
+}
+
+/// The builder thread: one estimator at a time for the newest settings, at a low priority
+/// and a bounded duty cycle, until the link is dropped.
+fn build_loop(pending: &Latest<Settings>, counters: &ForceCounters, worker: &SyncSender<Input>) {
+    lower_priority(BUILDER_NICE);
+    loop {
+        let Some(settings) = pending.wait(Duration::from_secs(1)) else {
+            if pending.is_closed() {
+                return;
+            }
+            continue;
+        };
+        let start = Instant::now();
+        let next = match ForceEstimator::new(&settings) {
+            Ok(e) => e.map(Box::new),
+            Err(err) => {
+                tracing::warn!(error = %err, "force estimator unavailable");
+                if let Ok(mut last) = counters.last_error.lock() {
+                    *last = err;
+                }
+                None
+            }
+        };
+        let took = start.elapsed();
+        counters.rebuilds.fetch_add(1, Ordering::Relaxed);
+        counters
+            .rebuild_ns
+            .fetch_add(took.as_nanos() as u64, Ordering::Relaxed);
+        if worker.send(Input::Replace(next)).is_err() {
+            return;
+        }
+        if !pending.is_closed() {
+            std::thread::sleep(took.mul_f64(1.0 / BUILD_DUTY - 1.0));
+        }
+    }
+}
+
+/// Lowers the calling thread's scheduling priority to `nice` (Linux: per thread); a
+/// refusal only leaves it where it was.
+pub(crate) fn lower_priority(nice: i32) {
+    #[cfg(target_os = "linux")]
+    // SAFETY: gettid has no preconditions; setpriority on our own thread id only changes
+    // this thread's nice value (raising it needs no privilege).
+    unsafe {
+        let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+        let _ = libc::setpriority(libc::PRIO_PROCESS, tid, nice);
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = nice;
 }
 
 /// Whether a change of `path` changes the estimator (its cantilever, drive, setpoint, tip,

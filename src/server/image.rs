@@ -4,9 +4,13 @@
 //! line and keeps the last finished frame for export (`GET /image/<channel>.gsf|.npy`).
 
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc::{Receiver, SyncSender, TrySendError, channel, sync_channel};
+use std::sync::mpsc::{
+    Receiver, RecvTimeoutError, SyncSender, TrySendError, channel, sync_channel,
+};
 use std::sync::{Arc, Mutex};
+use std::time::Instant;
 
+use super::latest::Latest;
 use crate::config::Settings;
 use crate::imaging::{Assembler, ImageFrame, ImageLine};
 use crate::pipeline::PixelHarmonics;
@@ -20,7 +24,8 @@ const QUEUE: usize = 1 << 14;
 enum Input {
     Pixel(PixelHarmonics),
     Topography(PixelTopography),
-    Settings(Box<Settings>),
+    /// New settings wait in [`ImageLink::pending`]: wake up and take them.
+    Reconfigure,
 }
 
 /// Counts of the worker's work.
@@ -32,6 +37,8 @@ pub(crate) struct ImageCounters {
     pub dropped: AtomicU64,
     /// Pixels whose inversion failed (their FT-AFM channels are missing).
     pub inversion_failed: AtomicU64,
+    /// Settings changes taken up (each rebuilds the per-pixel estimator, ~0.1 s).
+    pub rebuilds: AtomicU64,
 }
 
 /// The hub's and the HTTP handlers' ends of the worker.
@@ -40,6 +47,9 @@ pub(crate) struct ImageLink {
     pub counters: Arc<ImageCounters>,
     /// The last finished frame.
     pub last_frame: Arc<Mutex<Option<Arc<ImageFrame>>>>,
+    /// The newest settings not yet taken up: a flood of changes costs one rebuild at a
+    /// time, never a queue of them.
+    pub pending: Arc<Latest<Box<Settings>>>,
 }
 
 impl ImageLink {
@@ -50,13 +60,42 @@ impl ImageLink {
         let counters = Arc::new(ImageCounters::default());
         let last_frame = Arc::new(Mutex::new(None));
         let mut assembler = Assembler::new(settings);
-        let (c, done) = (counters.clone(), last_frame.clone());
+        let pending: Arc<Latest<Box<Settings>>> = Arc::new(Latest::new());
+        let (c, done, p) = (counters.clone(), last_frame.clone(), pending.clone());
         std::thread::Builder::new()
             .name("image".into())
             .spawn(move || {
-                while let Ok(msg) = rx.recv() {
+                // Rebuilds are rationed like the force stream's (super::force::BUILD_DUTY):
+                // a flood of changes must not take a core from the real-time threads.
+                let mut next_rebuild = Instant::now();
+                loop {
+                    let now = Instant::now();
+                    let msg = if p.is_pending() && next_rebuild > now {
+                        match rx.recv_timeout(next_rebuild - now) {
+                            Ok(m) => m,
+                            Err(RecvTimeoutError::Timeout) => Input::Reconfigure,
+                            Err(RecvTimeoutError::Disconnected) => return,
+                        }
+                    } else {
+                        match rx.recv() {
+                            Ok(m) => m,
+                            Err(_) => return,
+                        }
+                    };
+                    // Settings come before the message that follows them.
+                    if Instant::now() >= next_rebuild
+                        && let Some(s) = p.take()
+                    {
+                        let start = Instant::now();
+                        c.rebuilds.fetch_add(1, Ordering::Relaxed);
+                        assembler.configure(&s);
+                        next_rebuild = Instant::now()
+                            + start
+                                .elapsed()
+                                .mul_f64(1.0 / super::force::BUILD_DUTY - 1.0);
+                    }
                     match msg {
-                        Input::Settings(s) => assembler.configure(&s),
+                        Input::Reconfigure => {}
                         Input::Topography(t) => assembler.topography(t),
                         Input::Pixel(p) => {
                             let before = assembler.inversion_failed;
@@ -85,6 +124,7 @@ impl ImageLink {
                 input,
                 counters,
                 last_frame,
+                pending,
             },
             lines,
         )
@@ -106,9 +146,14 @@ impl ImageLink {
         self.offer(Input::Topography(*t));
     }
 
-    /// New settings: the worker rebuilds its estimator (blocking only itself).
+    /// New settings: the worker rebuilds its estimator for the newest of them (blocking
+    /// only itself).
     pub fn configure(&self, settings: &Settings) {
-        let _ = self.input.send(Input::Settings(Box::new(settings.clone())));
+        // One wake-up per settings taken up; if the queue is full the worker takes the
+        // settings with the next message it handles anyway.
+        if self.pending.put(Box::new(settings.clone())) {
+            let _ = self.input.try_send(Input::Reconfigure);
+        }
     }
 }
 

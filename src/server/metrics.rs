@@ -191,6 +191,38 @@ pub(crate) fn render(state: &AppState) -> String {
             ),
         ],
     );
+    metric(
+        "estimator_rebuilds_total",
+        "counter",
+        "FT-AFM estimator rebuilds after settings changes, by worker and outcome (coalesced: a change superseded by a newer one before it was built).",
+        &[
+            (
+                "{worker=\"force\",outcome=\"built\"}".into(),
+                f.rebuilds.load(Ordering::Relaxed) as f64,
+            ),
+            (
+                "{worker=\"force\",outcome=\"coalesced\"}".into(),
+                state.force.pending.coalesced.load(Ordering::Relaxed) as f64,
+            ),
+            (
+                "{worker=\"image\",outcome=\"built\"}".into(),
+                state.image.counters.rebuilds.load(Ordering::Relaxed) as f64,
+            ),
+            (
+                "{worker=\"image\",outcome=\"coalesced\"}".into(),
+                state.image.pending.coalesced.load(Ordering::Relaxed) as f64,
+            ),
+        ],
+    );
+    metric(
+        "estimator_rebuild_seconds_total",
+        "counter",
+        "CPU time spent rebuilding the force stream's FT-AFM estimator (its builder runs at nice 10 and at most a quarter of a core).",
+        &[(
+            String::new(),
+            f.rebuild_ns.load(Ordering::Relaxed) as f64 * 1e-9,
+        )],
+    );
     let i = &state.image.counters;
     metric(
         "scan_pixels_total",

@@ -7,6 +7,7 @@ mod force;
 mod hub;
 mod image;
 mod latency;
+mod latest;
 mod metrics;
 pub mod protocol;
 mod session;
