@@ -4,6 +4,7 @@
 use std::time::{Duration, Instant};
 
 use ftafm::config::{Settings, default_settings};
+use ftafm::pipeline::BLOCK_SAMPLES;
 use ftafm::server::protocol::decode_header;
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{Value, json};
@@ -630,10 +631,12 @@ async fn the_force_stream_recovers_contact_time_force_and_modulus() {
                 .await["ok"],
                 true
             );
-            assert_eq!(
-                call(&mut ws, json!({"op": "subscribe", "stream": "force"})).await["ok"],
-                true
-            );
+            for stream in ["force", "status"] {
+                assert_eq!(
+                    call(&mut ws, json!({"op": "subscribe", "stream": stream})).await["ok"],
+                    true
+                );
+            }
             for modulus in [129e9, 60e9, 50e9, 200e9] {
                 let r = call(
                     &mut ws,
@@ -641,16 +644,24 @@ async fn the_force_stream_recovers_contact_time_force_and_modulus() {
                 )
                 .await;
                 assert_eq!(r["ok"], true);
+                let replied_ns = ftafm::pipeline::unix_ns();
                 // Frames made before the change took effect may still be queued behind the
-                // reply (replies go first): skip 250 ms of simulated time from the first
-                // frame after the reply, which covers the change (a plan build, ~0.1 s) and
-                // the mode transients and 4th-order filters settling (≈ 30 ms); and wait
-                // for the estimator of the method just set (it is rebuilt off the request
-                // path, ~0.1 s, longer on a busy machine).
-                let t0 = next_of(&mut ws, "force").await["t"].as_f64().unwrap();
+                // reply (replies go first), however far behind a busy machine runs. A
+                // status made after the reply arrived counts the samples synthesised by
+                // then; the change (queued before the reply) took effect at the next block
+                // at the latest. Skip 250 ms of simulated time from there: the mode
+                // transients and 4th-order filters settle in ≈ 30 ms. And wait for the
+                // estimator of the method just set (rebuilt off the request path).
+                let effective = loop {
+                    let st = next_of(&mut ws, "status").await;
+                    if st["t_synth_ns"].as_u64().unwrap() > replied_ns {
+                        let synthesised = st["counters"]["samples_synthesized"].as_f64().unwrap();
+                        break (synthesised + BLOCK_SAMPLES as f64) / settings.synth.sample_rate;
+                    }
+                };
                 let first = loop {
                     let f = next_of(&mut ws, "force").await;
-                    if f["t"].as_f64().unwrap() >= t0 + 0.25 && f["method"] == method {
+                    if f["t"].as_f64().unwrap() >= effective + 0.25 && f["method"] == method {
                         break f;
                     }
                 };
