@@ -495,7 +495,7 @@ fn noise_ranges_name_the_key() {
     );
     assert_eq!(
         error_of("[noise]\nadc_range = 0\n"),
-        "test.toml: /noise/adc_range = 0 is out of range: allowed 0 < value ≤ 1e-5 m"
+        "test.toml: /noise/adc_range = 0 is out of range: allowed 1e-12 ≤ value ≤ 1e-5 m"
     );
     // Zero switches each source off, and is allowed.
     let s = load_str(
@@ -553,7 +553,7 @@ fn spectrum_window_and_rate() {
     }
     assert_eq!(
         error_of("[spectrum]\nrate = 0\n"),
-        "test.toml: /spectrum/rate = 0 is out of range: allowed 0 < value ≤ 1000 Hz"
+        "test.toml: /spectrum/rate = 0 is out of range: allowed 0.001 ≤ value ≤ 1000 Hz"
     );
     // Frames may overlap: 1000 spectra per second of 2^20 samples (0.1 s each at 10 MHz).
     let s = load_str("[spectrum]\nrate = 1000\nsize = 1048576\n", "t.toml").unwrap();
@@ -584,11 +584,11 @@ fn scope_ranges_name_the_key() {
     );
     assert_eq!(
         error_of("[scope]\nrate = 0\n"),
-        "test.toml: /scope/rate = 0 is out of range: allowed 0 < value ≤ 100 Hz"
+        "test.toml: /scope/rate = 0 is out of range: allowed 0.001 ≤ value ≤ 100 Hz"
     );
     assert_eq!(
         error_of("[scope]\nrate = 101\n"),
-        "test.toml: /scope/rate = 101 is out of range: allowed 0 < value ≤ 100 Hz"
+        "test.toml: /scope/rate = 101 is out of range: allowed 0.001 ≤ value ≤ 100 Hz"
     );
     assert_mentions(
         &error_of("[scope]\nenable = \"yes\"\n"),
@@ -1243,11 +1243,11 @@ fn scan_and_feedback_ranges_name_the_key() {
         ),
         (
             "[scan]\nline_rate = 0\n",
-            "/scan/line_rate = 0 is out of range: allowed 0 < value ≤ 100 Hz",
+            "/scan/line_rate = 0 is out of range: allowed 0.001 ≤ value ≤ 100 Hz",
         ),
         (
             "[scan]\nline_rate = 101\n",
-            "/scan/line_rate = 101 is out of range: allowed 0 < value ≤ 100 Hz",
+            "/scan/line_rate = 101 is out of range: allowed 0.001 ≤ value ≤ 100 Hz",
         ),
         (
             "[scan]\nx = 2e-3\n",
@@ -1973,7 +1973,7 @@ fn list_entries_have_the_protocol_fields() {
     for (path, unit, min, max) in [
         ("/scope/length", "samples", json!(16), json!(65536)),
         ("/scope/decimation", "samples", json!(1), json!(250)),
-        ("/scope/rate", "Hz", json!(0.0), json!(100.0)),
+        ("/scope/rate", "Hz", json!(0.001), json!(100.0)),
         ("/server/max_clients", "clients", json!(1), json!(4096)),
         ("/server/client_queue", "messages", json!(16), json!(65536)),
         ("/server/stall_timeout", "s", json!(1.0), json!(600.0)),
@@ -1989,7 +1989,7 @@ fn list_entries_have_the_protocol_fields() {
         // 2 Hz allows up to 2500 pixels by the dwell time: the static 1024 stands.
         ("/scan/pixels", "pixels", json!(8), json!(1024)),
         // 100 kHz / (20 × 128 pixels).
-        ("/scan/line_rate", "Hz", json!(0.0), json!(39.0625)),
+        ("/scan/line_rate", "Hz", json!(0.001), json!(39.0625)),
         ("/scan/x", "m", json!(-1e-3), json!(1e-3)),
         ("/scan/y", "m", json!(-1e-3), json!(1e-3)),
         ("/feedback/enable", "", Value::Null, Value::Null),
@@ -2020,8 +2020,9 @@ fn list_entries_have_the_protocol_fields() {
         assert!(info.writable, "{path}");
     }
     // Limits that depend on other nodes are reported as they stand now.
+    // The Nyquist frequency over the highest enabled harmonic (32): 5 MHz / 32.
     let drive = nodes.iter().find(|n| n.path == "/drive/frequency").unwrap();
-    assert_eq!(drive.max, json!(5e6));
+    assert_eq!(drive.max, json!(156250.0));
     let harmonic = nodes
         .iter()
         .find(|n| n.path == "/demods/0/harmonic")
@@ -2050,7 +2051,9 @@ fn nodes_under_matches_whole_segments() {
             "/demods/1/rate"
         ]
     );
-    assert_eq!(s.nodes_under("/sample/").len(), 2);
+    // A trailing slash is malformed, as it is for `get` and `set`.
+    assert_eq!(s.nodes_under("/sample/").len(), 0);
+    assert_eq!(s.nodes_under("/sample").len(), 2);
     assert_eq!(s.nodes_under("/noise").len(), 5);
     assert_eq!(s.nodes_under("/spectrum").len(), 4);
     assert_eq!(s.nodes_under("/scope").len(), 4);
@@ -2422,4 +2425,187 @@ proptest! {
             );
         }
     }
+}
+
+fn next_up(x: f64) -> f64 {
+    if x == 0.0 {
+        return f64::from_bits(1);
+    }
+    let bits = x.to_bits();
+    f64::from_bits(if x > 0.0 { bits + 1 } else { bits - 1 })
+}
+
+/// Whether `error` is the physics check's (the 1-DOF orbit or the cantilever), which no
+/// range can express.
+fn is_physics(error: &NodeError) -> bool {
+    let message = error.to_string();
+    message.contains("1-DOF tapping problem") || message.contains("gives no cantilever")
+}
+
+/// `list`'s `min` and `max` are what `set` accepts given the other settings: values just
+/// inside them are applied (unless the 1-DOF orbit itself fails there), values just outside
+/// refused. Checked on the default and on a lighter instrument (2 MS/s, harmonics ≤ 9).
+#[test]
+fn list_ranges_are_what_set_accepts() {
+    let mut light = default_settings();
+    light.synth.sample_rate = 2e6;
+    for d in &mut light.demods {
+        d.harmonic = d.harmonic.min(9);
+        d.rate = 200.0;
+    }
+    light.inversion.enable = false;
+    for base in [default_settings(), light] {
+        for info in base.nodes() {
+            if !info.writable || info.min.is_null() {
+                continue;
+            }
+            let set = |value: Value| base.clone().set(&info.path, &value);
+            let (inside, outside): (Vec<Value>, Vec<Value>) =
+                if let (Some(lo), Some(hi)) = (info.min.as_u64(), info.max.as_u64()) {
+                    let mut outside = vec![json!(hi as f64 + 1.0)];
+                    if lo > 0 {
+                        outside.push(json!(lo - 1));
+                    }
+                    (vec![json!(lo), json!(hi)], outside)
+                } else {
+                    let (lo, hi) = (info.min.as_f64().unwrap(), info.max.as_f64().unwrap());
+                    let step = (hi - lo) * 1e-9;
+                    (
+                        vec![json!(lo + step), json!(hi - step)],
+                        vec![json!(-next_up(-lo)), json!(next_up(hi))],
+                    )
+                };
+            let wrap = |v: Value| {
+                if info.value.is_array() {
+                    json!([v])
+                } else {
+                    v
+                }
+            };
+            for v in inside {
+                if let Err(e) = set(wrap(v.clone())) {
+                    assert!(is_physics(&e), "{} = {v} inside list's range: {e}", info.path);
+                }
+            }
+            for v in outside {
+                assert!(
+                    set(wrap(v.clone())).is_err(),
+                    "{} = {v} outside list's range [{}, {}] was accepted",
+                    info.path,
+                    info.min,
+                    info.max
+                );
+            }
+        }
+    }
+    // The two the review found: 32 enabled harmonics at 10 MS/s allow a drive below
+    // 5 MHz / 32, and 5 Q values leave room for 11 extra modes of the 16.
+    let s = default_settings();
+    let find = |path: &str| s.nodes().into_iter().find(|n| n.path == path).unwrap();
+    assert_eq!(find("/drive/frequency").max, json!(5e6 / 32.0));
+    // 20 × 128 pixels × 2 Hz: each pixel lasts ten drive periods at 5.12 kHz.
+    assert_eq!(find("/drive/frequency").min, json!(5120.0));
+    assert_eq!(find("/cantilever/extra_modes").max, json!(11));
+    assert!(s.clone().set("/cantilever/extra_modes", &json!(11)).is_ok());
+    assert!(s.clone().set("/cantilever/extra_modes", &json!(12)).is_err());
+}
+
+/// In-range values whose 1-DOF orbit cannot be found are refused by a config file as by
+/// `set`, with the same message, so `serve` and `paper` never start on them.
+#[test]
+fn physics_failures_are_refused_by_files_and_sets_alike() {
+    for (path, table, key, value) in [
+        ("/cantilever/f1", "cantilever", "f1", 1e8),
+        ("/cantilever/k", "cantilever", "k", 5e-324),
+    ] {
+        let set_error = default_settings()
+            .set(path, &json!(value))
+            .expect_err(path)
+            .to_string();
+        assert!(set_error.contains("1-DOF tapping problem"), "{set_error}");
+        let text = format!("[{table}]\n{key} = {value:e}\n");
+        let file_error = load_str(&text, "t.toml").expect_err(path).to_string();
+        // The set names the value it tried, then says what the file says.
+        let (_, reason) = set_error.split_once(": ").unwrap();
+        assert_eq!(file_error, format!("t.toml: {reason}"), "{path}");
+
+        let dir = std::env::temp_dir().join(format!("ftafm-physics-{}-{key}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("c.toml");
+        std::fs::write(&file, &text).unwrap();
+        for args in [
+            vec!["paper", "--config", file.to_str().unwrap(), "--json"],
+            vec!["serve", "--config", file.to_str().unwrap(), "--bind", "127.0.0.1:0"],
+        ] {
+            let out = std::process::Command::new(env!("CARGO_BIN_EXE_ftafm"))
+                .args(&args)
+                .output()
+                .unwrap();
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+            assert!(stderr.contains(reason), "{args:?}: {stderr}");
+            assert!(out.stdout.is_empty(), "{args:?} printed {:?}", out.stdout);
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
+
+/// Keys and values are quoted cut short: a 20 MB key gives a message of a few hundred
+/// bytes that still says how long it was.
+#[test]
+fn quoted_keys_and_values_are_cut() {
+    let huge = "x".repeat(20_000_000);
+    let cases = [
+        format!("[sample]\n{huge} = 1\n"),
+        format!("{huge} = 1\n"),
+        format!("[synth]\nengine = \"{huge}\"\n"),
+        format!("[server]\nallowed_origins = [\"http://{huge}\"]\n"),
+        format!("[cantilever]\nq = [{}1]\n", "2, ".repeat(1_000_000)),
+        format!("[sample]\nyoungs_modulus = {huge}\n"),
+    ];
+    for text in &cases {
+        let message = load_str(text, "t.toml").unwrap_err().to_string();
+        assert!(
+            message.len() < 1000,
+            "{} bytes: {}",
+            message.len(),
+            &message[..300]
+        );
+    }
+    let message = load_str(&cases[0], "t.toml").unwrap_err().to_string();
+    assert!(message.contains("(20000008 bytes)"), "{message}");
+    let mut s = default_settings();
+    for error in [
+        s.get(&format!("/{huge}")).unwrap_err(),
+        s.set(&format!("/sample/{huge}"), &json!(1)).unwrap_err(),
+        s.set("/synth/engine", &json!(huge)).unwrap_err(),
+        s.list(&format!("/{huge}")).unwrap_err(),
+    ] {
+        let message = error.to_string();
+        assert!(message.len() < 1000, "{} bytes", message.len());
+        assert!(message.contains(" bytes)"), "{message}");
+    }
+}
+
+/// `list`, `get` and `set` share one rule for paths: a malformed one (`//`, a trailing or
+/// doubled slash) is an unknown path that says it is malformed; `/` alone lists the tree.
+#[test]
+fn paths_follow_one_rule_for_every_op() {
+    let mut s = default_settings();
+    for path in ["//", "/sample/", "/sample//poisson", "/sample/poisson/"] {
+        for error in [
+            s.get(path).unwrap_err(),
+            s.set(path, &json!(0.3)).unwrap_err(),
+            s.list(path).unwrap_err(),
+        ] {
+            assert_eq!(error.code(), "unknown_path", "{path}");
+            assert!(error.to_string().starts_with("malformed path"), "{path}: {error}");
+        }
+    }
+    assert_eq!(s.list("/").unwrap(), s.nodes());
+    assert_eq!(s.list("/sample").unwrap().len(), 2);
+    assert_eq!(s.list("/sample/poisson").unwrap().len(), 1);
+    let error = s.list("/sample/nothing").unwrap_err();
+    assert_eq!(error.code(), "unknown_path");
+    assert!(error.to_string().contains("youngs_modulus, poisson"), "{error}");
 }

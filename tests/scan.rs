@@ -178,3 +178,84 @@ fn a_raised_inclusion_shows_as_height_and_the_softer_one_not_at_all() {
         assert!(heights[c].abs() < 0.1e-9, "column {c}: {}", heights[c]);
     }
 }
+
+/// Drains the pipeline's output; returns the serials of the scan pixels whose harmonics
+/// came out.
+fn drain_pixels(output: &mut ftafm::pipeline::PipelineOutput, serials: &mut Vec<u64>) {
+    use ringbuf::traits::Consumer;
+    while let Some(p) = output.pixels.try_pop() {
+        serials.push(p.pixel.serial);
+    }
+    output.topography.skip(usize::MAX);
+    output.demods.skip(usize::MAX);
+    while let Some(b) = output.spectra.try_pop() {
+        output.recycle(b);
+    }
+    while let Some(b) = output.scopes.try_pop() {
+        output.recycle_scope(b);
+    }
+}
+
+/// Waits (bounded, generously) until `done` says so, draining the output meanwhile.
+fn drain_until(
+    pipeline: &ftafm::pipeline::Pipeline,
+    output: &mut ftafm::pipeline::PipelineOutput,
+    serials: &mut Vec<u64>,
+    what: &str,
+    mut done: impl FnMut(&ftafm::pipeline::CountersSnapshot, &[u64]) -> bool,
+) {
+    let deadline = Instant::now() + std::time::Duration::from_secs(120);
+    while !done(&pipeline.counters(), serials) {
+        drain_pixels(output, serials);
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+}
+
+/// A DSP thread held until the ring overruns loses the pixels of the gap; every one of
+/// them is counted in `pixels_dropped`, so the count equals the serials missing from what
+/// came out (each one a `NaN` pixel of the image).
+#[test]
+fn pixels_lost_to_an_overrun_are_counted() {
+    let mut s = quiet(scanning(default_settings()));
+    s.synth.sample_rate = 2e6;
+    for d in &mut s.demods {
+        d.harmonic = d.harmonic.min(9);
+    }
+    s.inversion.enable = false;
+    s.scope.enable = false;
+    s.spectrum.enable = false;
+    s.scan.pixels = 8;
+    // 1250 samples (0.625 ms) per pixel: a one-second gap holds some 1600.
+    s.scan.line_rate = 100.0;
+    let (pipeline, mut output) = ftafm::pipeline::Pipeline::start(&s).unwrap();
+    let mut serials = Vec::new();
+    drain_until(&pipeline, &mut output, &mut serials, "pixels", |_, got| {
+        got.len() >= 50
+    });
+    let overruns = pipeline.counters().overrun_blocks;
+    pipeline.hold_dsp(true);
+    drain_until(&pipeline, &mut output, &mut serials, "an overrun", |c, _| {
+        c.overrun_blocks >= overruns + 8
+    });
+    pipeline.hold_dsp(false);
+    // The DSP first works through the full ring, then meets the gap.
+    drain_until(&pipeline, &mut output, &mut serials, "the gap", |c, _| {
+        c.discontinuities > 0
+    });
+    let after = serials.len() + 200;
+    drain_until(&pipeline, &mut output, &mut serials, "pixels after", |_, got| {
+        got.len() >= after
+    });
+    let counters = pipeline.stop();
+    drain_pixels(&mut output, &mut serials);
+    assert!(serials.windows(2).all(|w| w[0] < w[1]), "in scan order");
+    let last = *serials.last().unwrap();
+    let missing = last + 1 - serials.len() as u64;
+    assert!(missing > 0, "the overrun cost no pixel: {counters:?}");
+    assert_eq!(
+        counters.pixels_dropped, missing,
+        "pixels missing from 0 … {last} against pixels_dropped (overrun {} blocks)",
+        counters.overrun_blocks
+    );
+}

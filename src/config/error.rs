@@ -6,11 +6,34 @@
 //! error, the TOML parser's line and column), so `source()` is not used: printing the error
 //! once says everything, and printing a chain would say it twice.
 
+use std::borrow::Cow;
 use std::path::PathBuf;
 
 use thiserror::Error;
 
 use super::registry;
+
+/// Longest quoted key or value in a message, in characters.
+pub(crate) const QUOTE_CHARS: usize = 80;
+
+/// `text` as a message quotes it: whole up to [`QUOTE_CHARS`] characters, else its first
+/// ones and `… (N bytes)`, so that a 20 MB key or value gives a short message.
+pub(crate) fn cut(text: &str) -> Cow<'_, str> {
+    match text.char_indices().nth(QUOTE_CHARS) {
+        Some((end, _)) => Cow::Owned(format!("{}… ({} bytes)", &text[..end], text.len())),
+        None => Cow::Borrowed(text),
+    }
+}
+
+/// A multi-line message (the TOML parser's, which quotes the offending line) with each
+/// line cut as [`cut`] does, and at most 12 lines.
+fn cut_lines(text: &str) -> String {
+    let mut lines: Vec<Cow<'_, str>> = text.lines().take(12).map(cut).collect();
+    if text.lines().nth(12).is_some() {
+        lines.push(Cow::Borrowed("…"));
+    }
+    lines.join("\n")
+}
 
 /// Why a node could not be read or written (`get`, `set`, or one key of a config file).
 #[derive(Clone, Debug, PartialEq, Eq, Error)]
@@ -21,8 +44,18 @@ pub enum NodeError {
         /// The path asked for.
         path: String,
     },
+    /// `list` found no node at or under this (well-formed) prefix.
+    #[error(
+        "no node at or under {}; {}",
+        cut(path),
+        registry::unknown_path_message(path)
+    )]
+    NothingUnder {
+        /// The prefix asked for.
+        path: String,
+    },
     /// The node is fixed while the instrument runs; it can only be set in a config file.
-    #[error("{path} is read-only at runtime: set it in a config file and restart")]
+    #[error("{} is read-only at runtime: set it in a config file and restart", cut(path))]
     ReadOnly {
         /// The node's path.
         path: String,
@@ -42,6 +75,7 @@ impl NodeError {
     pub fn path(&self) -> &str {
         match self {
             NodeError::UnknownPath { path }
+            | NodeError::NothingUnder { path }
             | NodeError::ReadOnly { path }
             | NodeError::InvalidValue { path, .. } => path,
         }
@@ -50,7 +84,7 @@ impl NodeError {
     /// The WebSocket protocol's error code: `unknown_path`, `read_only` or `invalid_value`.
     pub fn code(&self) -> &'static str {
         match self {
-            NodeError::UnknownPath { .. } => "unknown_path",
+            NodeError::UnknownPath { .. } | NodeError::NothingUnder { .. } => "unknown_path",
             NodeError::ReadOnly { .. } => "read_only",
             NodeError::InvalidValue { .. } => "invalid_value",
         }
@@ -70,7 +104,7 @@ pub enum ConfigError {
         error: std::io::Error,
     },
     /// The file is not valid TOML.
-    #[error("{origin} is not valid TOML: {message}")]
+    #[error("{origin} is not valid TOML: {}", cut_lines(message))]
     Syntax {
         /// The file.
         origin: String,
@@ -79,7 +113,8 @@ pub enum ConfigError {
     },
     /// A key that is no node and no table of the tree.
     #[error(
-        "unknown key {path} in {origin}; keys of {table}: {}",
+        "unknown key {} in {origin}; keys of {table}: {}",
+        cut(path),
         registry::key_list(allowed)
     )]
     UnknownKey {
@@ -94,7 +129,8 @@ pub enum ConfigError {
     },
     /// A plain value where the tree has a table, e.g. `sample = 3`.
     #[error(
-        "{path} in {origin} is a table, not a value: write {table} with keys {}",
+        "{} in {origin} is a table, not a value: write {table} with keys {}",
+        cut(path),
         registry::key_list(allowed)
     )]
     NotATable {

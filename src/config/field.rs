@@ -58,6 +58,11 @@ pub const MAX_SCAN_PIXELS: u32 = 1024;
 /// periods to see the material change (`/scan/line_rate` ≤ `/drive/frequency` /
 /// (2 × this × `/scan/pixels`)).
 pub const MIN_PIXEL_PERIODS: f64 = 10.0;
+/// Lowest rate of anything periodic the instrument produces (demodulator outputs,
+/// spectra, scope traces, scan lines), in Hz: one per 1000 s. Slower is no instrument
+/// setting, and a rate of 5e-324 Hz would make the samples between frames overflow any
+/// integer (the DSP thread also clamps them, see `pipeline`).
+pub const MIN_RATE: f64 = 1e-3;
 /// Most pixels per second the image stream carries, trace and retrace together
 /// (2 × `/scan/pixels` × `/scan/line_rate` ≤ this).
 pub const MAX_PIXEL_RATE: f64 = 20_000.0;
@@ -85,25 +90,26 @@ const SAMPLE_RATE: Range = Range::closed(1e3, 1e9);
 /// Filter time constant in s.
 const TIME_CONSTANT: Range = Range::above_up_to(0.0, 100.0);
 /// Demodulator output rate in Hz: never above the highest sample rate (and, in
-/// `relations`, never above the configured one).
-const OUTPUT_RATE: Range = Range::above_up_to(0.0, SAMPLE_RATE.max.value);
+/// `relations`, never above the configured one); at least one output per 1000 s.
+const OUTPUT_RATE: Range = Range::closed(MIN_RATE, SAMPLE_RATE.max.value);
 /// Temperature of the thermal noise in K; 0 turns it off.
 const TEMPERATURE: Range = Range::closed(0.0, 1e4);
 /// Detector noise density in m/√Hz: up to 1 nm/√Hz; 0 turns it off.
 const DETECTOR_DENSITY: Range = Range::closed(0.0, 1e-9);
-/// ADC full scale in m: up to ±10 µm.
-const ADC_RANGE: Range = Range::above_up_to(0.0, 1e-5);
+/// ADC full scale in m: ±1 pm to ±10 µm. Below 1 pm the step of a 32-bit ADC would
+/// underflow (its reciprocal overflow), and no deflection sensor reads less.
+const ADC_RANGE: Range = Range::closed(1e-12, 1e-5);
 /// Spectra per second in Hz (and, in `relations`, never above the sample rate).
-const SPECTRUM_RATE: Range = Range::above_up_to(0.0, 1e3);
+const SPECTRUM_RATE: Range = Range::closed(MIN_RATE, 1e3);
 /// Scope traces per second in Hz (and, in `relations`, traces must not overlap).
-const SCOPE_RATE: Range = Range::above_up_to(0.0, 100.0);
+const SCOPE_RATE: Range = Range::closed(MIN_RATE, 100.0);
 /// Seconds a client's socket may accept nothing before it is disconnected.
 const STALL_TIMEOUT: Range = Range::closed(1.0, 600.0);
 /// Side of the square scan area in m: up to 100 µm (a typical piezo scanner's range).
 const SCAN_SIZE: Range = Range::above_up_to(0.0, 100e-6);
 /// Scan lines per second in Hz (and, in `relations`, at least ten drive periods per pixel
 /// and at most 20000 pixels per second).
-const LINE_RATE: Range = Range::above_up_to(0.0, 100.0);
+const LINE_RATE: Range = Range::closed(MIN_RATE, 100.0);
 /// Positions in sample coordinates in m (scan centre, inclusion centre): within ±1 mm.
 const POSITION: Range = Range::closed(-1e-3, 1e-3);
 /// Amplitude setpoint of the feedback in m: up to 1 µm; 0 means the amplitude at the
@@ -421,8 +427,15 @@ impl Typed {
             Typed::Bool(b) => b.to_string(),
             Typed::Text(t) => format!("{t:?}"),
             Typed::FloatList(list) => {
-                let entries: Vec<String> = list.iter().map(|x| number(*x)).collect();
-                format!("[{}]", entries.join(", "))
+                // A long list is cut, like any quoted value: its first entries and its length.
+                const SHOWN: usize = 16;
+                let entries: Vec<String> = list.iter().take(SHOWN).map(|x| number(*x)).collect();
+                let more = if list.len() > SHOWN {
+                    format!(", … ({} entries)", list.len())
+                } else {
+                    String::new()
+                };
+                format!("[{}{more}]", entries.join(", "))
             }
             // Entries may be long and many: shown cut short, like JSON in messages.
             Typed::TextList(_) => show_json(&self.to_json()),

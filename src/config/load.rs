@@ -8,7 +8,7 @@ use std::sync::OnceLock;
 
 use serde_json::Value;
 
-use super::error::{ConfigError, NodeError};
+use super::error::{ConfigError, NodeError, cut};
 use super::registry::{node, table_keys, toml_table_name};
 use super::settings::Settings;
 
@@ -94,7 +94,7 @@ fn apply_table(
             // JSON, the representation `set` takes, has no NaN or infinity: refuse them
             // here, while the file's spelling (`nan`, `inf`) is still at hand.
             if has_non_finite(value) {
-                return Err(invalid(spec.non_finite(&value.to_string())));
+                return Err(invalid(spec.non_finite(&cut(&value.to_string()))));
             }
             settings
                 .write_node(spec, &to_json(value))

@@ -7,10 +7,10 @@
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-use super::error::NodeError;
+use super::error::{NodeError, cut};
 use super::field::{Field, Kind, TextEntry, Typed};
 use super::quantity::number;
-use super::registry::{node, registry};
+use super::registry::{self, node, registry};
 use super::relations;
 use super::settings::Settings;
 
@@ -20,11 +20,7 @@ pub(crate) fn show_json(value: &Value) -> String {
         Some(x) if value.is_f64() => number(x),
         _ => value.to_string(),
     };
-    const LONGEST: usize = 80;
-    match text.char_indices().nth(LONGEST) {
-        Some((cut, _)) => format!("{}…", &text[..cut]),
-        None => text,
-    }
+    cut(&text).into_owned()
 }
 
 /// One row of the registry: a node and everything static about it.
@@ -354,7 +350,10 @@ impl NodeSpec {
             Kind::Float(range) | Kind::FloatList { entry: range, .. } => {
                 let (mut low, mut high) = (range.min.value, range.max.value);
                 match self.field {
-                    Field::DriveFrequency => high = high.min(sample_rate / 2.0),
+                    Field::DriveFrequency => {
+                        high = high.min(relations::highest_drive_frequency(s));
+                        low = low.max(relations::lowest_drive_frequency(s));
+                    }
                     Field::DemodTimeconstant(_) => low = low.max(1.0 / sample_rate),
                     Field::DemodRate(_) | Field::SpectrumRate => high = high.min(sample_rate),
                     Field::ScopeRate => high = high.min(relations::highest_scope_rate(s)),
@@ -368,6 +367,10 @@ impl NodeSpec {
                 match self.field {
                     Field::DemodHarmonic(i) if enabled(i) => {
                         max = max.min(relations::highest_harmonic(s));
+                        if relations::sole_inversion_measure(s, i) {
+                            // The inversion's harmonic is measured by this one alone.
+                            (min, max) = (u64::from(s.demods[i].harmonic), u64::from(s.demods[i].harmonic));
+                        }
                     }
                     Field::InversionHarmonicA | Field::InversionHarmonicB => {
                         let other = if self.field == Field::InversionHarmonicA {
@@ -390,6 +393,7 @@ impl NodeSpec {
                         );
                     }
                     Field::ScanPixels => max = max.min(relations::highest_scan_pixels(s)),
+                    Field::CantileverExtraModes => max = max.min(relations::most_extra_modes(s)),
                     _ => {}
                 }
                 (Value::from(min), Value::from(max))
@@ -500,10 +504,31 @@ impl Settings {
         self.nodes_under("")
     }
 
+    /// The protocol's `list`: the nodes at or below `prefix` ([`Settings::nodes_under`]), or
+    /// [`NodeError::UnknownPath`] for a malformed path (the rule of `get` and `set`: no
+    /// `//`, no trailing `/`) or one with no node at or below it.
+    pub fn list(&self, prefix: &str) -> Result<Vec<NodeInfo>, NodeError> {
+        let nodes = self.nodes_under(prefix);
+        if nodes.is_empty() {
+            let path = prefix.to_owned();
+            return Err(if registry::well_formed(prefix) {
+                NodeError::NothingUnder { path }
+            } else {
+                NodeError::UnknownPath { path }
+            });
+        }
+        Ok(nodes)
+    }
+
     /// The nodes at or below `prefix`, matched by whole path segments: `/demods/1` lists
-    /// `/demods/1/…` but not `/demods/10/…`. An empty prefix or `/` lists every node.
+    /// `/demods/1/…` but not `/demods/10/…`. An empty prefix or `/` lists every node; a
+    /// malformed prefix (`//`, `/demods/`) lists none.
     pub fn nodes_under(&self, prefix: &str) -> Vec<NodeInfo> {
-        let prefix = prefix.trim_end_matches('/');
+        let whole_tree = prefix.is_empty() || prefix == "/";
+        if !whole_tree && !registry::well_formed(prefix) {
+            return Vec::new();
+        }
+        let prefix = if whole_tree { "" } else { prefix };
         registry()
             .iter()
             .filter(|spec| {

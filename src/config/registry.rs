@@ -5,6 +5,7 @@
 use std::collections::{BTreeMap, HashMap};
 use std::sync::OnceLock;
 
+use super::error::cut;
 use super::field::Field;
 use super::nodes::NodeSpec;
 use super::settings::{DEMODULATOR_COUNT, INCLUSION_COUNT};
@@ -87,11 +88,28 @@ pub(crate) fn key_list(keys: &[String]) -> String {
     }
 }
 
-/// The message of [`NodeError::UnknownPath`]: says what the nearest existing table holds.
+/// Whether `path` is written as node paths are: `/`, then segments separated by single
+/// slashes, none empty (no `//`, no trailing `/`). The same rule for `get`, `set` and
+/// `list` (whose `/` alone means the whole tree).
+pub(crate) fn well_formed(path: &str) -> bool {
+    path.strip_prefix('/')
+        .is_some_and(|rest| rest.split('/').all(|segment| !segment.is_empty()))
+}
+
+/// The message of [`NodeError::UnknownPath`]: says why a path is malformed, or what the
+/// nearest existing table holds. The path is quoted cut short.
 pub(crate) fn unknown_path_message(path: &str) -> String {
+    if !well_formed(path) {
+        return format!(
+            "malformed path {:?}: a node path is \"/\" then names separated by single \"/\", \
+             with no empty name and no trailing \"/\" (such as /drive/frequency or /demods/3)",
+            cut(path)
+        );
+    }
+    let shown = cut(path);
     if let Some(keys) = table_keys(path).filter(|_| !path.is_empty()) {
         return format!(
-            "unknown node {path}: that is a table; its keys: {}",
+            "unknown node {shown}: that is a table; its keys: {}",
             key_list(keys)
         );
     }
@@ -104,7 +122,7 @@ pub(crate) fn unknown_path_message(path: &str) -> String {
             } else {
                 table
             };
-            return format!("unknown node {path}; keys of {name}: {}", key_list(keys));
+            return format!("unknown node {shown}; keys of {name}: {}", key_list(keys));
         }
     }
 }
@@ -170,5 +188,13 @@ mod tests {
         assert!(message.contains("the top level"), "{message}");
         let message = unknown_path_message("/sample");
         assert!(message.contains("table"), "{message}");
+        for malformed in ["//", "/sample/", "/sample//poisson", "sample/poisson", ""] {
+            let message = unknown_path_message(malformed);
+            assert!(message.starts_with("malformed path"), "{malformed}: {message}");
+        }
+        let long = format!("/{}", "x".repeat(20_000_000));
+        let message = unknown_path_message(&long);
+        assert!(message.len() < 300, "{} bytes", message.len());
+        assert!(message.contains("(20000001 bytes)"), "{message}");
     }
 }

@@ -60,7 +60,8 @@ impl Settings {
         check_scope(self)?;
         check_demods(self)?;
         check_inversion(self)?;
-        check_scan(self)
+        check_scan(self)?;
+        check_physics(self)
     }
 }
 
@@ -94,6 +95,90 @@ pub(crate) fn highest_harmonic(s: &Settings) -> u64 {
         k += 1;
     }
     k
+}
+
+/// The highest harmonic of an enabled demodulator (0 if none is enabled).
+fn highest_enabled_harmonic(s: &Settings) -> u32 {
+    s.demods
+        .iter()
+        .filter(|d| d.enable)
+        .map(|d| d.harmonic)
+        .max()
+        .unwrap_or(0)
+}
+
+/// The drive frequency must stay below the Nyquist frequency, and so must every enabled
+/// demodulator's harmonic of it: `/drive/frequency` < `/synth/sample_rate` / 2 / k for the
+/// highest enabled harmonic k, as `list` reports it (an end that is itself excluded).
+pub(crate) fn highest_drive_frequency(s: &Settings) -> f64 {
+    nyquist(s) / f64::from(highest_enabled_harmonic(s).max(1))
+}
+
+/// The lowest drive at which each pixel of the scan lasts at least [`MIN_PIXEL_PERIODS`]
+/// drive periods at the current `/scan/line_rate` and `/scan/pixels` (checked whether or not
+/// the scan runs), as `list` reports it.
+pub(crate) fn lowest_drive_frequency(s: &Settings) -> f64 {
+    2.0 * MIN_PIXEL_PERIODS * f64::from(s.scan.pixels) * s.scan.line_rate
+}
+
+/// The most `/cantilever/extra_modes` the current `/cantilever/q` allows: up to
+/// [`MAX_MODES`] modes in all, and none without two Q values to fit the Rayleigh damping.
+pub(crate) fn most_extra_modes(s: &Settings) -> u64 {
+    let given = s.cantilever.q.len();
+    if given < 2 {
+        0
+    } else {
+        MAX_MODES.saturating_sub(given) as u64
+    }
+}
+
+/// The physics the synthesiser and `ftafm paper` run: a cantilever that can be built from
+/// `[cantilever]` and a 1-DOF tapping problem whose periodic orbit the solver finds. Values
+/// inside every node's range can still fail here (a 100 MHz cantilever driven at 100 kHz),
+/// so a config file and a `set` are both refused with this message rather than the daemon
+/// failing after its start or `ftafm paper` after its load. Takes a few milliseconds.
+fn check_physics(s: &Settings) -> Result<(), NodeError> {
+    let cantilever = crate::model::cantilever(s).map_err(|e| {
+        invalid(
+            "/cantilever/extra_modes",
+            format!(
+                "/cantilever/q = {} with /cantilever/extra_modes = {} gives no cantilever: {e}",
+                list_of_numbers(&s.cantilever.q),
+                s.cantilever.extra_modes
+            ),
+        )
+    })?;
+    let oscillator = crate::model::impact_oscillator(s, &cantilever, s.sample);
+    oscillator.solve().map_err(|e| {
+        invalid(
+            "/cantilever",
+            format!(
+                "the 1-DOF tapping problem has no periodic solution ({e}) for /cantilever/f1 = \
+                 {}, /cantilever/k = {}, Q1 = {}, /drive/frequency = {}, \
+                 /drive/free_amplitude = {}, /surface/distance = {} (with \
+                 /cantilever/tip_radius, [tip] and [sample]): bring these closer to an \
+                 instrument's (the embedded default is one)",
+                quantity(s.cantilever.f1, "Hz"),
+                quantity(s.cantilever.k, "N/m"),
+                number(cantilever.fundamental().q),
+                quantity(s.drive.frequency, "Hz"),
+                quantity(s.drive.free_amplitude, "m"),
+                quantity(s.surface.distance, "m"),
+            ),
+        )
+    })?;
+    Ok(())
+}
+
+/// A short list of numbers for a message: `[100, 417, 340]`, cut after 8 entries.
+fn list_of_numbers(list: &[f64]) -> String {
+    let shown: Vec<String> = list.iter().take(8).map(|x| number(*x)).collect();
+    let more = if list.len() > 8 {
+        format!(", … ({} entries)", list.len())
+    } else {
+        String::new()
+    };
+    format!("[{}{more}]", shown.join(", "))
 }
 
 /// Only the engines implemented so far may be chosen.
@@ -340,6 +425,24 @@ pub(crate) fn inversion_harmonic_bounds(s: &Settings, other: u32) -> Option<(u64
         .filter(|&k| (MIN_INVERSION_HARMONIC..=MAX_HARMONIC).contains(&k) && k != other)
         .collect();
     Some((u64::from(*usable.first()?), u64::from(*usable.last()?)))
+}
+
+/// Whether demodulator `index` is, while the inversion is enabled, the only enabled one
+/// measuring `/inversion/harmonic_a` or `_b`: then its harmonic cannot change.
+pub(crate) fn sole_inversion_measure(s: &Settings, index: usize) -> bool {
+    let Some(demod) = s.demods.get(index) else {
+        return false;
+    };
+    let inversion = &s.inversion;
+    let needed = [inversion.harmonic_a, inversion.harmonic_b];
+    inversion.enable
+        && demod.enable
+        && needed.contains(&demod.harmonic)
+        && !s
+            .demods
+            .iter()
+            .enumerate()
+            .any(|(i, d)| i != index && d.enable && d.harmonic == demod.harmonic)
 }
 
 /// The inversion's two harmonics differ (always, so enabling the inversion never fails on

@@ -1,9 +1,19 @@
 //! Counters of the signal chain: atomics the real-time threads bump with relaxed stores,
 //! read as a [`CountersSnapshot`] by anyone. Every lost thing is counted here.
 
+use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
 
 use serde::Serialize;
+
+/// Nanoseconds on the monotonic clock since the process's first call (made off the
+/// real-time threads, by [`super::Pipeline::start`]); 0 is never returned, so a stamp of 0
+/// means "never". Lock-free after that first call.
+pub(crate) fn monotonic_ns() -> u64 {
+    static EPOCH: OnceLock<Instant> = OnceLock::new();
+    (EPOCH.get_or_init(Instant::now).elapsed().as_nanos() as u64).max(1)
+}
 
 /// Live counters shared by the pipeline's threads.
 #[derive(Debug, Default)]
@@ -31,6 +41,8 @@ pub struct Counters {
     pub(crate) topography_pixels_dropped: AtomicU64,
     pub(crate) pixels: AtomicU64,
     pub(crate) pixels_dropped: AtomicU64,
+    pub(crate) synth_beat_ns: AtomicU64,
+    pub(crate) dsp_beat_ns: AtomicU64,
 }
 
 impl Counters {
@@ -42,6 +54,11 @@ impl Counters {
     /// A consistent-enough copy (each counter read once, relaxed).
     pub fn snapshot(&self) -> CountersSnapshot {
         let r = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        let now = monotonic_ns();
+        let idle = |beat: &AtomicU64| match beat.load(Ordering::Relaxed) {
+            0 => 0,
+            t => now.saturating_sub(t),
+        };
         CountersSnapshot {
             samples_synthesized: r(&self.samples_synthesized),
             samples_processed: r(&self.samples_processed),
@@ -66,6 +83,8 @@ impl Counters {
             topography_pixels_dropped: r(&self.topography_pixels_dropped),
             pixels: r(&self.pixels),
             pixels_dropped: r(&self.pixels_dropped),
+            synth_idle_ns: idle(&self.synth_beat_ns),
+            dsp_idle_ns: idle(&self.dsp_beat_ns),
         }
     }
 }
@@ -117,6 +136,12 @@ pub struct CountersSnapshot {
     pub topography_pixels_dropped: u64,
     /// Scan pixels whose harmonics the DSP handed out.
     pub pixels: u64,
-    /// Scan pixels the DSP lost: cut by a gap in the stream, or not taken in time.
+    /// Scan pixels the DSP lost: cut or skipped by a gap in the stream (an overrun), left
+    /// without a single decimated sample, or not taken in time.
     pub pixels_dropped: u64,
+    /// Time since the synthesiser last finished a block (ns; 0 before its first).
+    pub synth_idle_ns: u64,
+    /// Time since the DSP thread last finished a block (ns; 0 before its first): grows
+    /// without bound when the pipeline stops producing, which `/healthz` reports.
+    pub dsp_idle_ns: u64,
 }

@@ -28,7 +28,8 @@ impl DspPlan {
         let fs = settings.synth.sample_rate;
         let bank = LockInBank::new(fs, settings.drive.frequency, &demodulators(settings))?;
         let spectrum = if settings.spectrum.enable {
-            let hop = (fs / settings.spectrum.rate).round().max(1.0) as usize;
+            let hop = usize::try_from(samples_between(fs, settings.spectrum.rate))
+                .unwrap_or(usize::MAX);
             Some(SlidingSpectrum::new(SpectrumConfig {
                 sample_rate: fs,
                 size: settings.spectrum.size as usize,
@@ -42,7 +43,7 @@ impl DspPlan {
             ScopeCapture::new(ScopeConfig {
                 length: settings.scope.length as usize,
                 decimation: settings.scope.decimation as usize,
-                hop: (fs / settings.scope.rate).round().max(1.0) as u64,
+                hop: samples_between(fs, settings.scope.rate),
             })
         });
         Ok(Self {
@@ -126,6 +127,25 @@ impl DspPlan {
     }
 }
 
+/// Longest hop between frames, in samples: 2^53, 28 years at 10 MS/s. Hops are added to
+/// sample indices on the DSP thread, so one near `u64::MAX` would wrap them (and a wrapped
+/// index sends a frame loop round for ever); 2^53 also keeps every hop exact in an `f64`.
+pub(crate) const MAX_HOP: u64 = 1 << 53;
+
+/// Input samples between frames at `rate` (Hz) for input at `sample_rate` (Hz): the nearest
+/// whole number, at least 1 and at most [`MAX_HOP`], whatever the two are (a rate of 5e-324
+/// makes the quotient infinite, a NaN makes it NaN: both give the longest hop).
+pub(crate) fn samples_between(sample_rate: f64, rate: f64) -> u64 {
+    let hop = (sample_rate / rate).round();
+    if hop.is_nan() || hop >= MAX_HOP as f64 {
+        MAX_HOP
+    } else if hop >= 1.0 {
+        hop as u64
+    } else {
+        1
+    }
+}
+
 /// The lock-in bank's demodulators for `/demods/...`, in index order.
 pub fn demodulators(settings: &Settings) -> Vec<Demodulator> {
     settings
@@ -147,5 +167,22 @@ fn window(w: SpectrumWindow) -> Window {
         SpectrumWindow::Hann => Window::Hann,
         SpectrumWindow::BlackmanHarris => Window::BlackmanHarris,
         SpectrumWindow::FlatTop => Window::FlatTop,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hops_stay_between_one_sample_and_the_longest() {
+        assert_eq!(samples_between(2e6, 20.0), 100_000);
+        assert_eq!(samples_between(2e6, 3e6), 1);
+        for rate in [5e-324, 1e-300, 1e-13, 0.0, f64::NAN, -1.0] {
+            let hop = samples_between(2e6, rate);
+            assert!(hop == MAX_HOP || hop == 1, "{rate}: {hop}");
+        }
+        assert_eq!(samples_between(2e6, 5e-324), MAX_HOP);
+        assert_eq!(samples_between(2e6, f64::NAN), MAX_HOP);
     }
 }

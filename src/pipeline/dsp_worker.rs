@@ -9,7 +9,7 @@ use ringbuf::traits::{Consumer, Observer, Producer};
 use ringbuf::{HeapCons, HeapProd};
 
 use super::block::{BlockHeader, unix_ns};
-use super::counters::Counters;
+use super::counters::{Counters, monotonic_ns};
 use super::dsp_plan::DspPlan;
 use super::frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
 
@@ -42,6 +42,11 @@ pub(crate) struct DspWorker {
     pub pixels: HeapProd<PixelHarmonics>,
     /// The pixel whose boxcar is being integrated: (raster generation, serial).
     pub pixel_open: Option<(u32, u64)>,
+    /// The pixel that should open next, after the last one opened: a later one means the
+    /// ones between were skipped by a gap in the stream, and are counted as dropped.
+    pub pixel_next: Option<(u32, u64)>,
+    /// Holds this thread idle while set (a fault to inject: see [`super::Pipeline::hold_dsp`]).
+    pub hold: Arc<AtomicBool>,
     /// Scratch for a pixel's values.
     pub pixel_frame: DemodFrame,
     /// Wakes the consumer after a block that produced demodulator frames.
@@ -56,6 +61,18 @@ fn slice_range<'a>(first: &'a [f64], second: &'a [f64], lo: usize, hi: usize) ->
     [a, b]
 }
 
+/// Pixels lost when pixel `key` (generation, serial) opens: the one still open, if it is of
+/// the same raster (its end never came), and those between the one expected next and `key`
+/// (a gap skipped them whole). A new raster's pixels continue nothing.
+fn pixels_lost(open: Option<(u32, u64)>, next: Option<(u32, u64)>, key: (u32, u64)) -> u64 {
+    let abandoned = u64::from(open.is_some_and(|(generation, _)| generation == key.0));
+    let skipped = match next {
+        Some((generation, serial)) if generation == key.0 => key.1.saturating_sub(serial),
+        _ => 0,
+    };
+    abandoned + skipped
+}
+
 impl DspWorker {
     pub fn run(mut self) {
         let mut expected: Option<u64> = None;
@@ -66,6 +83,10 @@ impl DspWorker {
                     .ring_fill
                     .store(self.samples.occupied_len() as u64, Ordering::Relaxed);
                 return;
+            }
+            if self.hold.load(Ordering::Relaxed) || super::HOLD_ALL_DSP.load(Ordering::Relaxed) {
+                std::thread::park_timeout(IDLE);
+                continue;
             }
             if let Some(next) = self.plans_in.try_pop() {
                 let old = std::mem::replace(&mut self.plan, next);
@@ -136,7 +157,12 @@ impl DspWorker {
                             if self.pixel_open != Some(key) {
                                 // Samples from before this pixel: not part of any pixel.
                                 self.plan.take_pixel(&mut self.pixel_frame);
+                                let lost = pixels_lost(self.pixel_open, self.pixel_next, key);
+                                if lost > 0 {
+                                    Counters::add(&self.counters.pixels_dropped, lost);
+                                }
                                 self.pixel_open = Some(key);
+                                self.pixel_next = Some((key.0, key.1 + 1));
                             }
                             let boundary = r.pixel_start(id.serial + 1) + delay;
                             if boundary <= end {
@@ -165,7 +191,9 @@ impl DspWorker {
                         samples,
                         frame: *frame,
                     };
-                    if self.pixels.try_push(record).is_ok() {
+                    // A pixel entered just before its end after a gap may hold no decimated
+                    // sample: it has no harmonics, so it is lost like the ones in the gap.
+                    if samples > 0 && self.pixels.try_push(record).is_ok() {
                         Counters::add(&self.counters.pixels, 1);
                     } else {
                         Counters::add(&self.counters.pixels_dropped, 1);
@@ -237,6 +265,9 @@ impl DspWorker {
                 }
             }
             self.samples.skip(len);
+            self.counters
+                .dsp_beat_ns
+                .store(monotonic_ns(), Ordering::Relaxed);
             Counters::add(&self.counters.dsp_busy_ns, busy.elapsed().as_nanos() as u64);
             Counters::add(&self.counters.samples_processed, len as u64);
             expected = Some(header.index + len as u64);
@@ -315,5 +346,23 @@ impl Emitter<'_> {
                 *self.spare = Some(buffer);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::pixels_lost;
+
+    #[test]
+    fn lost_pixels_are_the_abandoned_one_and_the_skipped_ones() {
+        // In order: nothing lost.
+        assert_eq!(pixels_lost(None, Some((1, 5)), (1, 5)), 0);
+        // Pixel 5 was open when a gap jumped to pixel 9: 5 abandoned, 6, 7, 8 skipped.
+        assert_eq!(pixels_lost(Some((1, 5)), Some((1, 6)), (1, 9)), 4);
+        // A gap inside the pixel after 5 finished: 6, 7 skipped.
+        assert_eq!(pixels_lost(None, Some((1, 6)), (1, 8)), 2);
+        // A new raster continues nothing.
+        assert_eq!(pixels_lost(Some((1, 5)), Some((1, 6)), (2, 0)), 0);
+        assert_eq!(pixels_lost(None, None, (1, 0)), 0);
     }
 }

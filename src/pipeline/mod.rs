@@ -60,6 +60,18 @@ const PIXEL_QUEUE: usize = 1 << 15;
 /// Buffers in each pool (spectra, scope traces).
 const POOL_BUFFERS: usize = 8;
 
+/// Holds every DSP thread of the process idle while set: see [`hold_all_dsp`].
+static HOLD_ALL_DSP: AtomicBool = AtomicBool::new(false);
+
+/// Fault injection for tests and drills, never used by the daemon itself: while `hold` is
+/// true every DSP thread of the process takes no samples (as if wedged), so the ring
+/// overruns and `/healthz` must report the stall; it still stops when asked. Prefer
+/// [`Pipeline::hold_dsp`] where the pipeline is at hand.
+#[doc(hidden)]
+pub fn hold_all_dsp(hold: bool) {
+    HOLD_ALL_DSP.store(hold, Ordering::Relaxed);
+}
+
 /// Why the pipeline could not start or take new settings.
 #[derive(Debug, thiserror::Error)]
 pub enum PipelineError {
@@ -182,6 +194,7 @@ pub struct Pipeline {
     counters: Arc<Counters>,
     stop_synth: Arc<AtomicBool>,
     stop_dsp: Arc<AtomicBool>,
+    hold_dsp: Arc<AtomicBool>,
     realtime: Arc<AtomicBool>,
     synth_link: PlanLink<SynthPlan>,
     dsp_link: PlanLink<DspPlan>,
@@ -233,6 +246,9 @@ impl Pipeline {
         let signal = FrameSignal::new().map(Arc::new);
         let stop_synth = Arc::new(AtomicBool::new(false));
         let stop_dsp = Arc::new(AtomicBool::new(false));
+        let hold_dsp = Arc::new(AtomicBool::new(false));
+        // The heartbeats' clock starts here, off the real-time threads.
+        counters::monotonic_ns();
         let realtime = Arc::new(AtomicBool::new(settings.synth.realtime));
         let scan = ScanRuntime::new(&synth_plan);
         let mut synth = SynthWorker {
@@ -267,6 +283,8 @@ impl Pipeline {
             scope_spare: None,
             pixels: pixels_in,
             pixel_open: None,
+            pixel_next: None,
+            hold: hold_dsp.clone(),
             pixel_frame: DemodFrame::empty(),
             signal: signal.clone(),
         };
@@ -275,6 +293,7 @@ impl Pipeline {
             counters,
             stop_synth,
             stop_dsp,
+            hold_dsp,
             realtime,
             synth_link,
             dsp_link,
@@ -317,6 +336,16 @@ impl Pipeline {
     /// The counters now.
     pub fn counters(&self) -> CountersSnapshot {
         self.counters.snapshot()
+    }
+
+    /// Fault injection for tests: while `hold` is true the DSP thread takes no samples (as
+    /// if wedged; the synthesiser overruns the ring, counted), and it still stops when asked.
+    #[doc(hidden)]
+    pub fn hold_dsp(&self, hold: bool) {
+        self.hold_dsp.store(hold, Ordering::Relaxed);
+        if let Some(t) = &self.dsp_thread {
+            t.thread().unpark();
+        }
     }
 
     /// Takes up new settings: rebuilds (here, off the real-time threads) the plans whose

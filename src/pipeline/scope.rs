@@ -67,7 +67,7 @@ impl ScopeCapture {
                     continue;
                 }
                 let Some(mut buf) = take() else {
-                    self.start = Some(start + c.hop);
+                    self.start = Some(start.saturating_add(c.hop));
                     continue;
                 };
                 buf.samples.clear();
@@ -93,12 +93,69 @@ impl ScopeCapture {
             full.t = full.sample_index as f64 / sample_rate;
             full.t_synth_ns = header.t_synth_ns;
             give(full);
-            self.start = Some(start + c.hop);
+            // Saturating: a wrapped start would lie before the stream and be taken for a
+            // jump, and the loop would go round for ever on the real-time thread.
+            self.start = Some(start.saturating_add(c.hop));
         }
     }
 
     /// Forget the position (after a gap in the stream; the caller drops a partial trace).
     pub fn restart(&mut self) {
         self.start = None;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn buffer() -> ScopeBuffer {
+        ScopeBuffer {
+            sample_index: 0,
+            t: 0.0,
+            t_synth_ns: 0,
+            t_dsp_ns: 0,
+            dt: 0.0,
+            start_phase: 0.0,
+            phase_step: 0.0,
+            samples: Vec::with_capacity(16),
+        }
+    }
+
+    /// The longest hop (a rate of 5e-324 Hz) gives one trace and then none, and every
+    /// block returns: the next start saturates instead of wrapping to before the stream.
+    #[test]
+    fn the_longest_hop_neither_wraps_nor_spins() {
+        let mut capture = ScopeCapture::new(ScopeConfig {
+            length: 16,
+            decimation: 1,
+            hop: u64::MAX,
+        });
+        let samples = [0.5; 64];
+        let (mut current, mut traces, mut taken) = (None, 0, 0);
+        for block in 0..100u64 {
+            let header = BlockHeader {
+                index: block * 64,
+                len: 64,
+                phase: 0,
+                frequency_word: 1 << 60,
+                t_synth_ns: 0,
+                raster: None,
+            };
+            capture.feed(
+                &header,
+                header.index,
+                &samples,
+                1e6,
+                &mut current,
+                &mut || {
+                    taken += 1;
+                    (taken < 1000).then(buffer)
+                },
+                &mut |_| traces += 1,
+            );
+        }
+        assert_eq!(traces, 1);
+        assert_eq!(taken, 1);
     }
 }

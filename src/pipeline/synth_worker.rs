@@ -87,6 +87,9 @@ impl SynthWorker {
                 self.state.counters.clipped - clipped_before,
             );
             Counters::add(&self.counters.samples_synthesized, BLOCK_SAMPLES as u64);
+            self.counters
+                .synth_beat_ns
+                .store(super::counters::monotonic_ns(), Ordering::Relaxed);
             let header = BlockHeader {
                 index: header_index,
                 len: BLOCK_SAMPLES as u32,

@@ -188,17 +188,52 @@ async fn image_file(
         .into_response()
 }
 
+/// Longest the pipeline may go without finishing a block before `/healthz` reports it
+/// stalled: far beyond any scheduling hiccup (the sample ring itself holds 0.2 s at
+/// 10 MS/s), far below what an operator would call running.
+const STALL_LIMIT_NS: u64 = 2_000_000_000;
+
+/// `GET /healthz`: 200 `ok` while the pipeline runs; 503 with the reason while it starts
+/// (nothing processed yet) or when a real-time thread has finished no block for
+/// [`STALL_LIMIT_NS`] (wedged, or starved of samples by a wedged synthesiser).
 async fn healthz(State(state): State<Arc<AppState>>) -> Response {
-    let processed = state
-        .control
-        .lock()
-        .map(|c| c.counters().samples_processed)
-        .unwrap_or(0);
-    if processed > 0 {
-        (StatusCode::OK, "ok\n").into_response()
-    } else {
-        (StatusCode::SERVICE_UNAVAILABLE, "starting\n").into_response()
+    let counters = state.control.lock().ok().and_then(|c| {
+        let running = c.pipeline.is_some();
+        running.then(|| c.counters())
+    });
+    match health(counters.as_ref()) {
+        Ok(()) => (StatusCode::OK, "ok\n").into_response(),
+        Err(reason) => (StatusCode::SERVICE_UNAVAILABLE, reason + "\n").into_response(),
     }
+}
+
+/// The pipeline's health from its counters (`None`: no pipeline): why it is not healthy.
+fn health(counters: Option<&crate::pipeline::CountersSnapshot>) -> Result<(), String> {
+    let Some(c) = counters else {
+        return Err("unhealthy: no pipeline is running".into());
+    };
+    if c.samples_processed == 0 {
+        return Err("starting".into());
+    }
+    let seconds = |ns: u64| ns as f64 * 1e-9;
+    if c.dsp_idle_ns > STALL_LIMIT_NS {
+        return Err(format!(
+            "unhealthy: the pipeline has stalled: the DSP thread has processed no samples for \
+             {:.1} s (samples_processed = {}; the synthesiser's last block was {:.1} s ago)",
+            seconds(c.dsp_idle_ns),
+            c.samples_processed,
+            seconds(c.synth_idle_ns)
+        ));
+    }
+    if c.synth_idle_ns > STALL_LIMIT_NS {
+        return Err(format!(
+            "unhealthy: the pipeline has stalled: the synthesiser has produced no samples for \
+             {:.1} s (samples_synthesized = {})",
+            seconds(c.synth_idle_ns),
+            c.samples_synthesized
+        ));
+    }
+    Ok(())
 }
 
 async fn metrics_text(State(state): State<Arc<AppState>>) -> Response {
@@ -275,7 +310,24 @@ async fn websocket(
 
 #[cfg(test)]
 mod tests {
-    use super::origin_allowed;
+    use super::{STALL_LIMIT_NS, health, origin_allowed};
+    use crate::pipeline::CountersSnapshot;
+
+    #[test]
+    fn health_follows_the_heartbeats() {
+        assert!(health(None).unwrap_err().contains("no pipeline"));
+        let mut c = CountersSnapshot::default();
+        assert_eq!(health(Some(&c)).unwrap_err(), "starting");
+        c.samples_processed = 4096;
+        assert_eq!(health(Some(&c)), Ok(()));
+        c.dsp_idle_ns = STALL_LIMIT_NS + 1;
+        let reason = health(Some(&c)).unwrap_err();
+        assert!(reason.contains("DSP thread"), "{reason}");
+        c.dsp_idle_ns = 0;
+        c.synth_idle_ns = STALL_LIMIT_NS + 1;
+        let reason = health(Some(&c)).unwrap_err();
+        assert!(reason.contains("synthesiser"), "{reason}");
+    }
 
     #[test]
     fn origins() {

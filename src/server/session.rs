@@ -235,15 +235,12 @@ async fn respond(
                 .lock()
                 .map_err(|_| internal("control lock poisoned"))?;
             let nodes = match &path {
-                Some(p) => control.settings.nodes_under(p),
+                Some(p) => control
+                    .settings
+                    .list(p)
+                    .map_err(|e| ProtocolError::from(&e))?,
                 None => control.settings.nodes(),
             };
-            if nodes.is_empty() {
-                return Err(ProtocolError {
-                    code: ErrorCode::UnknownPath,
-                    message: format!("no node at or under {}", path.unwrap_or_default()),
-                });
-            }
             Ok(fields(json!({ "nodes": nodes })))
         }
         Op::Get { path } => {

@@ -9,6 +9,14 @@
 use crate::config::ScanSettings;
 use crate::dsp::PREDECIMATION;
 
+/// Longest pixel the raster makes, in samples: 2^40, 30 hours at 10 MS/s (the slowest
+/// scan the settings allow lasts far less per pixel).
+const MAX_PIXEL_SAMPLES: f64 = (1u64 << 40) as f64;
+/// Most candidate pixel lengths tried on either side of the requested one: whole drive
+/// periods recur every period / 16 candidates, so this finds them for any drive above
+/// f_s / 65536 and keeps the search bounded below.
+const MAX_PIXEL_SEARCH: f64 = 4096.0;
+
 /// One pixel of the raster.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct PixelId {
@@ -56,11 +64,14 @@ impl Raster {
         start: u64,
         generation: u32,
     ) -> Self {
-        let exact = sample_rate / (2.0 * f64::from(scan.pixels) * scan.line_rate);
         let d = PREDECIMATION as f64;
+        // Clamped (a NaN too) so that what follows stays finite and the search short,
+        // whatever the settings: this runs on the synthesiser's thread.
+        let exact = (sample_rate / (2.0 * f64::from(scan.pixels) * scan.line_rate))
+            .clamp(d, MAX_PIXEL_SAMPLES);
         let period = sample_rate / drive_frequency;
         let nearest = (exact / d).round().max(1.0);
-        let spread = (0.02 * exact / d).floor();
+        let spread = (0.02 * exact / d).floor().min(MAX_PIXEL_SEARCH);
         let misfit = |k: f64| {
             let periods = k * d / period;
             (periods - periods.round()).abs()
@@ -203,6 +214,26 @@ mod tests {
         assert!((r.samples_per_pixel as f64 / requested - 1.0).abs() < 0.02);
         let periods = r.samples_per_pixel as f64 / 97.3;
         assert!((periods - periods.round()).abs() < 0.05, "{periods}");
+    }
+
+    /// Rates down to 5e-324 Hz (and a drive of 5e-324 Hz) give a raster at once, with
+    /// pixels no longer than the longest and no shorter than one decimated sample.
+    #[test]
+    fn extreme_rates_give_a_bounded_raster_at_once() {
+        for (line_rate, drive) in [(5e-324, 100e3), (1e-13, 100e3), (1e-3, 5e-324), (1e9, 1e8)] {
+            let scan = ScanSettings {
+                enable: true,
+                size: 1e-6,
+                pixels: 8,
+                line_rate,
+                x: 0.0,
+                y: 0.0,
+            };
+            let r = Raster::new(&scan, 1e9, drive, 0, 1);
+            assert!(r.samples_per_pixel >= 16, "{line_rate}");
+            assert!(r.samples_per_pixel as f64 <= MAX_PIXEL_SAMPLES * 1.03, "{line_rate}");
+            assert!(r.pixel_at(u64::MAX / 2).is_some());
+        }
     }
 
     #[test]
