@@ -2476,15 +2476,15 @@ fn list_ranges_are_what_set_accepts() {
                     )
                 };
             let wrap = |v: Value| {
-                if info.value.is_array() {
-                    json!([v])
-                } else {
-                    v
-                }
+                if info.value.is_array() { json!([v]) } else { v }
             };
             for v in inside {
                 if let Err(e) = set(wrap(v.clone())) {
-                    assert!(is_physics(&e), "{} = {v} inside list's range: {e}", info.path);
+                    assert!(
+                        is_physics(&e),
+                        "{} = {v} inside list's range: {e}",
+                        info.path
+                    );
                 }
             }
             for v in outside {
@@ -2507,7 +2507,11 @@ fn list_ranges_are_what_set_accepts() {
     assert_eq!(find("/drive/frequency").min, json!(5120.0));
     assert_eq!(find("/cantilever/extra_modes").max, json!(11));
     assert!(s.clone().set("/cantilever/extra_modes", &json!(11)).is_ok());
-    assert!(s.clone().set("/cantilever/extra_modes", &json!(12)).is_err());
+    assert!(
+        s.clone()
+            .set("/cantilever/extra_modes", &json!(12))
+            .is_err()
+    );
 }
 
 /// In-range values whose 1-DOF orbit cannot be found are refused by a config file as by
@@ -2535,7 +2539,13 @@ fn physics_failures_are_refused_by_files_and_sets_alike() {
         std::fs::write(&file, &text).unwrap();
         for args in [
             vec!["paper", "--config", file.to_str().unwrap(), "--json"],
-            vec!["serve", "--config", file.to_str().unwrap(), "--bind", "127.0.0.1:0"],
+            vec![
+                "serve",
+                "--config",
+                file.to_str().unwrap(),
+                "--bind",
+                "127.0.0.1:0",
+            ],
         ] {
             let out = std::process::Command::new(env!("CARGO_BIN_EXE_ftafm"))
                 .args(&args)
@@ -2599,7 +2609,10 @@ fn paths_follow_one_rule_for_every_op() {
             s.list(path).unwrap_err(),
         ] {
             assert_eq!(error.code(), "unknown_path", "{path}");
-            assert!(error.to_string().starts_with("malformed path"), "{path}: {error}");
+            assert!(
+                error.to_string().starts_with("malformed path"),
+                "{path}: {error}"
+            );
         }
     }
     assert_eq!(s.list("/").unwrap(), s.nodes());
@@ -2607,5 +2620,8 @@ fn paths_follow_one_rule_for_every_op() {
     assert_eq!(s.list("/sample/poisson").unwrap().len(), 1);
     let error = s.list("/sample/nothing").unwrap_err();
     assert_eq!(error.code(), "unknown_path");
-    assert!(error.to_string().contains("youngs_modulus, poisson"), "{error}");
+    assert!(
+        error.to_string().contains("youngs_modulus, poisson"),
+        "{error}"
+    );
 }

@@ -33,9 +33,8 @@ where
             .enable_all()
             .build()
             .unwrap();
-        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            runtime.block_on(body())
-        }));
+        let result =
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| runtime.block_on(body())));
         let _ = tx.send(result);
         // A wedged pipeline's blocking task would keep a plain drop waiting.
         runtime.shutdown_timeout(Duration::from_secs(1));
@@ -198,7 +197,10 @@ fn every_numeric_node_at_its_edges_leaves_the_pipeline_running() {
                 assert_frames_advance(&mut ws, &format!("restoring {path}")).await;
             }
         }
-        assert!(applied > 0 && refused > 0, "{applied} applied, {refused} refused");
+        assert!(
+            applied > 0 && refused > 0,
+            "{applied} applied, {refused} refused"
+        );
         let (status, body) = http_get(daemon.addr, "/healthz").await;
         assert_eq!(status, 200, "{body}");
         drop(ws);
@@ -274,7 +276,10 @@ fn malformed_paths_are_refused_alike_by_every_op() {
                 let r = call(&mut ws, request.clone()).await;
                 assert_eq!(code(&r), "unknown_path", "{request}: {r}");
                 let message = r["error"]["message"].as_str().unwrap();
-                assert!(message.starts_with("malformed path"), "{request}: {message}");
+                assert!(
+                    message.starts_with("malformed path"),
+                    "{request}: {message}"
+                );
             }
         }
         let all = call(&mut ws, json!({"op": "list", "path": "/"})).await;

@@ -235,18 +235,26 @@ fn pixels_lost_to_an_overrun_are_counted() {
     });
     let overruns = pipeline.counters().overrun_blocks;
     pipeline.hold_dsp(true);
-    drain_until(&pipeline, &mut output, &mut serials, "an overrun", |c, _| {
-        c.overrun_blocks >= overruns + 8
-    });
+    drain_until(
+        &pipeline,
+        &mut output,
+        &mut serials,
+        "an overrun",
+        |c, _| c.overrun_blocks >= overruns + 8,
+    );
     pipeline.hold_dsp(false);
     // The DSP first works through the full ring, then meets the gap.
     drain_until(&pipeline, &mut output, &mut serials, "the gap", |c, _| {
         c.discontinuities > 0
     });
     let after = serials.len() + 200;
-    drain_until(&pipeline, &mut output, &mut serials, "pixels after", |_, got| {
-        got.len() >= after
-    });
+    drain_until(
+        &pipeline,
+        &mut output,
+        &mut serials,
+        "pixels after",
+        |_, got| got.len() >= after,
+    );
     let counters = pipeline.stop();
     drain_pixels(&mut output, &mut serials);
     assert!(serials.windows(2).all(|w| w[0] < w[1]), "in scan order");

@@ -55,7 +55,10 @@ pub enum NodeError {
         path: String,
     },
     /// The node is fixed while the instrument runs; it can only be set in a config file.
-    #[error("{} is read-only at runtime: set it in a config file and restart", cut(path))]
+    #[error(
+        "{} is read-only at runtime: set it in a config file and restart",
+        cut(path)
+    )]
     ReadOnly {
         /// The node's path.
         path: String,

@@ -369,7 +369,10 @@ impl NodeSpec {
                         max = max.min(relations::highest_harmonic(s));
                         if relations::sole_inversion_measure(s, i) {
                             // The inversion's harmonic is measured by this one alone.
-                            (min, max) = (u64::from(s.demods[i].harmonic), u64::from(s.demods[i].harmonic));
+                            (min, max) = (
+                                u64::from(s.demods[i].harmonic),
+                                u64::from(s.demods[i].harmonic),
+                            );
                         }
                     }
                     Field::InversionHarmonicA | Field::InversionHarmonicB => {

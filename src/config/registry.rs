@@ -190,7 +190,10 @@ mod tests {
         assert!(message.contains("table"), "{message}");
         for malformed in ["//", "/sample/", "/sample//poisson", "sample/poisson", ""] {
             let message = unknown_path_message(malformed);
-            assert!(message.starts_with("malformed path"), "{malformed}: {message}");
+            assert!(
+                message.starts_with("malformed path"),
+                "{malformed}: {message}"
+            );
         }
         let long = format!("/{}", "x".repeat(20_000_000));
         let message = unknown_path_message(&long);

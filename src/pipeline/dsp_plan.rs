@@ -28,8 +28,8 @@ impl DspPlan {
         let fs = settings.synth.sample_rate;
         let bank = LockInBank::new(fs, settings.drive.frequency, &demodulators(settings))?;
         let spectrum = if settings.spectrum.enable {
-            let hop = usize::try_from(samples_between(fs, settings.spectrum.rate))
-                .unwrap_or(usize::MAX);
+            let hop =
+                usize::try_from(samples_between(fs, settings.spectrum.rate)).unwrap_or(usize::MAX);
             Some(SlidingSpectrum::new(SpectrumConfig {
                 sample_rate: fs,
                 size: settings.spectrum.size as usize,

@@ -231,7 +231,10 @@ mod tests {
             };
             let r = Raster::new(&scan, 1e9, drive, 0, 1);
             assert!(r.samples_per_pixel >= 16, "{line_rate}");
-            assert!(r.samples_per_pixel as f64 <= MAX_PIXEL_SAMPLES * 1.03, "{line_rate}");
+            assert!(
+                r.samples_per_pixel as f64 <= MAX_PIXEL_SAMPLES * 1.03,
+                "{line_rate}"
+            );
             assert!(r.pixel_at(u64::MAX / 2).is_some());
         }
     }
