@@ -105,6 +105,22 @@ pub struct ScopeBuffer {
     pub samples: Vec<f32>,
 }
 
+impl ScopeBuffer {
+    /// An empty buffer that holds `samples` samples without reallocating.
+    pub fn with_capacity(samples: usize) -> Self {
+        Self {
+            sample_index: 0,
+            t: 0.0,
+            t_synth_ns: 0,
+            t_dsp_ns: 0,
+            dt: 0.0,
+            start_phase: 0.0,
+            phase_step: 0.0,
+            samples: Vec::with_capacity(samples),
+        }
+    }
+}
+
 /// The harmonics of one pixel of a scan: every enabled demodulator's phasor averaged over
 /// exactly the pixel's samples (a boxcar, so the image has no filter lag and sharp edges).
 #[derive(Clone, Copy, Debug)]

@@ -227,16 +227,8 @@ impl Pipeline {
             bin_width: 0.0,
             magnitudes: Vec::with_capacity(MAX_SPECTRUM_SIZE as usize / 2 + 1),
         });
-        let (scopes_in, scopes_out, free_scopes_in, free_scopes_out) = pool(|| ScopeBuffer {
-            sample_index: 0,
-            t: 0.0,
-            t_synth_ns: 0,
-            t_dsp_ns: 0,
-            dt: 0.0,
-            start_phase: 0.0,
-            phase_step: 0.0,
-            samples: Vec::with_capacity(MAX_SCOPE_SAMPLES),
-        });
+        let (scopes_in, scopes_out, free_scopes_in, free_scopes_out) =
+            pool(|| ScopeBuffer::with_capacity(MAX_SCOPE_SAMPLES));
         let (pixels_in, pixels_out) = HeapRb::<PixelHarmonics>::new(PIXEL_QUEUE).split();
         let (topography_in, topography_out) = HeapRb::<PixelTopography>::new(PIXEL_QUEUE).split();
         let (synth_link, synth_plans_in, synth_plans_out) = plan_link();

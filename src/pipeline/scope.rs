@@ -110,16 +110,7 @@ mod tests {
     use super::*;
 
     fn buffer() -> ScopeBuffer {
-        ScopeBuffer {
-            sample_index: 0,
-            t: 0.0,
-            t_synth_ns: 0,
-            t_dsp_ns: 0,
-            dt: 0.0,
-            start_phase: 0.0,
-            phase_step: 0.0,
-            samples: Vec::with_capacity(16),
-        }
+        ScopeBuffer::with_capacity(16)
     }
 
     /// The longest hop (a rate of 5e-324 Hz) gives one trace and then none, and every
