@@ -126,10 +126,13 @@ impl ForceEstimator {
         }
         let cantilever = model::cantilever(settings).map_err(|e| e.to_string())?;
         let oscillator = model::impact_oscillator(settings, &cantilever, settings.sample);
-        let pair = (
-            inv.harmonic_a.min(inv.harmonic_b) as usize,
-            inv.harmonic_a.max(inv.harmonic_b) as usize,
-        );
+        // The configured harmonics, or in-band ones in place of those out of band.
+        let pair = settings.inversion_harmonics().ok_or_else(|| {
+            settings
+                .node_warning("/inversion/harmonic_a")
+                .unwrap_or_else(|| "no two harmonics in band".to_owned())
+        })?;
+        let pair = (pair.0 as usize, pair.1 as usize);
         let tip = model::elastic(settings.tip);
         let table = ModulusTable::with_measure(
             &oscillator,
@@ -141,11 +144,9 @@ impl ForceEstimator {
         )
         .map_err(|e| e.to_string())?;
         let fs = settings.synth.sample_rate;
-        let harmonics: Vec<usize> = settings
-            .demods
-            .iter()
-            .filter(|d| d.enable)
-            .map(|d| d.harmonic as usize)
+        let harmonics: Vec<usize> = (0..settings.demods.len())
+            .filter(|&i| settings.demod_active(i))
+            .map(|i| settings.demods[i].harmonic as usize)
             .collect();
         let lockin = LockInModel::new(&cantilever, settings.drive.frequency, Some(fs), &harmonics)
             .map_err(|e| e.to_string())?;
@@ -169,8 +170,9 @@ impl ForceEstimator {
         let demods = settings
             .demods
             .iter()
-            .map(|d| {
-                d.enable.then(|| {
+            .enumerate()
+            .map(|(i, d)| {
+                settings.demod_active(i).then(|| {
                     let filter = LowPassNoise {
                         order: d.order,
                         time_constant: d.timeconstant,

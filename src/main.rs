@@ -13,11 +13,27 @@ use ftafm::paper;
     name = "ftafm",
     version,
     about = "Real-time virtual instrument for Fourier-transform AFM",
-    after_help = "Without a command, ftafm runs `serve` on the embedded default configuration."
+    after_help = "Without a command, ftafm runs `serve` (and takes its flags: `ftafm --config \
+                  FILE --bind ADDR`).",
+    args_conflicts_with_subcommands = true
 )]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
+    /// `serve`'s flags, for `ftafm` without a command.
+    #[command(flatten)]
+    serve: ServeArgs,
+}
+
+/// The daemon's flags: `ftafm serve …` and bare `ftafm …`.
+#[derive(clap::Args)]
+struct ServeArgs {
+    #[command(flatten)]
+    config: ConfigArg,
+    /// Address to listen on, IP:PORT or HOST:PORT (e.g. localhost:8799); loopback by
+    /// default (other hosts only if you mean it: the instrument has no authentication).
+    #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:8700")]
+    bind: String,
 }
 
 /// The configuration file flag every command shares.
@@ -31,13 +47,7 @@ struct ConfigArg {
 #[derive(Subcommand)]
 enum Command {
     /// Run the instrument daemon: dashboard at /, WebSocket at /ws, /metrics, /healthz.
-    Serve {
-        #[command(flatten)]
-        config: ConfigArg,
-        /// Address to listen on (loopback by default; other hosts only if you mean it).
-        #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:8700")]
-        bind: String,
-    },
+    Serve(ServeArgs),
     /// Compute the paper's Table 1 and Fig. 3 offline for the configured instrument.
     Paper {
         #[command(flatten)]
@@ -170,12 +180,9 @@ fn load(path: Option<&PathBuf>) -> Result<Settings, ExitCode> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let command = cli.command.unwrap_or(Command::Serve {
-        config: ConfigArg { config: None },
-        bind: "127.0.0.1:8700".into(),
-    });
+    let command = cli.command.unwrap_or(Command::Serve(cli.serve));
     let result = match command {
-        Command::Serve { config, bind } => run_serve(config.config.as_ref(), &bind),
+        Command::Serve(ServeArgs { config, bind }) => run_serve(config.config.as_ref(), &bind),
         Command::Paper {
             config,
             inhomogeneity_factor,
@@ -237,12 +244,7 @@ fn run_paper(config: Option<&PathBuf>, factor: f64, json: bool) -> Result<ExitCo
 }
 
 fn run_serve(config: Option<&PathBuf>, bind: &str) -> Result<ExitCode, ExitCode> {
-    let addr: std::net::SocketAddr = bind.parse().map_err(|_| {
-        eprintln!(
-            "ftafm: --bind = {bind:?} is not an address: expected IP:PORT, e.g. 127.0.0.1:8700"
-        );
-        ExitCode::from(EXIT_USAGE)
-    })?;
+    let addrs = bind_addresses(bind)?;
     let settings = load(config)?;
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -261,8 +263,8 @@ fn run_serve(config: Option<&PathBuf>, bind: &str) -> Result<ExitCode, ExitCode>
             ExitCode::FAILURE
         })?;
     runtime.block_on(async move {
-        let listener = tokio::net::TcpListener::bind(addr).await.map_err(|e| {
-            eprintln!("ftafm: cannot listen on {addr}: {e}");
+        let listener = tokio::net::TcpListener::bind(&addrs[..]).await.map_err(|e| {
+            eprintln!("ftafm: cannot listen on --bind = {bind:?} ({addrs:?}): {e}");
             ExitCode::FAILURE
         })?;
         let local = listener.local_addr().map_err(|e| {
@@ -276,6 +278,38 @@ fn run_serve(config: Option<&PathBuf>, bind: &str) -> Result<ExitCode, ExitCode>
         })
     })?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// The addresses `--bind` names: an IP:PORT as it is, a HOST:PORT (`localhost:8799`)
+/// resolved, IPv4 first (the dashboard's usual `127.0.0.1`); the listener takes the first
+/// that binds.
+fn bind_addresses(bind: &str) -> Result<Vec<std::net::SocketAddr>, ExitCode> {
+    use std::net::ToSocketAddrs;
+    let usage = |why: String| {
+        eprintln!(
+            "ftafm: --bind = {bind:?} {why}: expected IP:PORT or HOST:PORT, e.g. 127.0.0.1:8700 \
+             or localhost:8799"
+        );
+        ExitCode::from(EXIT_USAGE)
+    };
+    if let Ok(addr) = bind.parse::<std::net::SocketAddr>() {
+        return Ok(vec![addr]);
+    }
+    let Some((_, port)) = bind.rsplit_once(':') else {
+        return Err(usage("has no port".into()));
+    };
+    if port.parse::<u16>().is_err() {
+        return Err(usage(format!("has no valid port ({port:?}: 0 to 65535)")));
+    }
+    let mut addrs: Vec<_> = bind
+        .to_socket_addrs()
+        .map_err(|e| usage(format!("does not resolve ({e})")))?
+        .collect();
+    addrs.sort_by_key(|a| !a.is_ipv4());
+    if addrs.is_empty() {
+        return Err(usage("resolves to no address".into()));
+    }
+    Ok(addrs)
 }
 
 /// Resolves on SIGINT (Ctrl-C) or SIGTERM.
@@ -492,6 +526,33 @@ fn run_info(config: Option<&PathBuf>) -> Result<ExitCode, ExitCode> {
         settings.sample.youngs_modulus / 1e9
     );
     println!(
+        "{:>4}  {:>12}  {:>8}  {:>12}  {:>9}",
+        "mode", "f (kHz)", "Q", "K_n (N/m)", "L·φ'(L)"
+    );
+    for mode in &report.modes {
+        println!(
+            "{:>4}  {:>12.3}  {:>8.1}  {:>12.4e}  {:>9.4}",
+            mode.n,
+            mode.frequency / 1e3,
+            mode.q,
+            mode.stiffness,
+            mode.tip_slope
+        );
+    }
+    println!(
+        "drive {} kHz{}, sample rate {} MS/s",
+        settings.drive.frequency / 1e3,
+        if settings.drive.follow_f1 {
+            " (follows f1)"
+        } else {
+            ""
+        },
+        settings.synth.sample_rate / 1e6
+    );
+    for warning in settings.warnings() {
+        println!("warning: {warning}");
+    }
+    println!(
         "tapping at A_free = {:.1} nm, A_set = {:.1} nm: F = {:.2} nN, tau = {:.4}, theta = {:.2} deg",
         settings.drive.free_amplitude * 1e9,
         settings.surface.distance * 1e9,
@@ -499,8 +560,6 @@ fn run_info(config: Option<&PathBuf>) -> Result<ExitCode, ExitCode> {
         m.contact_time_ratio,
         m.phase_shift_deg
     );
-    println!(
-        "the real-time daemon (`ftafm serve`) is not built yet; `ftafm paper` prints the full report"
-    );
+    println!("`ftafm serve` runs this instrument live; `ftafm paper` prints the full report");
     Ok(ExitCode::SUCCESS)
 }

@@ -237,19 +237,18 @@ fn arrays_are_replaced_whole() {
 
 #[test]
 fn cross_checks_run_after_the_whole_file() {
-    // The harmonic alone is above Nyquist at 10 MHz; with the faster sampling it is fine,
+    // The drive alone is above Nyquist at 10 MHz; with the faster sampling it is fine,
     // whichever table comes first.
-    let both = "[demods.3]\nharmonic = 400\n\n[synth]\nsample_rate = 100e6\n";
+    let both = "[drive]\nfrequency = 6e6\n\n[synth]\nsample_rate = 100e6\n";
     let s = load_str(both, "fast.toml").unwrap();
-    assert_eq!(s.demods[3].harmonic, 400);
+    assert_eq!(s.drive.frequency, 6e6);
     assert_eq!(s.synth.sample_rate, 100e6);
-    let message = error_of("[demods.3]\nharmonic = 400\n");
+    let message = error_of("[drive]\nfrequency = 6e6\n");
     assert_mentions(
         &message,
         &[
             "test.toml",
-            "/demods/3/harmonic = 400",
-            "/drive/frequency",
+            "/drive/frequency = 6 MHz",
             "/synth/sample_rate",
         ],
     );
@@ -435,16 +434,77 @@ fn demod_order_above_eight() {
 }
 
 #[test]
-fn harmonic_above_nyquist() {
-    assert_eq!(
-        error_of("[demods.3]\nharmonic = 60\n"),
-        "test.toml: /demods/3/harmonic = 60: harmonic × /drive/frequency = 6 MHz must be below \
-         the Nyquist frequency /synth/sample_rate / 2 = 5 MHz (allowed up to harmonic 49 while \
-         /demods/3/enable = true)"
-    );
-    // A disabled demodulator may keep it.
-    let s = load_str("[demods.3]\nharmonic = 60\nenable = false\n", "t.toml").unwrap();
+fn harmonic_above_nyquist_is_out_of_band_not_refused() {
+    let s = load_str("[demods.3]\nharmonic = 60\n", "t.toml").unwrap();
     assert_eq!(s.demods[3].harmonic, 60);
+    assert!(!s.demod_active(3));
+    assert_eq!(s.demods_out_of_band(), [3]);
+    let info = &s.list("/demods/3/harmonic").unwrap()[0];
+    assert_mentions(
+        info.warning.as_deref().unwrap(),
+        &["out of band", "6 MHz", "Nyquist", "no frames"],
+    );
+    assert!(s.list("/demods/4/harmonic").unwrap()[0].warning.is_none());
+    // A disabled one is just kept, without a warning.
+    let s = load_str("[demods.3]\nharmonic = 60\nenable = false\n", "t.toml").unwrap();
+    assert!(s.node_warning("/demods/3/harmonic").is_none());
+}
+
+/// A 300 kHz, 40 N/m lever, set up in one place: the drive follows f1, the demodulators it
+/// pushes above Nyquist are out of band, and the inversion takes in-band harmonics.
+#[test]
+fn a_300_khz_lever_loads_from_its_cantilever_alone() {
+    let s = load_str("[cantilever]\nf1 = 300e3\nk = 40\n", "lever.toml").unwrap();
+    assert!(s.drive.follow_f1);
+    assert_eq!(s.drive.frequency, 300e3);
+    assert_eq!(s.demods_out_of_band(), (16..32).collect::<Vec<_>>());
+    assert_eq!(s.inversion_harmonics(), Some((6, 16)));
+    let warnings = s.warnings();
+    assert_eq!(warnings.len(), 2, "{warnings:?}");
+    assert_mentions(&warnings[0], &["16 (H17)", "31 (H32)", "300 kHz", "5 MHz"]);
+    assert_mentions(&warnings[1], &["/inversion/harmonic_b", "uses harmonic 16"]);
+    // At runtime too: one set of f1 moves the drive.
+    let mut s = default_settings();
+    assert_eq!(
+        s.set("/cantilever/f1", &json!(300e3)).unwrap(),
+        json!(300e3)
+    );
+    assert_eq!(s.drive.frequency, 300e3);
+    assert_eq!(s.demods_out_of_band().len(), 16);
+}
+
+#[test]
+fn an_explicit_drive_stops_following_f1_in_any_key_order() {
+    for text in [
+        "[cantilever]\nf1 = 300e3\n[drive]\nfrequency = 295e3\n",
+        "[drive]\nfrequency = 295e3\n[cantilever]\nf1 = 300e3\n",
+    ] {
+        let s = load_str(text, "t.toml").unwrap();
+        assert!(!s.drive.follow_f1, "{text}");
+        assert_eq!(s.drive.frequency, 295e3, "{text}");
+    }
+    // Both following and another frequency: a conflict that names both.
+    assert_mentions(
+        &error_of("[drive]\nfollow_f1 = true\nfrequency = 295e3\n"),
+        &[
+            "/drive/frequency = 295 kHz",
+            "/drive/follow_f1 = true",
+            "/cantilever/f1 = 100 kHz",
+        ],
+    );
+    // At runtime: the drive set off f1 stops following; f1 then moves alone; following
+    // again brings the drive back.
+    let mut s = default_settings();
+    s.set("/drive/frequency", &json!(99e3)).unwrap();
+    assert!(!s.drive.follow_f1);
+    s.set("/cantilever/f1", &json!(101e3)).unwrap();
+    assert_eq!(s.drive.frequency, 99e3);
+    s.set("/drive/follow_f1", &json!(true)).unwrap();
+    assert_eq!(s.drive.frequency, 101e3);
+    // The drive set to f1 itself changes nothing.
+    let before = s.clone();
+    s.set("/drive/frequency", &json!(101e3)).unwrap();
+    assert_eq!(s, before);
 }
 
 #[test]
@@ -1809,10 +1869,8 @@ fn failed_set_changes_nothing() {
         ("/cantilever/q", json!([100, 0.4])),
         ("/cantilever/extra_modes", json!(12)),
         ("/demods/3/order", json!(9)),
-        ("/demods/3/harmonic", json!(60)),
         ("/demods/3/harmonic", json!(-1)),
         ("/drive/frequency", json!(6e6)),
-        ("/drive/frequency", json!(200e3)),
         ("/synth/engine", json!("fast")),
         ("/noise/enable", json!(null)),
         ("/noise/temperature", json!(-1.0)),
@@ -1865,34 +1923,24 @@ fn failed_set_changes_nothing() {
 }
 
 #[test]
-fn a_set_that_conflicts_names_the_other_node() {
-    // At 200 kHz, harmonics 25 and up (demodulators 24 … 31) would sit at or above the
-    // 5 MHz Nyquist frequency; the first of them is named.
+fn a_drive_that_pushes_demodulators_out_of_band_is_taken_and_they_are_named() {
+    // At 200 kHz, harmonics 25 and up (demodulators 24 … 31) sit at or above the 5 MHz
+    // Nyquist frequency: they stop producing frames, and say so.
     let mut s = default_settings();
-    let error = s.set("/drive/frequency", &json!(200e3)).unwrap_err();
-    assert_eq!(error.code(), "invalid_value");
-    assert_eq!(error.path(), "/drive/frequency");
+    s.set("/drive/frequency", &json!(200e3)).unwrap();
+    assert!(!s.drive.follow_f1);
+    assert_eq!(s.demods_out_of_band(), (24..32).collect::<Vec<_>>());
     assert_mentions(
-        &error.to_string(),
+        s.node_warning("/demods/24/enable").as_deref().unwrap(),
         &[
-            "cannot set /drive/frequency = 2e5",
-            "/demods/24/harmonic = 25",
+            "/demods/24/harmonic × /drive/frequency = 25 × 200 kHz = 5 MHz",
             "Nyquist",
         ],
     );
-    // With demodulators 24 … 31 off, the same drive is fine. (The upper half of the bank
-    // could not all go: demodulator 16 measures the inversion's harmonic 17.)
-    for n in 24..32 {
-        s.set(&format!("/demods/{n}/enable"), &json!(false))
-            .unwrap();
-    }
-    s.set("/drive/frequency", &json!(200e3)).unwrap();
-    // And a disabled demodulator cannot be enabled above Nyquist.
-    let error = s.set("/demods/31/enable", &json!(true)).unwrap_err();
-    assert_mentions(
-        &error.to_string(),
-        &["/demods/31/enable = true", "/demods/31/harmonic"],
-    );
+    // Back in band when the drive comes down.
+    s.set("/drive/frequency", &json!(150e3)).unwrap();
+    assert!(s.demods_out_of_band().is_empty());
+    assert!(s.warnings().is_empty());
 }
 
 #[test]
@@ -1916,8 +1964,8 @@ fn every_node_round_trips_through_set() {
 fn list_entries_have_the_protocol_fields() {
     let nodes = default_settings().nodes();
     assert_eq!(nodes.len(), registry().len());
-    // 49 scalar nodes, 8 inclusions of 9 nodes, 32 demodulators of 5.
-    assert_eq!(nodes.len(), 49 + 8 * 9 + 32 * 5);
+    // 50 scalar nodes, 8 inclusions of 9 nodes, 32 demodulators of 5.
+    assert_eq!(nodes.len(), 50 + 8 * 9 + 32 * 5);
     let entry = serde_json::to_value(&nodes[0]).unwrap();
     let keys: BTreeSet<&str> = entry
         .as_object()
@@ -2020,14 +2068,17 @@ fn list_entries_have_the_protocol_fields() {
         assert!(info.writable, "{path}");
     }
     // Limits that depend on other nodes are reported as they stand now.
-    // The Nyquist frequency over the highest enabled harmonic (32): 5 MHz / 32.
-    let drive = nodes.iter().find(|n| n.path == "/drive/frequency").unwrap();
-    assert_eq!(drive.max, json!(156250.0));
+    // The Nyquist frequency, for the drive and (while the drive follows it) f1; a
+    // demodulator's harmonic may lie above it (out of band), so its static range stands.
+    for path in ["/drive/frequency", "/cantilever/f1"] {
+        let node = nodes.iter().find(|n| n.path == path).unwrap();
+        assert_eq!(node.max, json!(5e6), "{path}");
+    }
     let harmonic = nodes
         .iter()
         .find(|n| n.path == "/demods/0/harmonic")
         .unwrap();
-    assert_eq!(harmonic.max, json!(49));
+    assert_eq!(harmonic.max, json!(10_000));
     for info in &nodes {
         assert!(info.description.ends_with('.'), "{}", info.path);
     }
@@ -2162,7 +2213,7 @@ fn docs_describe_every_node() {
 }
 
 #[test]
-fn docs_example_overlay_loads_and_its_error_is_as_documented() {
+fn docs_example_overlay_loads_and_its_warning_is_as_documented() {
     let docs = std::fs::read_to_string(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/docs/configuration.md"
@@ -2184,9 +2235,10 @@ fn docs_example_overlay_loads_and_its_error_is_as_documented() {
     let without_synth = example
         .replace("[synth]", "")
         .replace("sample_rate = 50e6", "");
-    let message = load_str(&without_synth, "soft.toml")
-        .unwrap_err()
-        .to_string();
+    // Without the faster sampling, demodulator 3 is out of band, and the docs quote why.
+    let slow = load_str(&without_synth, "soft.toml").unwrap();
+    assert_eq!(slow.demods_out_of_band(), [3]);
+    let message = slow.node_warning("/demods/3/harmonic").unwrap();
     assert!(
         docs.contains(&format!("`{message}`")),
         "docs lack {message:?}"
@@ -2498,11 +2550,11 @@ fn list_ranges_are_what_set_accepts() {
             }
         }
     }
-    // The two the review found: 32 enabled harmonics at 10 MS/s allow a drive below
-    // 5 MHz / 32, and 5 Q values leave room for 11 extra modes of the 16.
+    // The drive's limit is the Nyquist frequency (demodulators above it are out of band,
+    // not a limit), and 5 Q values leave room for 11 extra modes of the 16.
     let s = default_settings();
     let find = |path: &str| s.nodes().into_iter().find(|n| n.path == path).unwrap();
-    assert_eq!(find("/drive/frequency").max, json!(5e6 / 32.0));
+    assert_eq!(find("/drive/frequency").max, json!(5e6));
     // 20 × 128 pixels × 2 Hz: each pixel lasts ten drive periods at 5.12 kHz.
     assert_eq!(find("/drive/frequency").min, json!(5120.0));
     assert_eq!(find("/cantilever/extra_modes").max, json!(11));
@@ -2522,12 +2574,12 @@ fn physics_failures_are_refused_by_files_and_sets_alike() {
         ("/cantilever/f1", "cantilever", "f1", 1e8),
         ("/cantilever/k", "cantilever", "k", 5e-324),
     ] {
-        let set_error = default_settings()
-            .set(path, &json!(value))
-            .expect_err(path)
-            .to_string();
+        // The drive stays at 100 kHz: a drive following f1 = 1e8 would be above Nyquist.
+        let mut base = default_settings();
+        base.set("/drive/follow_f1", &json!(false)).unwrap();
+        let set_error = base.set(path, &json!(value)).expect_err(path).to_string();
         assert!(set_error.contains("1-DOF tapping problem"), "{set_error}");
-        let text = format!("[{table}]\n{key} = {value:e}\n");
+        let text = format!("[drive]\nfollow_f1 = false\n[{table}]\n{key} = {value:e}\n");
         let file_error = load_str(&text, "t.toml").expect_err(path).to_string();
         // The set names the value it tried, then says what the file says.
         let (_, reason) = set_error.split_once(": ").unwrap();

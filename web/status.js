@@ -3,6 +3,10 @@
 
 import { ns, si } from "./units.js";
 
+function escapeHtml(text) {
+  return String(text).replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
+}
+
 function group(n) {
   return n == null ? "–" : Number(n).toLocaleString("en-US").replace(/,/g, "\u202f");
 }
@@ -57,6 +61,8 @@ export class StatusPanel {
       const l = s.latency_synth_to_send || {};
       add("latency p50/p99", `${ns(l.p50)} / ${ns(l.p99)}`, "", "synthesis → handed to a client's socket (server's view)");
       if (c.clipped_samples > 0) add("clipped samples", group(c.clipped_samples), "warn", "samples beyond ±/noise/adc_range");
+      // The operating point in words (out-of-band demodulators, clipping, …), as the server says it.
+      for (const w of s.warnings || []) add("warning", escapeHtml(w), "warn");
     }
     const lat = st.latency.slice(0, Math.min(st.latencyCount, st.latency.length)).sort();
     const p50 = pct(lat, 0.5), p99 = pct(lat, 0.99);

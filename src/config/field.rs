@@ -148,6 +148,8 @@ pub enum Field {
     SamplePoisson,
     /// `/drive/frequency` (Hz).
     DriveFrequency,
+    /// `/drive/follow_f1` (bool).
+    DriveFollowF1,
     /// `/drive/free_amplitude` (m).
     DriveFreeAmplitude,
     /// `/surface/distance` (m).
@@ -445,7 +447,7 @@ impl Typed {
 
 impl Field {
     /// Nodes outside the index-keyed tables (inclusions, demodulators), in tree order.
-    pub(crate) const SCALARS: [Field; 49] = [
+    pub(crate) const SCALARS: [Field; 50] = [
         Field::CantileverF1,
         Field::CantileverK,
         Field::CantileverQ,
@@ -456,6 +458,7 @@ impl Field {
         Field::SampleYoungsModulus,
         Field::SamplePoisson,
         Field::DriveFrequency,
+        Field::DriveFollowF1,
         Field::DriveFreeAmplitude,
         Field::SurfaceDistance,
         Field::SynthSampleRate,
@@ -536,6 +539,7 @@ impl Field {
             Field::SampleYoungsModulus => "/sample/youngs_modulus",
             Field::SamplePoisson => "/sample/poisson",
             Field::DriveFrequency => "/drive/frequency",
+            Field::DriveFollowF1 => "/drive/follow_f1",
             Field::DriveFreeAmplitude => "/drive/free_amplitude",
             Field::SurfaceDistance => "/surface/distance",
             Field::SynthSampleRate => "/synth/sample_rate",
@@ -648,6 +652,7 @@ impl Field {
             | Field::DemodOrder(_) => "1",
             Field::SynthEngine
             | Field::SynthRealtime
+            | Field::DriveFollowF1
             | Field::NoiseEnable
             | Field::SpectrumEnable
             | Field::SpectrumWindow
@@ -699,6 +704,7 @@ impl Field {
                 max: u64::MAX,
             },
             Field::SynthRealtime
+            | Field::DriveFollowF1
             | Field::NoiseEnable
             | Field::SpectrumEnable
             | Field::ScopeEnable
@@ -805,7 +811,10 @@ impl Field {
             Field::SampleYoungsModulus => "Young's modulus of the sample under the tip, in Pa.",
             Field::SamplePoisson => "Poisson ratio of the sample under the tip (dimensionless).",
             Field::DriveFrequency => {
-                "Drive frequency Ω/2π of the base excitation, in Hz; below half the sample rate."
+                "Drive frequency Ω/2π of the base excitation, in Hz; below half the sample rate. Setting it turns /drive/follow_f1 off."
+            }
+            Field::DriveFollowF1 => {
+                "The drive frequency follows /cantilever/f1, like an instrument's auto-tune (true), or stays where /drive/frequency puts it (false); setting /drive/frequency turns it off."
             }
             Field::DriveFreeAmplitude => {
                 "Free (non-contact) peak tip amplitude at the drive frequency, in m."
@@ -996,6 +1005,7 @@ impl Field {
             Field::SampleYoungsModulus => Typed::Float(s.sample.youngs_modulus),
             Field::SamplePoisson => Typed::Float(s.sample.poisson),
             Field::DriveFrequency => Typed::Float(s.drive.frequency),
+            Field::DriveFollowF1 => Typed::Bool(s.drive.follow_f1),
             Field::DriveFreeAmplitude => Typed::Float(s.drive.free_amplitude),
             Field::SurfaceDistance => Typed::Float(s.surface.distance),
             Field::SynthSampleRate => Typed::Float(s.synth.sample_rate),
@@ -1069,6 +1079,7 @@ impl Field {
             (Field::SampleYoungsModulus, Typed::Float(x)) => s.sample.youngs_modulus = x,
             (Field::SamplePoisson, Typed::Float(x)) => s.sample.poisson = x,
             (Field::DriveFrequency, Typed::Float(x)) => s.drive.frequency = x,
+            (Field::DriveFollowF1, Typed::Bool(b)) => s.drive.follow_f1 = b,
             (Field::DriveFreeAmplitude, Typed::Float(x)) => s.drive.free_amplitude = x,
             (Field::SurfaceDistance, Typed::Float(x)) => s.surface.distance = x,
             (Field::SynthSampleRate, Typed::Float(x)) => s.synth.sample_rate = x,

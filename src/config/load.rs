@@ -69,7 +69,15 @@ pub fn overlay_str(
                 message: e.to_string().trim_end().to_owned(),
             })?;
     let mut settings = base;
-    apply_table(&mut settings, "", &table, origin)?;
+    let mut written = Vec::new();
+    apply_table(&mut settings, "", &table, origin, &mut written)?;
+    let written: Vec<&str> = written.iter().map(String::as_str).collect();
+    settings
+        .follow_f1(&written)
+        .map_err(|error| ConfigError::Invalid {
+            origin: origin.to_owned(),
+            error,
+        })?;
     settings.validate().map_err(|error| ConfigError::Invalid {
         origin: origin.to_owned(),
         error,
@@ -83,6 +91,7 @@ fn apply_table(
     prefix: &str,
     table: &toml::Table,
     origin: &str,
+    written: &mut Vec<String>,
 ) -> Result<(), ConfigError> {
     for (key, value) in table {
         let path = format!("{prefix}/{key}");
@@ -99,6 +108,7 @@ fn apply_table(
             settings
                 .write_node(spec, &to_json(value))
                 .map_err(invalid)?;
+            written.push(path);
         } else if let Some(keys) = table_keys(&path) {
             let toml::Value::Table(inner) = value else {
                 return Err(ConfigError::NotATable {
@@ -108,7 +118,7 @@ fn apply_table(
                     allowed: keys.to_vec(),
                 });
             };
-            apply_table(settings, &path, inner, origin)?;
+            apply_table(settings, &path, inner, origin, written)?;
         } else {
             return Err(ConfigError::UnknownKey {
                 origin: origin.to_owned(),

@@ -350,7 +350,9 @@ impl NodeSpec {
             Kind::Float(range) | Kind::FloatList { entry: range, .. } => {
                 let (mut low, mut high) = (range.min.value, range.max.value);
                 match self.field {
-                    Field::DriveFrequency => {
+                    Field::DriveFrequency | Field::CantileverF1
+                        if self.field == Field::DriveFrequency || s.drive.follow_f1 =>
+                    {
                         high = high.min(relations::highest_drive_frequency(s));
                         low = low.max(relations::lowest_drive_frequency(s));
                     }
@@ -365,15 +367,14 @@ impl NodeSpec {
             Kind::Integer { mut min, mut max } => {
                 let enabled = |i: usize| s.demods.get(i).is_some_and(|d| d.enable);
                 match self.field {
-                    Field::DemodHarmonic(i) if enabled(i) => {
-                        max = max.min(relations::highest_harmonic(s));
-                        if relations::sole_inversion_measure(s, i) {
-                            // The inversion's harmonic is measured by this one alone.
-                            (min, max) = (
-                                u64::from(s.demods[i].harmonic),
-                                u64::from(s.demods[i].harmonic),
-                            );
-                        }
+                    // The inversion's harmonic is measured by this one alone.
+                    Field::DemodHarmonic(i)
+                        if enabled(i) && relations::sole_inversion_measure(s, i) =>
+                    {
+                        (min, max) = (
+                            u64::from(s.demods[i].harmonic),
+                            u64::from(s.demods[i].harmonic),
+                        );
                     }
                     Field::InversionHarmonicA | Field::InversionHarmonicB => {
                         let other = if self.field == Field::InversionHarmonicA {
@@ -427,6 +428,10 @@ pub struct NodeInfo {
     pub max: Value,
     /// One sentence with the unit.
     pub description: String,
+    /// What the current value means for the instrument when it is not what the node alone
+    /// suggests (e.g. a demodulator out of band); absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warning: Option<String>,
 }
 
 /// Whether a `set` comes over the protocol (read-only nodes refused) or from a config file.
@@ -474,6 +479,7 @@ impl Settings {
         }
         let mut next = self.clone();
         next.write_node(spec, value)?;
+        next.follow_f1(&[path])?;
         next.validate().map_err(|error| match error {
             // A conflict found on another node: report it as this `set`'s failure, naming
             // the value tried and the node it conflicts with.
@@ -489,6 +495,36 @@ impl Settings {
         let applied = next.get(path)?;
         *self = next;
         Ok(applied)
+    }
+
+    /// Keeps `/drive/frequency` on `/cantilever/f1` while `/drive/follow_f1` is true, after
+    /// the nodes at `written` were written together (one `set`, or a whole config file), so
+    /// the order of keys never matters: a drive frequency other than f1 given without
+    /// `follow_f1` turns following off (the drive was set explicitly); while following, the
+    /// drive frequency is f1.
+    /// Giving both a drive frequency other than f1 and `follow_f1 = true` is a conflict.
+    pub(crate) fn follow_f1(&mut self, written: &[&str]) -> Result<(), NodeError> {
+        let gave = |p: &str| written.contains(&p);
+        let (frequency, follow) = ("/drive/frequency", "/drive/follow_f1");
+        if gave(frequency) && !gave(follow) && self.drive.frequency != self.cantilever.f1 {
+            self.drive.follow_f1 = false;
+        }
+        if self.drive.follow_f1 {
+            if gave(frequency) && self.drive.frequency != self.cantilever.f1 {
+                return Err(NodeError::InvalidValue {
+                    path: frequency.to_owned(),
+                    message: format!(
+                        "/drive/frequency = {} conflicts with /drive/follow_f1 = true, which \
+                         keeps the drive at /cantilever/f1 = {}: give /drive/follow_f1 = false \
+                         to drive off resonance, or leave /drive/frequency out",
+                        super::quantity::quantity(self.drive.frequency, "Hz"),
+                        super::quantity::quantity(self.cantilever.f1, "Hz")
+                    ),
+                });
+            }
+            self.drive.frequency = self.cantilever.f1;
+        }
+        Ok(())
     }
 
     /// Checks `value` against the node's own type and range and stores it, without the
@@ -553,6 +589,7 @@ impl Settings {
                     min,
                     max,
                     description: spec.description.clone(),
+                    warning: self.node_warning(&spec.path),
                 })
             })
             .collect()

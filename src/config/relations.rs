@@ -77,16 +77,16 @@ fn nyquist(s: &Settings) -> f64 {
     s.synth.sample_rate / 2.0
 }
 
-/// The highest harmonic an enabled demodulator may use: the largest k with
-/// k × `/drive/frequency` < `/synth/sample_rate` / 2, at most [`MAX_HARMONIC`].
+/// The highest harmonic in band: the largest k with k × `/drive/frequency` <
+/// `/synth/sample_rate` / 2, at most [`MAX_HARMONIC`]. Demodulators above it are out of band.
 pub(crate) fn highest_harmonic(s: &Settings) -> u64 {
     let (drive, limit) = (s.drive.frequency, nyquist(s));
     let max = u64::from(MAX_HARMONIC);
     if !drive.is_finite() || drive <= 0.0 {
         return max;
     }
-    // Start from the closed form, then step so the answer agrees exactly with the test
-    // `k as f64 * drive < limit` that `check_demods` applies.
+    // Start from the closed form, then step so the answer agrees exactly with
+    // [`harmonic_in_band`].
     let mut k = ((limit / drive).ceil() - 1.0).clamp(0.0, max as f64) as u64;
     while k > 0 && k as f64 * drive >= limit {
         k -= 1;
@@ -97,21 +97,156 @@ pub(crate) fn highest_harmonic(s: &Settings) -> u64 {
     k
 }
 
-/// The highest harmonic of an enabled demodulator (0 if none is enabled).
-fn highest_enabled_harmonic(s: &Settings) -> u32 {
-    s.demods
-        .iter()
-        .filter(|d| d.enable)
-        .map(|d| d.harmonic)
-        .max()
-        .unwrap_or(0)
+/// Whether harmonic `k` of the drive lies below the Nyquist frequency, where the lock-in can
+/// measure it. An enabled demodulator above it is *out of band*: it is kept (so a drive
+/// raised for a stiffer lever does not refuse the whole configuration) but produces no
+/// frames, and `status` and `list` say so.
+pub fn harmonic_in_band(s: &Settings, k: u32) -> bool {
+    f64::from(k) * s.drive.frequency < nyquist(s)
 }
 
-/// The drive frequency must stay below the Nyquist frequency, and so must every enabled
-/// demodulator's harmonic of it: `/drive/frequency` < `/synth/sample_rate` / 2 / k for the
-/// highest enabled harmonic k, as `list` reports it (an end that is itself excluded).
+impl Settings {
+    /// Whether demodulator `index` is enabled and its harmonic in band: it produces frames.
+    pub fn demod_active(&self, index: usize) -> bool {
+        self.demods
+            .get(index)
+            .is_some_and(|d| d.enable && harmonic_in_band(self, d.harmonic))
+    }
+
+    /// The enabled demodulators whose harmonic is at or above the Nyquist frequency, by
+    /// index: they produce no frames until the drive or the sample rate brings them in band.
+    pub fn demods_out_of_band(&self) -> Vec<usize> {
+        (0..self.demods.len())
+            .filter(|&i| self.demods[i].enable && !self.demod_active(i))
+            .collect()
+    }
+
+    /// The two harmonics the inversion uses, (lower, higher): `/inversion/harmonic_a` and
+    /// `_b` where an active (enabled, in band) demodulator measures them; a configured one
+    /// that is out of band is replaced by the nearest active harmonic ≥ 2 below it (above
+    /// it if there is none below), different from the other. `None` when the inversion is
+    /// disabled or fewer than two active harmonics ≥ 2 exist.
+    pub fn inversion_harmonics(&self) -> Option<(u32, u32)> {
+        if !self.inversion.enable {
+            return None;
+        }
+        let active: Vec<u32> = enabled_harmonics(self)
+            .into_iter()
+            .filter(|&k| k >= MIN_INVERSION_HARMONIC && harmonic_in_band(self, k))
+            .collect();
+        let pick = |want: u32, taken: Option<u32>| -> Option<u32> {
+            let free = |k: &&u32| Some(**k) != taken;
+            if active.contains(&want) && Some(want) != taken {
+                return Some(want);
+            }
+            active
+                .iter()
+                .filter(free)
+                .filter(|&&k| k < want)
+                .max()
+                .or_else(|| active.iter().filter(free).filter(|&&k| k > want).min())
+                .copied()
+        };
+        let (a, b) = (self.inversion.harmonic_a, self.inversion.harmonic_b);
+        // The lower one first, so a lost upper harmonic moves down past it rather than
+        // taking its place.
+        let (low, high) = (a.min(b), a.max(b));
+        let low = pick(low, None)?;
+        let high = pick(high, Some(low))?;
+        Some((low.min(high), low.max(high)))
+    }
+}
+
+impl Settings {
+    /// Why the node at `path` does not do what its value alone suggests, for `list`, `get`
+    /// and `status`: an enabled demodulator out of band, an inversion harmonic replaced by
+    /// an in-band one (or no two in band). `None` when there is nothing to say.
+    pub fn node_warning(&self, path: &str) -> Option<String> {
+        let rest = path.strip_prefix("/demods/");
+        if let Some((index, key)) = rest.and_then(|r| r.split_once('/')) {
+            let i: usize = index.parse().ok()?;
+            let d = self.demods.get(i)?;
+            return (matches!(key, "harmonic" | "enable")
+                && d.enable
+                && !harmonic_in_band(self, d.harmonic))
+            .then(|| {
+                format!(
+                    "out of band: /demods/{i}/harmonic × /drive/frequency = {} × {} = {} is at \
+                     or above the Nyquist frequency /synth/sample_rate / 2 = {}; demodulator {i} \
+                     produces no frames (harmonics up to {} are in band: lower its harmonic or \
+                     the drive, or raise the sample rate in the config)",
+                    d.harmonic,
+                    quantity(self.drive.frequency, "Hz"),
+                    quantity(f64::from(d.harmonic) * self.drive.frequency, "Hz"),
+                    quantity(nyquist(self), "Hz"),
+                    highest_harmonic(self)
+                )
+            });
+        }
+        let configured = match path {
+            "/inversion/harmonic_a" => self.inversion.harmonic_a,
+            "/inversion/harmonic_b" => self.inversion.harmonic_b,
+            _ => return None,
+        };
+        if !self.inversion.enable {
+            return None;
+        }
+        let Some((low, high)) = self.inversion_harmonics() else {
+            return Some(format!(
+                "no force estimates: the inversion needs two enabled demodulators in band at \
+                 harmonics ≥ 2, and {} with harmonics below {}",
+                describe_enabled_harmonics(self),
+                quantity(nyquist(self), "Hz")
+            ));
+        };
+        let (a, b) = (self.inversion.harmonic_a, self.inversion.harmonic_b);
+        let used = if configured == a.min(b) { low } else { high };
+        (used != configured).then(|| {
+            format!(
+                "harmonic {configured} is out of band ({} ≥ the Nyquist frequency {}): the \
+                 inversion uses harmonic {used} instead",
+                quantity(f64::from(configured) * self.drive.frequency, "Hz"),
+                quantity(nyquist(self), "Hz")
+            )
+        })
+    }
+
+    /// Every node warning ([`Settings::node_warning`]), each once: demodulators out of band
+    /// in one line, then the inversion's. For `status` and the dashboard.
+    pub fn warnings(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        let outside = self.demods_out_of_band();
+        if !outside.is_empty() {
+            let list: Vec<String> = outside
+                .iter()
+                .map(|&i| format!("{} (H{})", i, self.demods[i].harmonic))
+                .collect();
+            out.push(format!(
+                "demodulators out of band, producing no frames: {} (harmonic × /drive/frequency \
+                 = {} must be below the Nyquist frequency {})",
+                list.join(", "),
+                quantity(self.drive.frequency, "Hz"),
+                quantity(nyquist(self), "Hz")
+            ));
+        }
+        let mut seen = Vec::new();
+        for path in ["/inversion/harmonic_a", "/inversion/harmonic_b"] {
+            if let Some(w) = self.node_warning(path)
+                && !seen.contains(&w)
+            {
+                out.push(format!("{path}: {w}"));
+                seen.push(w);
+            }
+        }
+        out
+    }
+}
+
+/// The drive frequency must stay below the Nyquist frequency, `/synth/sample_rate` / 2 (an
+/// end that is itself excluded). Demodulators whose harmonic it pushes out of band stop
+/// producing frames; they do not limit it.
 pub(crate) fn highest_drive_frequency(s: &Settings) -> f64 {
-    nyquist(s) / f64::from(highest_enabled_harmonic(s).max(1))
+    nyquist(s)
 }
 
 /// The lowest drive at which each pixel of the scan lasts at least [`MIN_PIXEL_PERIODS`]
@@ -234,6 +369,17 @@ fn check_modes(s: &Settings) -> Result<(), NodeError> {
 
 fn check_drive(s: &Settings) -> Result<(), NodeError> {
     let drive = s.drive.frequency;
+    if s.drive.follow_f1 && drive != s.cantilever.f1 {
+        return Err(invalid(
+            "/drive/frequency",
+            format!(
+                "/drive/frequency = {} must equal /cantilever/f1 = {} while /drive/follow_f1 = \
+                 true (set /drive/follow_f1 = false to drive off resonance)",
+                quantity(drive, "Hz"),
+                quantity(s.cantilever.f1, "Hz")
+            ),
+        ));
+    }
     if drive >= nyquist(s) {
         return Err(invalid(
             "/drive/frequency",
@@ -330,23 +476,6 @@ fn check_demods(s: &Settings) -> Result<(), NodeError> {
     let sample_rate = s.synth.sample_rate;
     let period = 1.0 / sample_rate;
     for (index, demod) in s.demods.iter().enumerate() {
-        let frequency = f64::from(demod.harmonic) * s.drive.frequency;
-        // A disabled demodulator may keep a harmonic the current drive puts out of reach, so
-        // the drive can be raised first and the bank adjusted after.
-        if demod.enable && frequency >= nyquist(s) {
-            return Err(invalid(
-                format!("/demods/{index}/harmonic"),
-                format!(
-                    "/demods/{index}/harmonic = {}: harmonic × /drive/frequency = {} must be \
-                     below the Nyquist frequency /synth/sample_rate / 2 = {} (allowed up to \
-                     harmonic {} while /demods/{index}/enable = true)",
-                    demod.harmonic,
-                    quantity(frequency, "Hz"),
-                    quantity(nyquist(s), "Hz"),
-                    highest_harmonic(s)
-                ),
-            ));
-        }
         if demod.timeconstant < period {
             return Err(invalid(
                 format!("/demods/{index}/timeconstant"),
@@ -769,15 +898,53 @@ mod tests {
     }
 
     #[test]
-    fn nyquist_message_names_both_keys() {
+    fn a_demodulator_out_of_band_is_kept_and_named() {
         let mut s = default_settings();
         s.demods[3].harmonic = 60;
-        let message = s.validate().unwrap_err().to_string();
+        s.validate().unwrap();
+        assert!(!s.demod_active(3));
+        assert_eq!(s.demods_out_of_band(), [3]);
         assert_eq!(
-            message,
-            "/demods/3/harmonic = 60: harmonic × /drive/frequency = 6 MHz must be below the \
-             Nyquist frequency /synth/sample_rate / 2 = 5 MHz (allowed up to harmonic 49 \
-             while /demods/3/enable = true)"
+            s.node_warning("/demods/3/harmonic").unwrap(),
+            "out of band: /demods/3/harmonic × /drive/frequency = 60 × 100 kHz = 6 MHz is at \
+             or above the Nyquist frequency /synth/sample_rate / 2 = 5 MHz; demodulator 3 \
+             produces no frames (harmonics up to 49 are in band: lower its harmonic or the \
+             drive, or raise the sample rate in the config)"
+        );
+        assert!(s.node_warning("/demods/4/harmonic").is_none());
+        s.demods[3].enable = false;
+        assert!(s.node_warning("/demods/3/harmonic").is_none());
+        assert!(s.warnings().is_empty());
+    }
+
+    #[test]
+    fn the_inversion_takes_in_band_harmonics_in_place_of_lost_ones() {
+        // A 300 kHz lever at 10 MS/s: harmonics 1 … 16 in band, so 17 is replaced by 16.
+        let mut s = default_settings();
+        s.cantilever.f1 = 300e3;
+        s.drive.frequency = 300e3;
+        s.validate().unwrap();
+        assert_eq!(s.inversion_harmonics(), Some((6, 16)));
+        assert!(s.node_warning("/inversion/harmonic_a").is_none());
+        assert_eq!(
+            s.node_warning("/inversion/harmonic_b").unwrap(),
+            "harmonic 17 is out of band (5.1 MHz ≥ the Nyquist frequency 5 MHz): the \
+             inversion uses harmonic 16 instead"
+        );
+        assert_eq!(s.warnings().len(), 2, "{:?}", s.warnings());
+        // Both out of band: the two highest in band, in order.
+        s.inversion.harmonic_a = 20;
+        s.inversion.harmonic_b = 18;
+        assert_eq!(s.inversion_harmonics(), Some((15, 16)));
+        // Fewer than two active harmonics ≥ 2: no estimates, said once.
+        s.drive.frequency = 2.4e6;
+        s.cantilever.f1 = 2.4e6;
+        assert_eq!(s.inversion_harmonics(), None);
+        let warnings = s.warnings();
+        assert_eq!(
+            warnings.iter().filter(|w| w.contains("no force")).count(),
+            1,
+            "{warnings:?}"
         );
     }
 }

@@ -69,6 +69,9 @@ pub struct Material {
 pub struct DriveSettings {
     /// Drive frequency Ω/2π (Hz).
     pub frequency: f64,
+    /// Whether `frequency` follows `/cantilever/f1` (an instrument's auto-tune): while true
+    /// the two are equal, and a change of f1 moves the drive with it.
+    pub follow_f1: bool,
     /// Free tip amplitude at the drive frequency, peak (m).
     pub free_amplitude: f64,
 }

@@ -146,13 +146,15 @@ pub(crate) fn samples_between(sample_rate: f64, rate: f64) -> u64 {
     }
 }
 
-/// The lock-in bank's demodulators for `/demods/...`, in index order.
+/// The lock-in bank's demodulators for `/demods/...`, in index order; one out of band
+/// ([`Settings::demod_active`]) is disabled.
 pub fn demodulators(settings: &Settings) -> Vec<Demodulator> {
     settings
         .demods
         .iter()
-        .map(|d| Demodulator {
-            enable: d.enable,
+        .enumerate()
+        .map(|(i, d)| Demodulator {
+            enable: settings.demod_active(i),
             harmonic: d.harmonic,
             order: d.order,
             time_constant: d.timeconstant,

@@ -359,7 +359,9 @@ impl Pipeline {
             || settings.scan != old.scan
             || settings.feedback != old.feedback
             || settings.inclusions != old.inclusions;
+        // A drive change can move demodulators in or out of band, which the bank must follow.
         let dsp_changed = settings.demods != old.demods
+            || settings.demods_out_of_band() != old.demods_out_of_band()
             || settings.spectrum != old.spectrum
             || settings.scope != old.scope;
         // Build both and check both links before sending either, so a failure changes

@@ -211,11 +211,27 @@ pub(crate) async fn run(
         }
         let elapsed = last_status.elapsed();
         if elapsed >= STATUS_PERIOD {
-            let (counters, realtime) = match state.control.lock() {
-                Ok(c) => (c.counters(), c.settings.synth.realtime),
+            let (counters, realtime, mut warnings, adc_range) = match state.control.lock() {
+                Ok(c) => (
+                    c.counters(),
+                    c.settings.synth.realtime,
+                    c.settings.warnings(),
+                    c.settings.noise.adc_range,
+                ),
                 Err(_) => continue,
             };
             let processed = counters.samples_processed - last_counters.samples_processed;
+            let clipped = counters.clipped_samples - last_counters.clipped_samples;
+            if clipped > 0 {
+                warnings.push(format!(
+                    "the photodiode signal clipped: {clipped} of {processed} samples in the last \
+                     {:.1} s beyond the ADC's full scale ±{} m (/noise/adc_range); the \
+                     operating point is outside what the detector measures (check \
+                     /drive/frequency against /cantilever/f1, /drive/free_amplitude)",
+                    elapsed.as_secs_f64(),
+                    adc_range
+                ));
+            }
             let report = StatusReport {
                 sample_rate: state.sample_rate,
                 realtime_factor: processed as f64 / elapsed.as_secs_f64() / state.sample_rate,
@@ -227,6 +243,7 @@ pub(crate) async fn run(
                 latency_synth_to_dsp: synth_to_dsp.take_interval(),
                 latency_synth_to_send: synth_to_send.take_interval(),
                 counters,
+                warnings,
                 ..state.status_fields()
             };
             if let Ok(mut totals) = state.latency_totals.lock() {

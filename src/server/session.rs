@@ -252,7 +252,11 @@ async fn respond(
                 .settings
                 .get(&path)
                 .map_err(|e| ProtocolError::from(&e))?;
-            Ok(fields(json!({ "path": path, "value": value })))
+            let mut reply = json!({ "path": path, "value": value });
+            if let Some(warning) = control.settings.node_warning(&path) {
+                reply["warning"] = Value::from(warning);
+            }
+            Ok(fields(reply))
         }
         Op::Set { path, value } => {
             let state = state.clone();

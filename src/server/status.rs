@@ -139,6 +139,10 @@ pub struct StatusReport {
     /// of the daemon that only naps 1 ms at a time woke up. Latency spikes that coincide
     /// with one were the machine's (other processes, the hypervisor), not the chain's.
     pub machine_stall_max_ns: u64,
+    /// What the operating point means and the user should know, in words: demodulators out
+    /// of band, an inversion harmonic replaced, a clipping photodiode signal. Empty when all
+    /// is well.
+    pub warnings: Vec<String>,
     /// Every connected client: messages written to its socket and dropped for it, and the
     /// latency at its socket since it connected.
     pub clients_detail: Vec<ClientReport>,

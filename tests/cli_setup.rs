@@ -1,0 +1,123 @@
+//! Setting up as a user does, from the command line: bare `ftafm` takes `serve`'s flags,
+//! `--bind` takes a host name, `info` describes the instrument it would run, and a common
+//! 300 kHz lever works with every command from its cantilever alone.
+
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Output, Stdio};
+
+fn ftafm(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ftafm"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// A config file that lives as long as the test.
+struct TempToml(std::path::PathBuf);
+
+impl TempToml {
+    fn new(name: &str, contents: &str) -> Self {
+        let path = std::env::temp_dir().join(format!("ftafm-{}-{name}.toml", std::process::id()));
+        std::fs::write(&path, contents).unwrap();
+        Self(path)
+    }
+
+    fn path(&self) -> &str {
+        self.0.to_str().unwrap()
+    }
+}
+
+impl Drop for TempToml {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
+/// Starts the binary with `args`, returns the first stdout line (the URL banner) and stops
+/// it.
+fn banner_of(args: &[&str]) -> String {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ftafm"))
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    child.kill().unwrap();
+    child.wait().unwrap();
+    line
+}
+
+#[test]
+fn bare_ftafm_takes_the_serve_flags_and_a_host_name() {
+    let config = TempToml::new("bare", "[sample]\nyoungs_modulus = 60e9\n");
+    let line = banner_of(&["--config", config.path(), "--bind", "localhost:0"]);
+    // localhost resolves IPv4 first: the address a browser on this machine uses.
+    assert!(line.contains("http://127.0.0.1:"), "{line:?}");
+    assert!(line.contains("/ws"), "{line:?}");
+    // A subcommand and serve's flags do not mix: a clear usage error.
+    let out = ftafm(&["--bind", "127.0.0.1:0", "info"]);
+    assert_eq!(out.status.code(), Some(2));
+    // A bind address without a port names the flag and the forms it takes.
+    let out = ftafm(&["--bind", "localhost"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        text(&out.stderr).contains("HOST:PORT"),
+        "{}",
+        text(&out.stderr)
+    );
+}
+
+#[test]
+fn info_lists_every_mode_and_the_drive() {
+    let out = ftafm(&["info"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert!(!stdout.contains("not built yet"), "{stdout}");
+    // One row per mode: number, frequency (kHz), Q.
+    for (n, f, q) in [
+        (1, "100.000", "100.0"),
+        (2, "626.", "417.0"),
+        (5, "5684.", "26.0"),
+    ] {
+        assert!(
+            stdout.lines().any(|l| {
+                let cols: Vec<&str> = l.split_whitespace().collect();
+                cols.len() >= 3
+                    && cols[0] == n.to_string()
+                    && cols[1].starts_with(f)
+                    && cols[2] == q
+            }),
+            "no row for mode {n}: {stdout}"
+        );
+    }
+    assert!(stdout.contains("drive 100 kHz (follows f1)"), "{stdout}");
+}
+
+/// The repro: `/cantilever/f1 = 300e3` with `k = 40` refused every command.
+#[test]
+fn a_300_khz_lever_runs_every_offline_command() {
+    let lever = TempToml::new("lever300", "[cantilever]\nf1 = 300e3\nk = 40\n");
+    let out = ftafm(&["info", "--config", lever.path()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert!(stdout.contains("drive 300 kHz (follows f1)"), "{stdout}");
+    assert!(
+        stdout.contains("warning: demodulators out of band"),
+        "{stdout}"
+    );
+    let out = ftafm(&["paper", "--config", lever.path(), "--json"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let force = report["materials"][0]["max_force"].as_f64().unwrap();
+    // Driven on resonance, it taps gently: tens of nN, not the 2442 nN of a lever driven at
+    // a third of its resonance.
+    assert!(force > 1e-9 && force < 500e-9, "F = {force} N");
+}
