@@ -36,10 +36,14 @@ struct ServeArgs {
     bind: String,
 }
 
-/// The configuration file flag every command shares.
+/// The configuration flags every command shares.
 #[derive(clap::Args)]
 struct ConfigArg {
-    /// TOML file overlaid on the embedded default configuration.
+    /// A real cantilever or sample (`ftafm presets` lists them) overlaid on the embedded
+    /// default, in the order given, before --config; e.g. --preset tap300 --preset mica.
+    #[arg(long, value_name = "NAME")]
+    preset: Vec<String>,
+    /// TOML file overlaid on the embedded default configuration (after the presets).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
 }
@@ -161,6 +165,12 @@ enum Command {
         #[arg(long, value_name = "FILE")]
         report: Option<PathBuf>,
     },
+    /// List the presets: real cantilevers and samples, with their sources.
+    Presets {
+        /// Print exactly one JSON array on stdout (name, kind, summary, toml).
+        #[arg(long)]
+        json: bool,
+    },
     /// Print the configured instrument: its modes and the 1-DOF tapping solution.
     Info {
         #[command(flatten)]
@@ -171,37 +181,62 @@ enum Command {
 /// Exit status for bad arguments or an invalid configuration (contract.md).
 const EXIT_USAGE: u8 = 2;
 
-fn load(path: Option<&PathBuf>) -> Result<Settings, ExitCode> {
-    config::load(path.map(PathBuf::as_path)).map_err(|e| {
+fn load(args: &ConfigArg) -> Result<Settings, ExitCode> {
+    config::load_with_presets(&args.preset, args.config.as_deref()).map_err(|e| {
         eprintln!("ftafm: invalid configuration: {e}");
         ExitCode::from(EXIT_USAGE)
     })
+}
+
+fn run_presets(json: bool) -> Result<ExitCode, ExitCode> {
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string(&config::PRESETS).expect("plain strings")
+        );
+        return Ok(ExitCode::SUCCESS);
+    }
+    for kind in [config::PresetKind::Cantilever, config::PresetKind::Sample] {
+        println!(
+            "{}:",
+            match kind {
+                config::PresetKind::Cantilever => "cantilevers ([cantilever])",
+                config::PresetKind::Sample => "samples ([sample]; inclusions follow)",
+            }
+        );
+        for p in config::PRESETS.iter().filter(|p| p.kind == kind) {
+            println!("  {:<14} {}", p.name, p.summary());
+        }
+    }
+    println!("use: ftafm --preset tap300 --preset polystyrene; sources: config/presets/NAME.toml");
+    Ok(ExitCode::SUCCESS)
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let command = cli.command.unwrap_or(Command::Serve(cli.serve));
     let result = match command {
-        Command::Serve(ServeArgs { config, bind }) => run_serve(config.config.as_ref(), &bind),
+        Command::Serve(ServeArgs { config, bind }) => run_serve(&config, &bind),
         Command::Paper {
             config,
             inhomogeneity_factor,
             json,
-        } => run_paper(config.config.as_ref(), inhomogeneity_factor, json),
-        Command::Info { config } => run_info(config.config.as_ref()),
+        } => run_paper(&config, inhomogeneity_factor, json),
+        Command::Info { config } => run_info(&config),
+        Command::Presets { json } => run_presets(json),
         Command::Scan {
             config,
             frames,
             out,
             realtime,
             json,
-        } => run_scan(config.config.as_ref(), frames, out, realtime, json),
+        } => run_scan(&config, frames, out, realtime, json),
         Command::Bench {
             config,
             seconds,
             realtime,
             json,
-        } => run_bench(config.config.as_ref(), seconds, realtime, json),
+        } => run_bench(&config, seconds, realtime, json),
         Command::Soak {
             url,
             clients,
@@ -216,7 +251,7 @@ fn main() -> ExitCode {
     result.unwrap_or_else(|code| code)
 }
 
-fn run_paper(config: Option<&PathBuf>, factor: f64, json: bool) -> Result<ExitCode, ExitCode> {
+fn run_paper(config: &ConfigArg, factor: f64, json: bool) -> Result<ExitCode, ExitCode> {
     let settings = load(config)?;
     let modulus = settings.sample.youngs_modulus * factor;
     if !(factor.is_finite() && factor > 0.0 && modulus <= config::MAX_YOUNGS_MODULUS) {
@@ -243,7 +278,7 @@ fn run_paper(config: Option<&PathBuf>, factor: f64, json: bool) -> Result<ExitCo
     Ok(ExitCode::SUCCESS)
 }
 
-fn run_serve(config: Option<&PathBuf>, bind: &str) -> Result<ExitCode, ExitCode> {
+fn run_serve(config: &ConfigArg, bind: &str) -> Result<ExitCode, ExitCode> {
     let addrs = bind_addresses(bind)?;
     let settings = load(config)?;
     tracing_subscriber::fmt()
@@ -337,7 +372,7 @@ async fn shutdown_signal() {
 }
 
 fn run_bench(
-    config: Option<&PathBuf>,
+    config: &ConfigArg,
     seconds: f64,
     realtime: bool,
     json: bool,
@@ -392,7 +427,7 @@ fn print_report<R: serde::Serialize>(json: bool, report: &R, text: impl FnOnce(&
 }
 
 fn run_scan(
-    config: Option<&PathBuf>,
+    config: &ConfigArg,
     frames: i64,
     out: Option<PathBuf>,
     realtime: bool,
@@ -510,7 +545,7 @@ fn run_soak(
     Ok(ExitCode::SUCCESS)
 }
 
-fn run_info(config: Option<&PathBuf>) -> Result<ExitCode, ExitCode> {
+fn run_info(config: &ConfigArg) -> Result<ExitCode, ExitCode> {
     let settings = load(config)?;
     let report = paper::compute(&settings, 1.0).map_err(|e| {
         eprintln!("ftafm: {e}");

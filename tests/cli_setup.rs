@@ -37,6 +37,13 @@ impl Drop for TempToml {
     }
 }
 
+/// Whether `text` names a year of publication (1900–2099), as a citation does.
+fn has_year(text: &str) -> bool {
+    text.as_bytes()
+        .windows(4)
+        .any(|w| (w.starts_with(b"19") || w.starts_with(b"20")) && w.iter().all(u8::is_ascii_digit))
+}
+
 /// Starts the binary with `args`, returns the first stdout line (the URL banner) and stops
 /// it.
 fn banner_of(args: &[&str]) -> String {
@@ -120,4 +127,64 @@ fn a_300_khz_lever_runs_every_offline_command() {
     // Driven on resonance, it taps gently: tens of nN, not the 2442 nN of a lever driven at
     // a third of its resonance.
     assert!(force > 1e-9 && force < 500e-9, "F = {force} N");
+}
+
+#[test]
+fn presets_are_listed_and_load_in_order_before_the_config() {
+    let out = ftafm(&["presets", "--json"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let list: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let names: Vec<&str> = list
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["name"].as_str().unwrap())
+        .collect();
+    for want in [
+        "tap300",
+        "tap150",
+        "multi75",
+        "ac240",
+        "silicon",
+        "fused_silica",
+    ] {
+        assert!(names.contains(&want), "{names:?}");
+    }
+    // Every preset's file cites a source.
+    for p in list.as_array().unwrap() {
+        let toml = p["toml"].as_str().unwrap();
+        assert!(
+            toml.contains("data sheet") || has_year(toml),
+            "{} cites no source",
+            p["name"]
+        );
+    }
+    // A lever and a sample together; the file after them wins where it speaks.
+    let config = TempToml::new("after-presets", "[sample]\npoisson = 0.3\n");
+    let out = ftafm(&[
+        "paper",
+        "--preset",
+        "tap300",
+        "--preset",
+        "polystyrene",
+        "--config",
+        config.path(),
+        "--json",
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let modes = report["modes"].as_array().unwrap();
+    assert!((modes[0]["frequency"].as_f64().unwrap() - 300e3).abs() < 1e-6);
+    let out = ftafm(&["info", "--preset", "tap300", "--preset", "polystyrene"]);
+    let stdout = text(&out.stdout);
+    assert!(stdout.contains("sample E = 3.2 GPa"), "{stdout}");
+    // An unknown preset names the known ones and exits 2.
+    let out = ftafm(&["info", "--preset", "tap3000"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        text(&out.stderr).contains("unknown preset \"tap3000\"")
+            && text(&out.stderr).contains("tap300, tap150"),
+        "{}",
+        text(&out.stderr)
+    );
 }

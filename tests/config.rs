@@ -108,6 +108,7 @@ fn default_is_the_papers_silicon_case() {
             length: 333.3e-9,
             height: 0.0,
             youngs_modulus: 116.1e9,
+            relative_modulus: 0.9,
             poisson: 0.28,
         }
     );
@@ -125,6 +126,7 @@ fn default_is_the_papers_silicon_case() {
                 length: 100e-9,
                 height: 0.0,
                 youngs_modulus: 129e9,
+                relative_modulus: 1.0,
                 poisson: 0.28,
             }
         );
@@ -214,6 +216,9 @@ fn partial_overlay_changes_only_what_it_names() {
     .unwrap();
     let mut expected = default_settings();
     expected.sample.youngs_modulus = 116.1e9;
+    for inclusion in &mut expected.inclusions {
+        inclusion.youngs_modulus = inclusion.relative_modulus * 116.1e9;
+    }
     expected.demods[3].harmonic = 7;
     assert_eq!(s, expected);
 }
@@ -471,6 +476,58 @@ fn a_300_khz_lever_loads_from_its_cantilever_alone() {
     );
     assert_eq!(s.drive.frequency, 300e3);
     assert_eq!(s.demods_out_of_band().len(), 16);
+}
+
+/// Switching the sample to a polymer keeps the 10 % softer disc, not a silicon-stiff one.
+#[test]
+fn inclusions_given_relative_to_the_sample_follow_it() {
+    let mut s = default_settings();
+    assert_eq!(s.inclusions[0].relative_modulus, 0.9);
+    s.set("/sample/youngs_modulus", &json!(3e9)).unwrap();
+    assert_eq!(s.inclusions[0].youngs_modulus, 0.9 * 3e9);
+    assert_eq!(s.inclusions[1].youngs_modulus, 3e9);
+    // An absolute modulus, in a file or by set, detaches that inclusion only.
+    let file = load_str(
+        "[sample]\nyoungs_modulus = 3e9\n[inclusions.0]\nyoungs_modulus = 1e9\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert_eq!(
+        (
+            file.inclusions[0].youngs_modulus,
+            file.inclusions[0].relative_modulus
+        ),
+        (1e9, 0.0)
+    );
+    assert_eq!(file.inclusions[1].youngs_modulus, 3e9);
+    s.set("/inclusions/0/youngs_modulus", &json!(2e9)).unwrap();
+    s.set("/sample/youngs_modulus", &json!(5e9)).unwrap();
+    assert_eq!(s.inclusions[0].youngs_modulus, 2e9);
+    // Relative again: follows at once.
+    s.set("/inclusions/0/relative_modulus", &json!(0.5))
+        .unwrap();
+    assert_eq!(s.inclusions[0].youngs_modulus, 2.5e9);
+    // Both, disagreeing: refused, naming both.
+    assert_mentions(
+        &error_of("[inclusions.0]\nyoungs_modulus = 1e9\nrelative_modulus = 0.9\n"),
+        &[
+            "/inclusions/0/youngs_modulus = 1 GPa",
+            "/inclusions/0/relative_modulus = 0.9",
+            "116.1 GPa",
+        ],
+    );
+    // A base material so stiff that a relative inclusion would leave its range is refused.
+    let mut s = default_settings();
+    s.set("/inclusions/2/relative_modulus", &json!(2.0))
+        .unwrap();
+    let error = s.set("/sample/youngs_modulus", &json!(1e13)).unwrap_err();
+    assert_mentions(
+        &error.to_string(),
+        &[
+            "/sample/youngs_modulus",
+            "/inclusions/2/youngs_modulus = 2e13",
+        ],
+    );
 }
 
 #[test]
@@ -1525,6 +1582,7 @@ fn scan_feedback_and_inclusion_nodes_change_at_runtime() {
             length: 2e-7,
             height: -5e-9,
             youngs_modulus: 70e9,
+            relative_modulus: 0.0,
             poisson: 0.17,
         }
     );
@@ -1566,6 +1624,10 @@ fn a_partial_inclusion_overlay_changes_only_that_slot() {
     expected.inclusions[7].height = 2e-9;
     expected.inclusions[0].enable = false;
     expected.sample.youngs_modulus = 100e9;
+    // The inclusions are given relative to the base material: they follow it.
+    for inclusion in &mut expected.inclusions {
+        inclusion.youngs_modulus = inclusion.relative_modulus * 100e9;
+    }
     assert_eq!(s, expected);
 }
 
@@ -1680,6 +1742,7 @@ fn docs_inclusion_example_loads() {
         length: 100e-9,
         height: 50e-9,
         youngs_modulus: 3e9,
+        relative_modulus: 0.0,
         poisson: 0.35,
     };
     assert_eq!(s, expected);
@@ -1964,8 +2027,8 @@ fn every_node_round_trips_through_set() {
 fn list_entries_have_the_protocol_fields() {
     let nodes = default_settings().nodes();
     assert_eq!(nodes.len(), registry().len());
-    // 50 scalar nodes, 8 inclusions of 9 nodes, 32 demodulators of 5.
-    assert_eq!(nodes.len(), 50 + 8 * 9 + 32 * 5);
+    // 50 scalar nodes, 8 inclusions of 10 nodes, 32 demodulators of 5.
+    assert_eq!(nodes.len(), 50 + 8 * 10 + 32 * 5);
     let entry = serde_json::to_value(&nodes[0]).unwrap();
     let keys: BTreeSet<&str> = entry
         .as_object()
@@ -2127,7 +2190,7 @@ fn nodes_under_matches_whole_segments() {
     );
     assert_eq!(s.nodes_under("/scan").len(), 6);
     assert_eq!(s.nodes_under("/feedback").len(), 4);
-    assert_eq!(s.nodes_under("/inclusions").len(), 8 * 9);
+    assert_eq!(s.nodes_under("/inclusions").len(), 8 * 10);
     let paths: Vec<String> = s
         .nodes_under("/inclusions/2")
         .into_iter()
@@ -2144,6 +2207,7 @@ fn nodes_under_matches_whole_segments() {
             "/inclusions/2/length",
             "/inclusions/2/height",
             "/inclusions/2/youngs_modulus",
+            "/inclusions/2/relative_modulus",
             "/inclusions/2/poisson"
         ]
     );
@@ -2227,6 +2291,9 @@ fn docs_example_overlay_loads_and_its_warning_is_as_documented() {
     let s = load_str(example, "soft.toml").unwrap();
     let mut expected = default_settings();
     expected.sample.youngs_modulus = 3e9;
+    for inclusion in &mut expected.inclusions {
+        inclusion.youngs_modulus = inclusion.relative_modulus * 3e9;
+    }
     expected.sample.poisson = 0.35;
     expected.synth.sample_rate = 50e6;
     expected.demods[3].harmonic = 60;

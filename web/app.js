@@ -64,6 +64,7 @@ const controls = new ControlsPanel(app);
 const force = new ForcePanel(app);
 const image = new ImagePanel(app);
 const panels = [spectrum, harmonics, contrast, scope, status, force, image];
+app.force = force; // the scope marks the tap at the latest estimate's pulse phase
 const byStream = { spectrum, scope, status, force, image };
 
 function updateParams() {

@@ -665,7 +665,8 @@ export class ImagePanel {
     const P = f.pixels;
     const [c0, r0, c1, r1] = px;
     const a = boxStats(values, P, px, true), b = boxStats(values, P, px, false);
-    const contrast = 1 - a.mean / b.mean;
+    // The paper's sign (1 − S_Si/S_Inh): the rest of the image is the reference.
+    const contrast = 1 - b.mean / a.mean;
     const cnr = Math.abs(a.mean - b.mean) / b.std;
     return {
       channel: this.channel,
@@ -677,6 +678,7 @@ export class ImagePanel {
       pixels: [c0, r0, c1, r1],
       meanIn: a.mean, stdIn: a.std, nIn: a.n,
       meanOut: b.mean, stdOut: b.std, nOut: b.n,
+      difference: a.mean - b.mean,
       contrast, cnr,
     };
   }
@@ -704,7 +706,10 @@ export class ImagePanel {
       `<tr><th></th><th>mean</th><th>std</th><th>pixels</th></tr>` +
       `<tr data-key="in"><th>region</th><td data-value="${s.meanIn}">${si(s.meanIn, u)}</td><td>${si(s.stdIn, u, 3)}</td><td>${s.nIn}</td></tr>` +
       `<tr data-key="out"><th>rest of image</th><td data-value="${s.meanOut}">${si(s.meanOut, u)}</td><td>${si(s.stdOut, u, 3)}</td><td>${s.nOut}</td></tr>` +
-      `<tr data-key="contrast" title="c = 1 − mean(region) / mean(rest): positive when the region is weaker"><th>contrast c = 1 − ⟨in⟩/⟨out⟩</th><td colspan="3" data-value="${isFinite(s.contrast) ? s.contrast : ""}"><b>${pct(s.contrast)}</b></td></tr>` +
+      // A height "contrast" in % means nothing: heights are compared as a difference in m.
+      (this.channel === "height"
+        ? `<tr data-key="difference" title="mean(region) − mean(rest)"><th>height difference ⟨in⟩ − ⟨out⟩</th><td colspan="3" data-value="${isFinite(s.difference) ? s.difference : ""}"><b>${si(s.difference, u)}</b></td></tr>`
+        : `<tr data-key="contrast" title="c = 1 − mean(rest) / mean(region), the paper's 1 − S_Si/S_Inh: negative when the region is weaker"><th>contrast c = 1 − ⟨out⟩/⟨in⟩</th><td colspan="3" data-value="${isFinite(s.contrast) ? s.contrast : ""}"><b>${pct(s.contrast)}</b></td></tr>`) +
       `<tr data-key="cnr" title="contrast-to-noise ratio |mean(region) − mean(rest)| / std(rest)"><th>CNR |Δ⟨⟩| / σ<sub>out</sub></th><td colspan="3" data-value="${isFinite(s.cnr) ? s.cnr : ""}">${isFinite(s.cnr) ? s.cnr.toPrecision(3) : s.cnr === Infinity ? "∞" : "–"}</td></tr>` +
       `<tr><td colspan="4" class="muted">${esc(s.channel)}, columns ${c0}–${c1}, lines ${r0}–${r1}; ${esc(src)}</td></tr>`;
   }

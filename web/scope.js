@@ -138,7 +138,13 @@ export class ScopePanel {
       if (folded) {
         const f = this.fold, fx = this.foldX, B = this.foldN;
         if (B) rp.line(2 * B + 1, (i) => fx[i % B] + (i >= B ? (i >= 2 * B ? 720 : 360) : 0), (i) => f[i % B], "#d55e00", 1.6);
-        rp.label(rp.left + 6, rp.top + 4, "θ = 0: drive phase zero (cosine reference)", "#4a4f57");
+        // The tap: the drive phase of the force peak, from the latest FT-AFM estimate.
+        const ph = this.app.force?.latest?.pulse_phase;
+        if (typeof ph === "number" && isFinite(ph)) {
+          const deg = ((((ph * 180) / Math.PI) % 360) + 360) % 360;
+          for (const x of [deg, deg + 360]) rp.vline(x, "#1d2129", [4, 3], x === deg ? "tap" : null);
+        }
+        rp.label(rp.left + 6, rp.top + 4, "θ = 0: drive phase zero (cosine reference) · dashed: the tap (force peak)", "#4a4f57");
       } else {
         rp.line(r.length, (j) => j * dt, (j) => r[j], "#d55e00", 1.1);
       }

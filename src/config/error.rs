@@ -154,13 +154,23 @@ pub enum ConfigError {
         /// What the node said.
         error: NodeError,
     },
+    /// `--preset` names no preset.
+    #[error("unknown preset {name:?}; presets: {allowed} (`ftafm presets` describes them)")]
+    UnknownPreset {
+        /// The name given (cut short).
+        name: String,
+        /// The presets there are, comma-separated.
+        allowed: String,
+    },
 }
 
 impl ConfigError {
     /// The node path (or table path) the error is about, if it is about one.
     pub fn path(&self) -> Option<&str> {
         match self {
-            ConfigError::Read { .. } | ConfigError::Syntax { .. } => None,
+            ConfigError::Read { .. }
+            | ConfigError::Syntax { .. }
+            | ConfigError::UnknownPreset { .. } => None,
             ConfigError::UnknownKey { path, .. } | ConfigError::NotATable { path, .. } => {
                 Some(path)
             }

@@ -83,6 +83,8 @@ const MODULUS: Range = Range::above_up_to(0.0, MAX_YOUNGS_MODULUS);
 /// Poisson ratio: the thermodynamic limits of an isotropic solid, both excluded (ν = 0.5
 /// is incompressible, ν = −1 makes the shear modulus infinite).
 const POISSON: Range = Range::between(-1.0, 0.5);
+/// An inclusion's modulus relative to the base material's: 0 (absolute), up to 10⁴.
+const RELATIVE_MODULUS: Range = Range::closed(0.0, 1e4);
 /// Amplitudes and distances in m: up to 1 µm.
 const LENGTH: Range = Range::above_up_to(0.0, 1e-6);
 /// Photodiode sample rate in Hz.
@@ -244,6 +246,8 @@ pub enum Field {
     InclusionHeight(usize),
     /// `/inclusions/N/youngs_modulus` (Pa).
     InclusionYoungsModulus(usize),
+    /// `/inclusions/N/relative_modulus` (1).
+    InclusionRelativeModulus(usize),
     /// `/inclusions/N/poisson` (1).
     InclusionPoisson(usize),
     /// `/demods/N/enable` (bool).
@@ -501,7 +505,7 @@ impl Field {
     ];
 
     /// The nodes of inclusion `index`, in tree order.
-    pub(crate) fn inclusion(index: usize) -> [Field; 9] {
+    pub(crate) fn inclusion(index: usize) -> [Field; 10] {
         [
             Field::InclusionEnable(index),
             Field::InclusionShape(index),
@@ -511,6 +515,7 @@ impl Field {
             Field::InclusionLength(index),
             Field::InclusionHeight(index),
             Field::InclusionYoungsModulus(index),
+            Field::InclusionRelativeModulus(index),
             Field::InclusionPoisson(index),
         ]
     }
@@ -587,6 +592,9 @@ impl Field {
             Field::InclusionLength(i) => return format!("/inclusions/{i}/length"),
             Field::InclusionHeight(i) => return format!("/inclusions/{i}/height"),
             Field::InclusionYoungsModulus(i) => return format!("/inclusions/{i}/youngs_modulus"),
+            Field::InclusionRelativeModulus(i) => {
+                return format!("/inclusions/{i}/relative_modulus");
+            }
             Field::InclusionPoisson(i) => return format!("/inclusions/{i}/poisson"),
             Field::DemodEnable(i) => return format!("/demods/{i}/enable"),
             Field::DemodHarmonic(i) => return format!("/demods/{i}/harmonic"),
@@ -646,6 +654,7 @@ impl Field {
             | Field::TipPoisson
             | Field::SamplePoisson
             | Field::InclusionPoisson(_)
+            | Field::InclusionRelativeModulus(_)
             | Field::FeedbackProportional
             | Field::SynthSeed
             | Field::DemodHarmonic(_)
@@ -696,6 +705,7 @@ impl Field {
             Field::TipPoisson | Field::SamplePoisson | Field::InclusionPoisson(_) => {
                 Kind::Float(POISSON)
             }
+            Field::InclusionRelativeModulus(_) => Kind::Float(RELATIVE_MODULUS),
             Field::DriveFreeAmplitude | Field::SurfaceDistance => Kind::Float(LENGTH),
             Field::SynthSampleRate => Kind::Float(SAMPLE_RATE),
             Field::SynthEngine => Kind::Text(Engine::NAMES),
@@ -961,7 +971,14 @@ impl Field {
                 );
             }
             Field::InclusionYoungsModulus(i) => {
-                return format!("Young's modulus of inclusion {i}'s material, in Pa.");
+                return format!(
+                    "Young's modulus of inclusion {i}'s material, in Pa; = /inclusions/{i}/relative_modulus × /sample/youngs_modulus while that is above 0, and setting it makes the inclusion absolute."
+                );
+            }
+            Field::InclusionRelativeModulus(i) => {
+                return format!(
+                    "Young's modulus of inclusion {i} relative to the base material's (/sample/youngs_modulus), so a change of sample keeps the contrast; 0: absolute (/inclusions/{i}/youngs_modulus)."
+                );
             }
             Field::InclusionPoisson(i) => {
                 return format!("Poisson ratio of inclusion {i}'s material (dimensionless).");
@@ -1053,6 +1070,9 @@ impl Field {
             Field::InclusionLength(i) => Typed::Float(s.inclusions.get(i)?.length),
             Field::InclusionHeight(i) => Typed::Float(s.inclusions.get(i)?.height),
             Field::InclusionYoungsModulus(i) => Typed::Float(s.inclusions.get(i)?.youngs_modulus),
+            Field::InclusionRelativeModulus(i) => {
+                Typed::Float(s.inclusions.get(i)?.relative_modulus)
+            }
             Field::InclusionPoisson(i) => Typed::Float(s.inclusions.get(i)?.poisson),
             Field::DemodEnable(i) => Typed::Bool(s.demods.get(i)?.enable),
             Field::DemodHarmonic(i) => Typed::Integer(s.demods.get(i)?.harmonic.into()),
@@ -1154,6 +1174,9 @@ impl Field {
             (Field::InclusionHeight(i), Typed::Float(x)) => s.inclusions.get_mut(i)?.height = x,
             (Field::InclusionYoungsModulus(i), Typed::Float(x)) => {
                 s.inclusions.get_mut(i)?.youngs_modulus = x;
+            }
+            (Field::InclusionRelativeModulus(i), Typed::Float(x)) => {
+                s.inclusions.get_mut(i)?.relative_modulus = x;
             }
             (Field::InclusionPoisson(i), Typed::Float(x)) => {
                 s.inclusions.get_mut(i)?.poisson = x;

@@ -73,7 +73,7 @@ pub fn overlay_str(
     apply_table(&mut settings, "", &table, origin, &mut written)?;
     let written: Vec<&str> = written.iter().map(String::as_str).collect();
     settings
-        .follow_f1(&written)
+        .derive_linked(&written)
         .map_err(|error| ConfigError::Invalid {
             origin: origin.to_owned(),
             error,

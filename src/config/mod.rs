@@ -11,6 +11,7 @@
 //!   pixel dwell time and pixel rate) and the engines not available yet.
 //! - `indexed_table`: the index-keyed tables of the files (`[demods]`, `[inclusions]`).
 //! - [`load`](mod@load): the default and overlay files.
+//! - [`presets`]: real cantilevers and samples (`config/presets/`), overlays by name.
 //! - [`error`]: [`NodeError`] and [`ConfigError`].
 //!
 //! See `docs/configuration.md` for every node.
@@ -20,6 +21,7 @@ pub mod field;
 mod indexed_table;
 pub mod load;
 pub mod nodes;
+pub mod presets;
 mod quantity;
 pub mod range;
 pub mod registry;
@@ -37,6 +39,7 @@ pub use field::{
 };
 pub use load::{DEFAULT_TOML, default_settings, load, load_str, overlay_str};
 pub use nodes::{NodeInfo, NodeSpec};
+pub use presets::{PRESETS, Preset, PresetKind, load_with_presets, preset};
 pub use range::{Bound, Range};
 pub use registry::{node, registry, table_keys};
 pub use settings::*;

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use super::error::{NodeError, cut};
-use super::field::{Field, Kind, TextEntry, Typed};
+use super::field::{Field, Kind, MAX_YOUNGS_MODULUS, TextEntry, Typed};
 use super::quantity::number;
 use super::registry::{self, node, registry};
 use super::relations;
@@ -359,6 +359,20 @@ impl NodeSpec {
                     Field::DemodTimeconstant(_) => low = low.max(1.0 / sample_rate),
                     Field::DemodRate(_) | Field::SpectrumRate => high = high.min(sample_rate),
                     Field::ScopeRate => high = high.min(relations::highest_scope_rate(s)),
+                    // An inclusion given relative to the base material must stay a modulus.
+                    Field::InclusionRelativeModulus(_) => {
+                        high = high.min(MAX_YOUNGS_MODULUS / s.sample.youngs_modulus);
+                    }
+                    Field::SampleYoungsModulus => {
+                        let most = s
+                            .inclusions
+                            .iter()
+                            .map(|i| i.relative_modulus)
+                            .fold(0.0, f64::max);
+                        if most > 0.0 {
+                            high = high.min(MAX_YOUNGS_MODULUS / most);
+                        }
+                    }
                     Field::ScanLineRate => high = high.min(relations::highest_line_rate(s)),
                     _ => {}
                 }
@@ -479,7 +493,7 @@ impl Settings {
         }
         let mut next = self.clone();
         next.write_node(spec, value)?;
-        next.follow_f1(&[path])?;
+        next.derive_linked(&[path])?;
         next.validate().map_err(|error| match error {
             // A conflict found on another node: report it as this `set`'s failure, naming
             // the value tried and the node it conflicts with.
@@ -497,13 +511,59 @@ impl Settings {
         Ok(applied)
     }
 
+    /// The nodes that follow others, after the nodes at `written` were written together (one
+    /// `set`, or a whole config file): the drive on f1 ([`Settings::follow_f1`]) and each
+    /// inclusion's modulus on the base material's ([`Settings::follow_sample`]).
+    pub(crate) fn derive_linked(&mut self, written: &[&str]) -> Result<(), NodeError> {
+        self.follow_f1(written)?;
+        self.follow_sample(written)
+    }
+
+    /// Keeps each inclusion's `youngs_modulus` at `relative_modulus` × the base material's
+    /// while `relative_modulus` > 0, after the nodes at `written` were written together: an
+    /// absolute modulus given without `relative_modulus` makes the inclusion absolute;
+    /// giving both a relative modulus > 0 and another absolute one is a conflict.
+    fn follow_sample(&mut self, written: &[&str]) -> Result<(), NodeError> {
+        let base = self.sample.youngs_modulus;
+        for (i, inclusion) in self.inclusions.iter_mut().enumerate() {
+            let absolute = format!("/inclusions/{i}/youngs_modulus");
+            let gave_absolute = written.contains(&absolute.as_str());
+            let gave_relative =
+                written.contains(&format!("/inclusions/{i}/relative_modulus").as_str());
+            let derived = inclusion.relative_modulus * base;
+            if gave_absolute && !gave_relative && inclusion.youngs_modulus != derived {
+                inclusion.relative_modulus = 0.0;
+            }
+            if inclusion.relative_modulus > 0.0 {
+                let derived = inclusion.relative_modulus * base;
+                if gave_absolute && inclusion.youngs_modulus != derived {
+                    return Err(NodeError::InvalidValue {
+                        path: absolute.clone(),
+                        message: format!(
+                            "{absolute} = {} conflicts with /inclusions/{i}/relative_modulus = \
+                             {}, which makes it {} × /sample/youngs_modulus = {}: give \
+                             /inclusions/{i}/relative_modulus = 0 for an absolute modulus, or \
+                             leave {absolute} out",
+                            super::quantity::quantity(inclusion.youngs_modulus, "Pa"),
+                            inclusion.relative_modulus,
+                            inclusion.relative_modulus,
+                            super::quantity::quantity(derived, "Pa")
+                        ),
+                    });
+                }
+                inclusion.youngs_modulus = derived;
+            }
+        }
+        Ok(())
+    }
+
     /// Keeps `/drive/frequency` on `/cantilever/f1` while `/drive/follow_f1` is true, after
     /// the nodes at `written` were written together (one `set`, or a whole config file), so
     /// the order of keys never matters: a drive frequency other than f1 given without
     /// `follow_f1` turns following off (the drive was set explicitly); while following, the
     /// drive frequency is f1.
     /// Giving both a drive frequency other than f1 and `follow_f1 = true` is a conflict.
-    pub(crate) fn follow_f1(&mut self, written: &[&str]) -> Result<(), NodeError> {
+    fn follow_f1(&mut self, written: &[&str]) -> Result<(), NodeError> {
         let gave = |p: &str| written.contains(&p);
         let (frequency, follow) = ("/drive/frequency", "/drive/follow_f1");
         if gave(frequency) && !gave(follow) && self.drive.frequency != self.cantilever.f1 {

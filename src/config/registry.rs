@@ -136,7 +136,7 @@ mod tests {
     fn registry_lists_each_path_once() {
         assert_eq!(
             registry().len(),
-            Field::SCALARS.len() + 9 * INCLUSION_COUNT + 5 * DEMODULATOR_COUNT
+            Field::SCALARS.len() + 10 * INCLUSION_COUNT + 5 * DEMODULATOR_COUNT
         );
         assert_eq!(registry_data().by_path.len(), registry().len());
         assert_eq!(
@@ -169,6 +169,7 @@ mod tests {
                 "length",
                 "height",
                 "youngs_modulus",
+                "relative_modulus",
                 "poisson"
             ]
         );

@@ -369,17 +369,6 @@ fn check_modes(s: &Settings) -> Result<(), NodeError> {
 
 fn check_drive(s: &Settings) -> Result<(), NodeError> {
     let drive = s.drive.frequency;
-    if s.drive.follow_f1 && drive != s.cantilever.f1 {
-        return Err(invalid(
-            "/drive/frequency",
-            format!(
-                "/drive/frequency = {} must equal /cantilever/f1 = {} while /drive/follow_f1 = \
-                 true (set /drive/follow_f1 = false to drive off resonance)",
-                quantity(drive, "Hz"),
-                quantity(s.cantilever.f1, "Hz")
-            ),
-        ));
-    }
     if drive >= nyquist(s) {
         return Err(invalid(
             "/drive/frequency",

@@ -9,6 +9,11 @@ pub const DEMODULATOR_COUNT: usize = 32;
 pub const INCLUSION_COUNT: usize = 8;
 
 /// The whole instrument configuration.
+///
+/// Some nodes follow others: the drive frequency follows `/cantilever/f1` while
+/// `/drive/follow_f1`, and an inclusion's modulus follows the base material's while its
+/// `relative_modulus` is above 0. [`Settings::set`], [`Settings::apply`] and the config
+/// loader keep those links; fields written directly are taken as they stand.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Settings {
@@ -402,8 +407,11 @@ pub struct InclusionSettings {
     pub length: f64,
     /// Height of its surface above the base material's (m; negative: a pit).
     pub height: f64,
-    /// Young's modulus E (Pa).
+    /// Young's modulus E (Pa). While `relative_modulus` > 0 it is that times the base
+    /// material's (`/sample/youngs_modulus`).
     pub youngs_modulus: f64,
+    /// E relative to the base material's (1); 0: `youngs_modulus` stands on its own.
+    pub relative_modulus: f64,
     /// Poisson ratio ν (1).
     pub poisson: f64,
 }

@@ -203,13 +203,13 @@ test("a region dragged on the disc gives its contrast against the rest of the im
   assert.ok(r.nIn <= 16 && r.nIn >= 12, `region pixels counted: ${JSON.stringify(r)}`);
   assert.ok(r.nOut <= PIXELS * PIXELS - 16 && r.nOut >= 0.9 * (PIXELS * PIXELS - 16), `outside pixels counted: ${JSON.stringify(r)}`);
   t.diagnostic(`h17 region: ${(r.meanIn * 1e12).toFixed(4)} ± ${(r.stdIn * 1e12).toFixed(4)} pm, rest ${(r.meanOut * 1e12).toFixed(4)} ± ${(r.stdOut * 1e12).toFixed(4)} pm; c = ${(r.contrast * 100).toFixed(2)} %, CNR ${r.cnr.toFixed(2)}`);
-  assert.ok(r.contrast > 0, "the softer disc is weaker in h17: positive contrast");
-  assert.ok(r.contrast < 0.2, "contrast of the order of the paper's 3 %");
+  assert.ok(r.contrast < 0, "the softer disc is weaker in h17: negative contrast (the paper's sign, 1 − S_Si/S_Inh)");
+  assert.ok(r.contrast > -0.2, "contrast of the order of the paper's 3 %");
   assert.ok(r.cnr > 0, "a contrast-to-noise ratio");
   const text = await page.textContent('#image-region tr[data-key="contrast"]');
   assert.match(text, /\d+\.\d\d %/);
   const shown = Number(await page.getAttribute('#image-region tr[data-key="contrast"] td', "data-value"));
-  assert.ok(Number.isFinite(shown) && shown > 0, "the readout shows the contrast");
+  assert.ok(Number.isFinite(shown) && shown < 0, "the readout shows the contrast");
   assert.match(await page.textContent('#image-region tr[data-key="cnr"]'), /CNR.*\d/);
   // h6 shows far less contrast than h17 on the same region
   await page.selectOption("#image-channel", "h6");
