@@ -140,13 +140,19 @@ pub fn run(
             } else {
                 String::new()
             };
+            let meta = export::Metadata::of(frame, std::time::SystemTime::now());
             for c in &frame.channels {
                 for (ext, bytes) in [
                     (
                         "gsf",
-                        export::gsf(c, frame.pixels, frame.size, frame.origin),
+                        export::gsf(c, frame.pixels, frame.size, frame.origin, &meta),
                     ),
                     ("npy", export::npy(c, frame.pixels)),
+                    (
+                        "json",
+                        export::npy_companion(c, frame.pixels, frame.size, frame.origin, &meta)
+                            .into_bytes(),
+                    ),
                 ] {
                     let path = dir.join(format!("{}{suffix}.{ext}", c.name));
                     std::fs::write(&path, bytes).map_err(|e| ScanError::Write(path.clone(), e))?;

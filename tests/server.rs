@@ -818,15 +818,37 @@ async fn a_small_scan_images_the_softer_disc_in_the_high_harmonics() {
         "pixels between the levels: {between} in {h17:?}"
     );
 
-    // The finished frame exports.
-    tokio::time::sleep(Duration::from_millis(200)).await;
-    let (status, body) = http_get(daemon.addr, "/image/h17.gsf").await;
-    assert_eq!(status, 200);
+    // The finished frame exports (once the image worker has stored it: wait for that, not
+    // for a time).
+    let deadline = std::time::Instant::now() + Duration::from_secs(60);
+    let body = loop {
+        let (status, body) = http_get(daemon.addr, "/image/h17.gsf").await;
+        if status == 200 {
+            break body;
+        }
+        assert!(std::time::Instant::now() < deadline, "{status}: {body}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
     assert!(
         body.starts_with("Gwyddion Simple Field 1.0\nXRes = 16\nYRes = 16\n"),
         "{}",
         &body[..80.min(body.len())]
     );
+    // With the instrument's settings, version and date in the header.
+    for key in [
+        "ftafm.version = ",
+        "ftafm.date = 20",
+        "ftafm:/sample/youngs_modulus = ",
+    ] {
+        assert!(body.contains(key), "no {key} in the .gsf header");
+    }
+    let (status, body) = http_get(daemon.addr, "/image/h17.json").await;
+    assert_eq!(status, 200, "{body}");
+    let companion: Value = serde_json::from_str(&body).unwrap();
+    assert_eq!(companion["unit"], "m");
+    assert_eq!(companion["shape"], json!([16, 16]));
+    assert_eq!(companion["settings"]["/scan/pixels"], 16);
+    assert!(companion["date"].as_str().unwrap().ends_with('Z'));
     let (status, body) = http_get(daemon.addr, "/image/nothing.gsf").await;
     assert_eq!(status, 404);
     assert!(body.contains("h17"), "{body}");

@@ -48,6 +48,8 @@ pub struct ImageFrame {
     /// Lower-left corner of the scan area (m), for the file's offsets.
     pub origin: (f64, f64),
     pub channels: Vec<ImageChannel>,
+    /// The instrument's settings when the frame finished (the files' metadata).
+    pub settings: std::sync::Arc<Settings>,
 }
 
 /// The frame being filled.
@@ -78,6 +80,8 @@ pub struct Assembler {
     /// feedback average at the end of the drive period that straddles the pixel's end, which
     /// can come after the DSP has handed out the pixel's harmonics.
     pending: VecDeque<PixelHarmonics>,
+    /// The settings in force, for the finished frames' metadata.
+    settings: std::sync::Arc<Settings>,
     current: Option<Frame>,
     finished: Option<ImageFrame>,
     /// Pixels whose inversion failed (their FT-AFM channels are NaN).
@@ -97,6 +101,7 @@ impl Assembler {
             topography: BTreeMap::new(),
             latest_topography: None,
             pending: VecDeque::new(),
+            settings: std::sync::Arc::new(settings.clone()),
             current: None,
             finished: None,
             inversion_failed: 0,
@@ -122,6 +127,7 @@ impl Assembler {
         );
         self.line_rate = raster.line_rate(settings.synth.sample_rate);
         self.sample_rate = settings.synth.sample_rate;
+        self.settings = std::sync::Arc::new(settings.clone());
         // One estimate per pixel, whatever the live stream averages.
         let mut s = settings.clone();
         s.inversion.averaging = 1;
@@ -284,6 +290,7 @@ impl Assembler {
                 pixels: self.pixels,
                 size: self.size,
                 origin: self.origin,
+                settings: self.settings.clone(),
                 channels: frame
                     .channels
                     .iter()

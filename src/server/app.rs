@@ -149,9 +149,10 @@ async fn image_file(
     let Some((name, ext)) = file.rsplit_once('.') else {
         return not_found(format!("{file}: ask for <channel>.gsf or <channel>.npy"));
     };
-    if ext != "gsf" && ext != "npy" {
+    if ext != "gsf" && ext != "npy" && ext != "json" {
         return not_found(format!(
-            "{file}: the formats are .gsf (Gwyddion) and .npy (NumPy)"
+            "{file}: the formats are .gsf (Gwyddion), .npy (NumPy) and .json (the .npy's \
+             unit, geometry and settings)"
         ));
     }
     let frame = state.image.last_frame.lock().ok().and_then(|f| f.clone());
@@ -168,10 +169,18 @@ async fn image_file(
             names.join(", ")
         ));
     };
-    let body = if ext == "gsf" {
-        crate::imaging::export::gsf(channel, frame.pixels, frame.size, frame.origin)
+    use crate::imaging::export;
+    let meta = export::Metadata::of(&frame, std::time::SystemTime::now());
+    let body = match ext {
+        "gsf" => export::gsf(channel, frame.pixels, frame.size, frame.origin, &meta),
+        "npy" => export::npy(channel, frame.pixels),
+        _ => export::npy_companion(channel, frame.pixels, frame.size, frame.origin, &meta)
+            .into_bytes(),
+    };
+    let content_type = if ext == "json" {
+        "application/json"
     } else {
-        crate::imaging::export::npy(channel, frame.pixels)
+        "application/octet-stream"
     };
     let disposition = format!(
         "attachment; filename=\"ftafm-g{}-f{}-{name}.{ext}\"",
@@ -179,7 +188,7 @@ async fn image_file(
     );
     (
         [
-            (header::CONTENT_TYPE, "application/octet-stream".to_owned()),
+            (header::CONTENT_TYPE, content_type.to_owned()),
             (header::CONTENT_DISPOSITION, disposition),
             (header::CACHE_CONTROL, "no-store".to_owned()),
         ],
