@@ -2,6 +2,7 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 
@@ -215,6 +216,11 @@ fn run_presets(json: bool) -> Result<ExitCode, ExitCode> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let command = cli.command.unwrap_or(Command::Serve(cli.serve));
+    if matches!(command, Command::Serve(_)) {
+        // Before anything slow (the config's orbit, the pipeline's start): a SIGTERM or
+        // Ctrl-C during start-up must stop the daemon cleanly, not kill it by signal.
+        stop_signal::install();
+    }
     let result = match command {
         Command::Serve(ServeArgs { config, bind }) => run_serve(&config, &bind),
         Command::Paper {
@@ -306,6 +312,14 @@ fn run_serve(config: &ConfigArg, bind: &str) -> Result<ExitCode, ExitCode> {
             eprintln!("ftafm: {e}");
             ExitCode::FAILURE
         })?;
+        if !local.ip().is_loopback() {
+            tracing::warn!(
+                address = %local,
+                "listening beyond this machine: the instrument has no authentication, so \
+                 anyone who can reach this address can drive it (bind 127.0.0.1 unless you \
+                 mean it)"
+            );
+        }
         println!("ftafm {} — dashboard http://{local}/  WebSocket ws://{local}/ws  metrics http://{local}/metrics", env!("CARGO_PKG_VERSION"));
         ftafm::server::run(listener, settings, shutdown_signal()).await.map_err(|e| {
             eprintln!("ftafm: {e}");
@@ -347,27 +361,41 @@ fn bind_addresses(bind: &str) -> Result<Vec<std::net::SocketAddr>, ExitCode> {
     Ok(addrs)
 }
 
-/// Resolves on SIGINT (Ctrl-C) or SIGTERM.
-async fn shutdown_signal() {
-    let interrupt = tokio::signal::ctrl_c();
+/// SIGTERM and SIGINT as a flag, from the first moment of `serve`.
+mod stop_signal {
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    static STOP: AtomicBool = AtomicBool::new(false);
+
     #[cfg(unix)]
-    {
-        use tokio::signal::unix::{SignalKind, signal};
-        match signal(SignalKind::terminate()) {
-            Ok(mut term) => {
-                tokio::select! {
-                    _ = interrupt => {}
-                    _ = term.recv() => {}
-                }
-            }
-            Err(_) => {
-                let _ = interrupt.await;
-            }
+    extern "C" fn on_signal(_: libc::c_int) {
+        // Async-signal-safe: one atomic store.
+        STOP.store(true, Ordering::SeqCst);
+    }
+
+    /// Turns SIGTERM and SIGINT into the flag [`requested`] reads.
+    pub fn install() {
+        #[cfg(unix)]
+        // SAFETY: the handler only stores to an atomic, which is async-signal-safe; the
+        // function pointer has the signature `signal` expects.
+        unsafe {
+            let handler = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
+            libc::signal(libc::SIGTERM, handler);
+            libc::signal(libc::SIGINT, handler);
         }
     }
-    #[cfg(not(unix))]
-    {
-        let _ = interrupt.await;
+
+    /// Whether a stop was asked for.
+    pub fn requested() -> bool {
+        STOP.load(Ordering::SeqCst)
+    }
+}
+
+/// Resolves once SIGINT (Ctrl-C) or SIGTERM has arrived, also one that arrived during
+/// start-up.
+async fn shutdown_signal() {
+    while !stop_signal::requested() {
+        tokio::time::sleep(Duration::from_millis(20)).await;
     }
 }
 

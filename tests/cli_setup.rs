@@ -188,3 +188,100 @@ fn presets_are_listed_and_load_in_order_before_the_config() {
         text(&out.stderr)
     );
 }
+
+fn sigterm(child: &std::process::Child) {
+    // SAFETY: kill(2) on our own child's pid has no memory-safety preconditions.
+    let rc = unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+    assert_eq!(rc, 0);
+}
+
+/// Waits for the child to exit (a hang guard, not a margin) and returns its status.
+fn wait_exit(child: &mut std::process::Child) -> std::process::ExitStatus {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
+        }
+        if std::time::Instant::now() > deadline {
+            child.kill().unwrap();
+            panic!("the daemon did not exit on SIGTERM");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+}
+
+/// A SIGTERM during start-up (before the banner: config, orbit, pipeline) stops the daemon
+/// cleanly, exit status 0, rather than killing it by signal.
+#[test]
+fn sigterm_during_start_up_exits_cleanly() {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ftafm"))
+        .args(["serve", "--bind", "127.0.0.1:0"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    // Give the process a moment to reach main (a SIGTERM before that is the kernel's).
+    std::thread::sleep(std::time::Duration::from_millis(30));
+    sigterm(&child);
+    let status = wait_exit(&mut child);
+    assert_eq!(status.code(), Some(0), "{status:?}");
+}
+
+/// Raises this process's open-file limit to its hard limit (the daemon inherits it) and
+/// returns it.
+fn raise_fd_limit() -> u64 {
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit/setrlimit write/read the struct we pass, nothing else.
+    unsafe {
+        libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit);
+        limit.rlim_cur = limit.rlim_max;
+        libc::setrlimit(libc::RLIMIT_NOFILE, &limit);
+        libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit);
+    }
+    limit.rlim_cur
+}
+
+/// SIGTERM with 1500 half-open connections: the daemon exits 0, with a 1 s grace for them.
+#[test]
+fn sigterm_with_1500_half_open_connections_exits_cleanly() {
+    // Each connection is a descriptor here and one in the daemon: a machine whose hard
+    // limit is below that runs the test with as many as fit, and says so.
+    let fds = raise_fd_limit();
+    let count = 1500.min((fds.saturating_sub(200) / 2) as usize);
+    if count < 1500 {
+        eprintln!("open-file limit {fds}: {count} half-open connections instead of 1500");
+    }
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ftafm"))
+        .args(["serve", "--bind", "127.0.0.1:0"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let addr = line
+        .split("http://")
+        .nth(1)
+        .and_then(|rest| rest.split('/').next())
+        .unwrap()
+        .to_owned();
+    let mut open = Vec::new();
+    for _ in 0..count {
+        let mut s = std::net::TcpStream::connect(&addr).unwrap();
+        std::io::Write::write_all(&mut s, b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n").unwrap();
+        open.push(s);
+    }
+    let start = std::time::Instant::now();
+    sigterm(&child);
+    let status = wait_exit(&mut child);
+    eprintln!(
+        "exit after SIGTERM with {count} half-open connections: {:?}",
+        start.elapsed()
+    );
+    assert_eq!(status.code(), Some(0), "{status:?}");
+}

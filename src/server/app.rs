@@ -2,7 +2,6 @@
 //! [`run`], which serves until a shutdown future resolves.
 
 use std::future::Future;
-use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -13,10 +12,10 @@ use axum::extract::{OriginalUri, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
-use axum::serve::ListenerExt;
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 
+use super::listen::{ConnectionCounters, ConnectionLimits};
 use super::protocol::MAX_MESSAGE_BYTES;
 use super::state::{AppState, Control};
 use super::{assets, hub, metrics, session};
@@ -42,6 +41,17 @@ pub async fn run(
     settings: Settings,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), ServerError> {
+    run_with(listener, settings, shutdown, ConnectionLimits::default()).await
+}
+
+/// [`run`] with the accept loop's limits given (header timeout, connections before their
+/// upgrade, shutdown grace): tests make them small.
+pub async fn run_with(
+    listener: TcpListener,
+    settings: Settings,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+    limits: ConnectionLimits,
+) -> Result<(), ServerError> {
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
     let (force, estimates) = super::force::ForceLink::start();
     force.rebuild(settings.clone());
@@ -66,6 +76,7 @@ pub async fn run(
         refused_origin: AtomicU64::new(0),
         refused_capacity: AtomicU64::new(0),
         closed_stalled: AtomicU64::new(0),
+        http: Arc::new(ConnectionCounters::default()),
         latency_totals: Mutex::new(Default::default()),
         force,
         image,
@@ -84,17 +95,7 @@ pub async fn run(
         tracing::info!("shutting down");
         let _ = shutdown_tx.send(true);
     };
-    // Small data frames must not wait for the peer's delayed ACK (Nagle): 12–40 ms of
-    // latency otherwise.
-    let listener = listener.tap_io(|tcp| {
-        let _ = tcp.set_nodelay(true);
-    });
-    let served = axum::serve(
-        listener,
-        app.into_make_service_with_connect_info::<SocketAddr>(),
-    )
-    .with_graceful_shutdown(signal)
-    .await;
+    super::listen::serve(listener, app, signal, limits, state.http.clone()).await;
     // Sessions close themselves on the signal; give them a moment to say goodbye.
     let deadline = Instant::now() + Duration::from_millis(1500);
     while state.client_count() > 0 && Instant::now() < deadline {
@@ -116,7 +117,7 @@ pub async fn run(
             "pipeline stopped"
         );
     }
-    served.map_err(ServerError::Io)
+    Ok(())
 }
 
 /// The dashboard's files (`web/`, embedded); 404 for anything else.

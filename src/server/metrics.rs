@@ -171,6 +171,23 @@ pub(crate) fn render(state: &AppState) -> String {
         "Clients disconnected for not reading.",
         &one(state.closed_stalled.load(Ordering::Relaxed)),
     );
+    metric(
+        "http_connections_open",
+        "gauge",
+        "HTTP connections open that have not upgraded to a WebSocket.",
+        &one(state.http.open.load(Ordering::Relaxed) as u64),
+    );
+    metric(
+        "http_connections_dropped_total",
+        "counter",
+        "HTTP connections dropped, by reason (header_timeout: headers not complete in time; limit: too many open before their request; shutdown: still open when the shutdown grace ran out).",
+        &state
+            .http
+            .dropped()
+            .iter()
+            .map(|(reason, n)| (format!("{{reason=\"{reason}\"}}"), *n as f64))
+            .collect::<Vec<_>>(),
+    );
     let f = &state.force.counters;
     metric(
         "force_estimates_total",

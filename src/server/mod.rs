@@ -8,10 +8,12 @@ mod hub;
 mod image;
 mod latency;
 mod latest;
+pub mod listen;
 mod metrics;
 pub mod protocol;
 mod session;
 mod state;
 pub mod status;
 
-pub use app::{ServerError, run};
+pub use app::{ServerError, run, run_with};
+pub use listen::ConnectionLimits;

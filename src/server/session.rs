@@ -72,7 +72,7 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
     let (sink, mut stream) = socket.split();
     let (reply_tx, reply_rx) = mpsc::channel::<Message>(64);
     let stall = stall_timeout(&state);
-    let writer = tokio::spawn(write(
+    let mut writer = tokio::spawn(write(
         sink,
         reply_rx,
         data_rx,
@@ -82,7 +82,21 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
     ));
 
     let mut limit = RateLimit::new();
-    while let Some(incoming) = stream.next().await {
+    let mut writer_done = false;
+    loop {
+        // The writer ends when the peer stalls (or on shutdown): then the connection is
+        // dropped at once, whether or not the peer sends anything, so its slot frees and a
+        // peer that resumes reading finds the connection closed, not a silent gap.
+        let incoming = tokio::select! {
+            m = stream.next() => match m {
+                Some(m) => m,
+                None => break,
+            },
+            _ = &mut writer => {
+                writer_done = true;
+                break;
+            }
+        };
         let reply = match incoming {
             Ok(Message::Text(text)) => {
                 if limit.allow() {
@@ -130,7 +144,10 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
         clients.retain(|c| c.id != id);
     }
     // Let the writer flush a final close frame, but not forever.
-    let _ = tokio::time::timeout(Duration::from_secs(1), writer).await;
+    if !writer_done {
+        let _ = tokio::time::timeout(Duration::from_secs(1), writer).await;
+    }
+    drop(stream);
     tracing::debug!(
         client = id,
         dropped = client.dropped.load(Ordering::Relaxed),

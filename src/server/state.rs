@@ -298,6 +298,8 @@ pub(crate) struct AppState {
     pub refused_origin: AtomicU64,
     pub refused_capacity: AtomicU64,
     pub closed_stalled: AtomicU64,
+    /// The accept loop's counters (open HTTP connections, dropped ones by reason).
+    pub http: Arc<super::listen::ConnectionCounters>,
     /// Latency summaries since start (ns), refreshed by the hub for `/metrics`.
     pub latency_totals: Mutex<[super::status::LatencySummary; 2]>,
     /// The `force` stream's worker.

@@ -26,12 +26,22 @@ pub struct Daemon {
 
 impl Daemon {
     pub async fn start(settings: Settings) -> Self {
+        Self::start_with(settings, ftafm::server::ConnectionLimits::default()).await
+    }
+
+    /// A daemon with the accept loop's limits given.
+    pub async fn start_with(settings: Settings, limits: ftafm::server::ConnectionLimits) -> Self {
         let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
         let (stop, stopped) = oneshot::channel::<()>();
-        let task = tokio::spawn(ftafm::server::run(listener, settings, async move {
-            let _ = stopped.await;
-        }));
+        let task = tokio::spawn(ftafm::server::run_with(
+            listener,
+            settings,
+            async move {
+                let _ = stopped.await;
+            },
+            limits,
+        ));
         Self {
             addr,
             stop: Some(stop),
