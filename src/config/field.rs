@@ -34,6 +34,11 @@ pub const MAX_SCOPE_DECIMATION: u32 = 10_000;
 pub const MAX_ALLOWED_ORIGINS: usize = 64;
 /// Longest entry of `/server/allowed_origins`, in bytes.
 pub const MAX_ORIGIN_BYTES: usize = 256;
+/// Longest entry of `/server/allowed_hosts`, in bytes (a DNS name's limit).
+pub const MAX_HOST_BYTES: usize = 253;
+/// Least and most bytes queued per client (`/server/client_queue_bytes`): 64 KiB to 1 GiB.
+pub const MIN_CLIENT_QUEUE_BYTES: u64 = 1 << 16;
+pub const MAX_CLIENT_QUEUE_BYTES: u64 = 1 << 30;
 /// Most WebSocket clients connected at once (`/server/max_clients`).
 pub const MAX_CLIENTS: u32 = 4096;
 /// Shortest per-client outgoing queue, in messages (`/server/client_queue`).
@@ -192,10 +197,14 @@ pub enum Field {
     ScopeRate,
     /// `/server/allowed_origins` (list of text).
     ServerAllowedOrigins,
+    /// `/server/allowed_hosts` (list of text).
+    ServerAllowedHosts,
     /// `/server/max_clients` (clients).
     ServerMaxClients,
     /// `/server/client_queue` (messages).
     ServerClientQueue,
+    /// `/server/client_queue_bytes` (bytes).
+    ServerClientQueueBytes,
     /// `/server/stall_timeout` (s).
     ServerStallTimeout,
     /// `/inversion/enable` (bool).
@@ -311,6 +320,9 @@ pub enum TextEntry {
     /// a non-empty host with an optional `:port`, and nothing after it (no path, not even a
     /// trailing `/`, no query, fragment or user name). A wildcard (`"*"`) is no origin.
     Origin,
+    /// A DNS host name as a `Host` header names it, without a port: labels of letters,
+    /// digits and `-` separated by dots. No wildcard.
+    Host,
 }
 
 impl TextEntry {
@@ -318,6 +330,7 @@ impl TextEntry {
     pub fn describe(self) -> &'static str {
         match self {
             TextEntry::Origin => "an origin scheme://host[:port] with scheme http or https",
+            TextEntry::Host => "a host name such as lab-pc.example.org, without a port",
         }
     }
 
@@ -326,8 +339,34 @@ impl TextEntry {
     pub fn problem(self, entry: &str) -> Option<&'static str> {
         match self {
             TextEntry::Origin => origin_problem(entry),
+            TextEntry::Host => host_problem(entry),
         }
     }
+}
+
+fn host_problem(entry: &str) -> Option<&'static str> {
+    if entry.contains('*') {
+        return Some(
+            "not allowed (wildcards are not supported: a pattern would let names you do not \
+             control reach the instrument)",
+        );
+    }
+    if entry.contains(':') {
+        return Some("not a host name (no port or scheme: the port never matters here)");
+    }
+    let label_ok = |l: &str| {
+        !l.is_empty()
+            && l.len() <= 63
+            && !l.starts_with('-')
+            && !l.ends_with('-')
+            && l.chars().all(|c| c.is_ascii_alphanumeric() || c == '-')
+    };
+    if !entry.split('.').all(label_ok) {
+        return Some(
+            "not a host name (labels of letters, digits and \"-\" separated by single dots)",
+        );
+    }
+    None
 }
 
 fn origin_problem(entry: &str) -> Option<&'static str> {
@@ -451,7 +490,7 @@ impl Typed {
 
 impl Field {
     /// Nodes outside the index-keyed tables (inclusions, demodulators), in tree order.
-    pub(crate) const SCALARS: [Field; 50] = [
+    pub(crate) const SCALARS: [Field; 52] = [
         Field::CantileverF1,
         Field::CantileverK,
         Field::CantileverQ,
@@ -483,8 +522,10 @@ impl Field {
         Field::ScopeDecimation,
         Field::ScopeRate,
         Field::ServerAllowedOrigins,
+        Field::ServerAllowedHosts,
         Field::ServerMaxClients,
         Field::ServerClientQueue,
+        Field::ServerClientQueueBytes,
         Field::ServerStallTimeout,
         Field::InversionEnable,
         Field::InversionMethod,
@@ -565,8 +606,10 @@ impl Field {
             Field::ScopeDecimation => "/scope/decimation",
             Field::ScopeRate => "/scope/rate",
             Field::ServerAllowedOrigins => "/server/allowed_origins",
+            Field::ServerAllowedHosts => "/server/allowed_hosts",
             Field::ServerMaxClients => "/server/max_clients",
             Field::ServerClientQueue => "/server/client_queue",
+            Field::ServerClientQueueBytes => "/server/client_queue_bytes",
             Field::ServerStallTimeout => "/server/stall_timeout",
             Field::InversionEnable => "/inversion/enable",
             Field::InversionMethod => "/inversion/method",
@@ -644,6 +687,7 @@ impl Field {
             Field::ScanPixels => "pixels",
             Field::ServerMaxClients => "clients",
             Field::ServerClientQueue => "messages",
+            Field::ServerClientQueueBytes => "bytes",
             Field::TipYoungsModulus
             | Field::SampleYoungsModulus
             | Field::InclusionYoungsModulus(_) => "Pa",
@@ -667,6 +711,7 @@ impl Field {
             | Field::SpectrumWindow
             | Field::ScopeEnable
             | Field::ServerAllowedOrigins
+            | Field::ServerAllowedHosts
             | Field::InversionEnable
             | Field::InversionMethod
             | Field::InversionHarmonicA
@@ -750,9 +795,18 @@ impl Field {
                 max_bytes: MAX_ORIGIN_BYTES,
                 entry: TextEntry::Origin,
             },
+            Field::ServerAllowedHosts => Kind::TextList {
+                max_len: MAX_ALLOWED_ORIGINS,
+                max_bytes: MAX_HOST_BYTES,
+                entry: TextEntry::Host,
+            },
             Field::ServerMaxClients => Kind::Integer {
                 min: 1,
                 max: MAX_CLIENTS.into(),
+            },
+            Field::ServerClientQueueBytes => Kind::Integer {
+                min: MIN_CLIENT_QUEUE_BYTES,
+                max: MAX_CLIENT_QUEUE_BYTES,
             },
             Field::ServerClientQueue => Kind::Integer {
                 min: MIN_CLIENT_QUEUE.into(),
@@ -888,7 +942,13 @@ impl Field {
                 "Most WebSocket clients connected at once, in clients; beyond it the handshake is refused with 503. A change applies to connections opened from then on."
             }
             Field::ServerClientQueue => {
-                "Length of each client's outgoing queue, in messages; a client further behind loses its own messages (counted, seen as gaps in seq). A change applies to sends from then on."
+                "Length of each client's outgoing queue, in messages; a client further behind loses its own messages (counted, seen as gaps in seq). A change applies to connections opened from then on."
+            }
+            Field::ServerClientQueueBytes => {
+                "Most bytes queued for each client, in bytes (one message larger than this still goes when its queue is empty); a client further behind loses its own messages (counted, seen as gaps in seq). A change applies to sends from then on."
+            }
+            Field::ServerAllowedHosts => {
+                "Host names besides loopback names and IP addresses by which the server may be reached (e.g. \"lab-pc.example.org\"); a request whose Host header names anything else is refused with 403, which stops DNS rebinding. A change applies to requests from then on."
             }
             Field::ServerStallTimeout => {
                 "A client whose socket accepts nothing for this long, in s, is disconnected (close 1008 \"stalled\"). A change applies from then on."
@@ -1043,6 +1103,8 @@ impl Field {
             Field::ScopeDecimation => Typed::Integer(s.scope.decimation.into()),
             Field::ScopeRate => Typed::Float(s.scope.rate),
             Field::ServerAllowedOrigins => Typed::TextList(s.server.allowed_origins.clone()),
+            Field::ServerAllowedHosts => Typed::TextList(s.server.allowed_hosts.clone()),
+            Field::ServerClientQueueBytes => Typed::Integer(s.server.client_queue_bytes),
             Field::ServerMaxClients => Typed::Integer(s.server.max_clients.into()),
             Field::ServerClientQueue => Typed::Integer(s.server.client_queue.into()),
             Field::ServerStallTimeout => Typed::Float(s.server.stall_timeout),
@@ -1129,6 +1191,12 @@ impl Field {
             (Field::ScopeRate, Typed::Float(x)) => s.scope.rate = x,
             (Field::ServerAllowedOrigins, Typed::TextList(list)) => {
                 s.server.allowed_origins = list;
+            }
+            (Field::ServerAllowedHosts, Typed::TextList(list)) => {
+                s.server.allowed_hosts = list;
+            }
+            (Field::ServerClientQueueBytes, Typed::Integer(n)) => {
+                s.server.client_queue_bytes = n;
             }
             (Field::ServerMaxClients, Typed::Integer(n)) => {
                 s.server.max_clients = u32::try_from(n).ok()?;

@@ -235,11 +235,17 @@ pub struct ServerSettings {
     /// 64 entries of at most 256 bytes. No wildcard: `"*"` would let any web page drive the
     /// instrument.
     pub allowed_origins: Vec<String>,
+    /// Host names (no port) besides loopback names and IP addresses that the `Host` header of
+    /// a request may name; anything else is refused with 403 (DNS rebinding). At most 64.
+    pub allowed_hosts: Vec<String>,
     /// Most clients connected at once (clients); beyond it the handshake is refused with 503.
     pub max_clients: u32,
     /// Length of each client's outgoing queue (messages); a client further behind loses its
     /// own messages (counted, and visible as gaps in `seq`).
     pub client_queue: u32,
+    /// Most bytes queued for each client (bytes); one larger message still goes when the
+    /// queue is empty.
+    pub client_queue_bytes: u64,
     /// A client whose socket accepts nothing for this long is disconnected (s); close code
     /// 1008, reason `"stalled"`.
     pub stall_timeout: f64,

@@ -61,6 +61,7 @@ pub async fn run_with(
         .ok();
     // Last, so that no frame waits for the rest of the start-up before the hub takes it.
     let (pipeline, output) = Pipeline::start(&settings)?;
+    let queue_bytes = settings.server.client_queue_bytes as usize;
     let state = Arc::new(AppState {
         sample_rate: settings.synth.sample_rate,
         control: Mutex::new(Control {
@@ -75,6 +76,8 @@ pub async fn run_with(
         started: Instant::now(),
         refused_origin: AtomicU64::new(0),
         refused_capacity: AtomicU64::new(0),
+        refused_host: AtomicU64::new(0),
+        queue_bytes: std::sync::atomic::AtomicUsize::new(queue_bytes),
         closed_stalled: AtomicU64::new(0),
         http: Arc::new(ConnectionCounters::default()),
         latency_totals: Mutex::new(Default::default()),
@@ -83,12 +86,19 @@ pub async fn run_with(
         stall,
     });
     let hub = tokio::spawn(hub::run(state.clone(), output, estimates, image_lines));
+    // Every route but /healthz checks that the request names this server (DNS rebinding);
+    // every response carries the security headers.
     let app = Router::new()
         .route("/ws", get(websocket))
         .route("/metrics", get(metrics_text))
-        .route("/healthz", get(healthz))
         .route("/image/{file}", get(image_file))
         .fallback(get(asset))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            super::host::guard,
+        ))
+        .route("/healthz", get(healthz))
+        .layer(axum::middleware::from_fn(super::host::security_headers))
         .with_state(state.clone());
     let signal = async move {
         shutdown.await;
@@ -278,6 +288,14 @@ async fn websocket(
         ),
         Err(_) => return StatusCode::INTERNAL_SERVER_ERROR.into_response(),
     };
+    if headers.get_all(header::ORIGIN).iter().count() > 1 {
+        state.refused_origin.fetch_add(1, Ordering::Relaxed);
+        return (
+            StatusCode::FORBIDDEN,
+            "two Origin headers: a browser sends one; refused\n",
+        )
+            .into_response();
+    }
     if let Some(origin) = headers.get(header::ORIGIN) {
         let origin = origin.to_str().unwrap_or("");
         let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());

@@ -48,6 +48,8 @@ fn distribute(
         t_dsp_ns,
     };
     let (mut json, mut binary) = (Some(json), Some(binary));
+    let max_bytes = state.queue_bytes.load(Ordering::Relaxed);
+    let exempt = stream == StreamKind::Status;
     let (mut text_msg, mut bin_msg): (Option<Message>, Option<Message>) = (None, None);
     for client in clients.iter() {
         let Some(format) = client.format(s) else {
@@ -67,7 +69,7 @@ fn distribute(
                 })
                 .clone(),
         };
-        match client.data.offer(msg, stamps) {
+        match client.data.offer(msg, stamps, max_bytes, exempt) {
             Ok(()) => {
                 state.streams[s].sent.fetch_add(1, Ordering::Relaxed);
             }

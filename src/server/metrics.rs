@@ -166,6 +166,12 @@ pub(crate) fn render(state: &AppState) -> String {
         ],
     );
     metric(
+        "http_requests_refused_total",
+        "counter",
+        "HTTP requests refused because their Host header does not name this server (DNS rebinding) or is missing.",
+        &one(state.refused_host.load(Ordering::Relaxed)),
+    );
+    metric(
         "clients_stalled_total",
         "counter",
         "Clients disconnected for not reading.",

@@ -4,6 +4,7 @@
 mod app;
 mod assets;
 mod force;
+mod host;
 mod hub;
 mod image;
 mod latency;

@@ -14,7 +14,7 @@ use serde_json::{Map, Value, json};
 use tokio::sync::mpsc;
 
 use super::protocol::{self, ErrorCode, Op, ProtocolError, Request};
-use super::state::{AppState, ClientHandle, DataQueue, Outgoing};
+use super::state::{AppState, ClientHandle, DataQueue, DataReceiver};
 use crate::pipeline::unix_ns;
 
 /// Requests a client may make per second on average, and in a burst.
@@ -170,7 +170,7 @@ fn stall_timeout(state: &AppState) -> Duration {
 async fn write(
     mut sink: futures_util::stream::SplitSink<WebSocket, Message>,
     mut replies: mpsc::Receiver<Message>,
-    mut data: mpsc::Receiver<Outgoing>,
+    mut data: DataReceiver,
     state: Arc<AppState>,
     client: Arc<ClientHandle>,
     stall: Duration,
@@ -284,6 +284,10 @@ async fn respond(
                     .lock()
                     .map_err(|_| internal("control lock poisoned"))?;
                 let applied = control.set(&path, &value)?;
+                state.queue_bytes.store(
+                    control.settings.server.client_queue_bytes as usize,
+                    Ordering::Relaxed,
+                );
                 if super::force::affects_estimator(&path) {
                     state.force.rebuild(control.settings.clone());
                 }

@@ -1,7 +1,7 @@
 //! What every part of the server shares: the control plane (settings and pipeline), the
 //! client registry with per-stream statistics, and the shutdown signal.
 
-use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU8, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -78,31 +78,89 @@ pub(crate) struct Stamps {
     pub t_dsp_ns: u64,
 }
 
-/// A data message queued for one client, with its stamps.
+/// A data message queued for one client, with its stamps and size.
 pub(crate) struct Outgoing {
     pub msg: Message,
     pub stamps: Stamps,
+    /// Payload bytes, counted against the queue's byte bound until the writer takes it.
+    size: usize,
 }
 
-/// A client's bounded queue of data messages (a slow client loses its own).
+/// The payload bytes of a data message.
+fn payload_bytes(msg: &Message) -> usize {
+    match msg {
+        Message::Text(t) => t.len(),
+        Message::Binary(b) => b.len(),
+        _ => 0,
+    }
+}
+
+/// A client's queue of data messages, bounded in messages and in bytes (a slow client loses
+/// its own, never anyone else's and never the pipeline's).
 pub(crate) struct DataQueue {
     tx: mpsc::Sender<Outgoing>,
+    bytes: Arc<AtomicUsize>,
+}
+
+/// The writer's end of a [`DataQueue`].
+pub(crate) struct DataReceiver {
+    rx: mpsc::Receiver<Outgoing>,
+    bytes: Arc<AtomicUsize>,
+}
+
+impl DataReceiver {
+    /// The next message; its bytes leave the queue's count.
+    pub async fn recv(&mut self) -> Option<Outgoing> {
+        let o = self.rx.recv().await?;
+        self.bytes.fetch_sub(o.size, Ordering::Relaxed);
+        Some(o)
+    }
 }
 
 impl DataQueue {
     /// A queue of `capacity` messages and its receiving end (the session's writer).
-    pub fn new(capacity: usize) -> (Self, mpsc::Receiver<Outgoing>) {
+    pub fn new(capacity: usize) -> (Self, DataReceiver) {
         let (tx, rx) = mpsc::channel(capacity);
-        (Self { tx }, rx)
+        let bytes = Arc::new(AtomicUsize::new(0));
+        (
+            Self {
+                tx,
+                bytes: bytes.clone(),
+            },
+            DataReceiver { rx, bytes },
+        )
     }
 
-    /// Queues `msg` with `stamps` without waiting; a full queue refuses it.
-    pub fn offer(&self, msg: Message, stamps: Stamps) -> Result<(), TrySendError<Message>> {
+    /// Bytes queued now.
+    pub fn queued_bytes(&self) -> usize {
+        self.bytes.load(Ordering::Relaxed)
+    }
+
+    /// Queues `msg` with `stamps` without waiting. A full queue refuses it: all its
+    /// messages, or `max_bytes` (unless the queue is empty, so one message larger than the
+    /// bound still goes, or `exempt`: the small `status` messages must never starve behind
+    /// spectra).
+    pub fn offer(
+        &self,
+        msg: Message,
+        stamps: Stamps,
+        max_bytes: usize,
+        exempt: bool,
+    ) -> Result<(), TrySendError<Message>> {
+        let size = payload_bytes(&msg);
+        let queued = self.bytes.load(Ordering::Relaxed);
+        if !exempt && queued > 0 && queued.saturating_add(size) > max_bytes {
+            return Err(TrySendError::Full(msg));
+        }
+        self.bytes.fetch_add(size, Ordering::Relaxed);
         self.tx
-            .try_send(Outgoing { msg, stamps })
-            .map_err(|e| match e {
-                TrySendError::Full(o) => TrySendError::Full(o.msg),
-                TrySendError::Closed(o) => TrySendError::Closed(o.msg),
+            .try_send(Outgoing { msg, stamps, size })
+            .map_err(|e| {
+                self.bytes.fetch_sub(size, Ordering::Relaxed);
+                match e {
+                    TrySendError::Full(o) => TrySendError::Full(o.msg),
+                    TrySendError::Closed(o) => TrySendError::Closed(o.msg),
+                }
             })
     }
 }
@@ -197,6 +255,7 @@ impl ClientHandle {
             id: self.id,
             written: self.written.load(Ordering::Relaxed),
             dropped: self.dropped.load(Ordering::Relaxed),
+            queued_bytes: self.data.queued_bytes() as u64,
             dsp_to_socket,
             synth_to_socket,
         }
@@ -298,6 +357,11 @@ pub(crate) struct AppState {
     pub refused_origin: AtomicU64,
     pub refused_capacity: AtomicU64,
     pub closed_stalled: AtomicU64,
+    /// Requests refused for their `Host` (not a name of this server, or none).
+    pub refused_host: AtomicU64,
+    /// `/server/client_queue_bytes`, for the fan-out (which must not take the settings lock
+    /// per message).
+    pub queue_bytes: AtomicUsize,
     /// The accept loop's counters (open HTTP connections, dropped ones by reason).
     pub http: Arc<super::listen::ConnectionCounters>,
     /// Latency summaries since start (ns), refreshed by the hub for `/metrics`.

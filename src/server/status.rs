@@ -97,6 +97,9 @@ pub struct ClientReport {
     pub written: u64,
     /// Data messages dropped for it (its queue was full).
     pub dropped: u64,
+    /// Bytes waiting in its queue now (bounded by `/server/client_queue_bytes`).
+    #[serde(default)]
+    pub queued_bytes: u64,
     /// DSP done → handed to its socket, demodulator messages (ns).
     pub dsp_to_socket: LatencySummary,
     /// Synthesised → handed to its socket, demodulator messages (ns).
