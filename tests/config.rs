@@ -2027,8 +2027,8 @@ fn every_node_round_trips_through_set() {
 fn list_entries_have_the_protocol_fields() {
     let nodes = default_settings().nodes();
     assert_eq!(nodes.len(), registry().len());
-    // 50 scalar nodes, 8 inclusions of 10 nodes, 32 demodulators of 5.
-    assert_eq!(nodes.len(), 50 + 8 * 10 + 32 * 5);
+    // 52 scalar nodes, 8 inclusions of 10 nodes, 32 demodulators of 5.
+    assert_eq!(nodes.len(), 52 + 8 * 10 + 32 * 5);
     let entry = serde_json::to_value(&nodes[0]).unwrap();
     let keys: BTreeSet<&str> = entry
         .as_object()
@@ -2171,7 +2171,7 @@ fn nodes_under_matches_whole_segments() {
     assert_eq!(s.nodes_under("/noise").len(), 5);
     assert_eq!(s.nodes_under("/spectrum").len(), 4);
     assert_eq!(s.nodes_under("/scope").len(), 4);
-    assert_eq!(s.nodes_under("/server").len(), 4);
+    assert_eq!(s.nodes_under("/server").len(), 6);
     let paths: Vec<String> = s
         .nodes_under("/inversion")
         .into_iter()
