@@ -65,6 +65,11 @@ enum Command {
             allow_negative_numbers = true
         )]
         inhomogeneity_factor: f64,
+        /// The engine: "paper" (the 1-DOF method) or "coupled" (all modes, contact from the
+        /// tip position, physics.md §6); default: the configured /synth/engine. Without
+        /// --json both are shown side by side.
+        #[arg(long, value_name = "ENGINE")]
+        engine: Option<String>,
         /// Print exactly one JSON object on stdout instead of tables.
         #[arg(long)]
         json: bool,
@@ -226,8 +231,9 @@ fn main() -> ExitCode {
         Command::Paper {
             config,
             inhomogeneity_factor,
+            engine,
             json,
-        } => run_paper(&config, inhomogeneity_factor, json),
+        } => run_paper(&config, inhomogeneity_factor, engine.as_deref(), json),
         Command::Info { config } => run_info(&config),
         Command::Presets { json } => run_presets(json),
         Command::Scan {
@@ -257,8 +263,22 @@ fn main() -> ExitCode {
     result.unwrap_or_else(|code| code)
 }
 
-fn run_paper(config: &ConfigArg, factor: f64, json: bool) -> Result<ExitCode, ExitCode> {
+fn run_paper(
+    config: &ConfigArg,
+    factor: f64,
+    engine: Option<&str>,
+    json: bool,
+) -> Result<ExitCode, ExitCode> {
     let settings = load(config)?;
+    let engine = match engine {
+        None => settings.synth.engine,
+        Some(name) => config::Engine::from_name(name).ok_or_else(|| {
+            eprintln!(
+                "ftafm: --engine = {name:?} is not an engine: allowed \"paper\", \"coupled\""
+            );
+            ExitCode::from(EXIT_USAGE)
+        })?,
+    };
     let modulus = settings.sample.youngs_modulus * factor;
     if !(factor.is_finite() && factor > 0.0 && modulus <= config::MAX_YOUNGS_MODULUS) {
         eprintln!(
@@ -269,17 +289,31 @@ fn run_paper(config: &ConfigArg, factor: f64, json: bool) -> Result<ExitCode, Ex
         );
         return Err(ExitCode::from(EXIT_USAGE));
     }
-    let report = paper::compute(&settings, factor).map_err(|e| {
-        eprintln!("ftafm: {e}");
-        ExitCode::FAILURE
-    })?;
+    let computed = |engine| {
+        paper::compute_with(&settings, factor, engine).map_err(|e| {
+            eprintln!("ftafm: {e}");
+            ExitCode::FAILURE
+        })
+    };
+    let report = computed(engine)?;
     if json {
         let text =
             serde_json::to_string(&report).expect("the report has no maps with non-string keys");
         println!("{text}");
     } else {
         let paper_case = paper::is_paper_case(&settings) && factor == 0.9;
+        println!("Engine: {}", report.engine);
         print!("{}", paper::render_text(&report, paper_case));
+        let other = computed(match engine {
+            config::Engine::Paper => config::Engine::Coupled,
+            config::Engine::Coupled => config::Engine::Paper,
+        })?;
+        let (p, c) = match engine {
+            config::Engine::Paper => (&report, &other),
+            config::Engine::Coupled => (&other, &report),
+        };
+        println!();
+        print!("{}", paper::render_engines(p, c));
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 
 use serde::Serialize;
 
-use crate::config::{Material, Settings};
+use crate::config::{Engine, Material, Settings};
 use crate::model::{cantilever, impact_oscillator};
 use crate::physics::beam::BeamError;
 use crate::physics::impact::ImpactError;
@@ -26,6 +26,12 @@ pub enum PaperError {
     Impact {
         material: &'static str,
         source: ImpactError,
+    },
+    /// The coupled orbit could not be found.
+    #[error("coupled model for {material}: {source}")]
+    Coupled {
+        material: &'static str,
+        source: crate::physics::CoupledError,
     },
 }
 
@@ -71,9 +77,16 @@ pub struct MaterialRow {
     pub tapping_amplitude: f64,
     /// Drive phase of the force peak (rad).
     pub pulse_phase: f64,
-    /// Photodiode spectrum of the tap force alone (cut cosine of this F and τ), peak
-    /// amplitudes in nominal metres, harmonics 0..=[`MAX_HARMONIC`].
+    /// Photodiode spectrum of the tap force alone (paper engine: the cut cosine of this F
+    /// and τ; coupled engine: the simulated force), peak amplitudes in nominal metres,
+    /// harmonics 0..=[`MAX_HARMONIC`].
     pub spectrum: Vec<Harmonic>,
+    /// Coupled engine only: the periodic orbit's scaled shooting residual (1).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub residual: Option<f64>,
+    /// Coupled engine only: whether the orbit is a stable period-1 orbit.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub period_one: Option<bool>,
 }
 
 /// Relative contrast at one harmonic.
@@ -88,6 +101,8 @@ pub struct ContrastRow {
 /// The whole report; serialises to the JSON of `ftafm paper --json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct PaperReport {
+    /// The engine that computed it: "paper" (the 1-DOF method) or "coupled" (§6).
+    pub engine: &'static str,
     /// The cantilever's modes.
     pub modes: Vec<ModeRow>,
     /// The sample, then the inhomogeneity.
@@ -127,13 +142,68 @@ fn material_row(
         tapping_amplitude: solution.tapping_amplitude,
         pulse_phase: solution.pulse_phase,
         spectrum,
+        residual: None,
+        period_one: None,
     };
     Ok((row, solution))
+}
+
+/// The row of `material` from the coupled periodic orbit (physics.md §6).
+fn coupled_row(
+    name: &'static str,
+    material: Material,
+    settings: &Settings,
+    cantilever: &Cantilever,
+) -> Result<MaterialRow, PaperError> {
+    let oscillator = impact_oscillator(settings, cantilever, material);
+    let problem = crate::physics::CoupledProblem::new(
+        cantilever,
+        settings.drive.frequency,
+        settings.drive.free_amplitude,
+        settings.surface.distance,
+        oscillator.contact,
+    );
+    let orbit = problem
+        .solve(MAX_HARMONIC)
+        .map_err(|source| PaperError::Coupled {
+            material: name,
+            source,
+        })?;
+    let spectrum = photodiode_spectrum(
+        cantilever,
+        settings.drive.frequency,
+        &orbit.force_coefficients,
+    );
+    Ok(MaterialRow {
+        name,
+        youngs_modulus: material.youngs_modulus,
+        poisson: material.poisson,
+        max_force: orbit.max_force,
+        max_pressure: oscillator.contact.max_pressure(orbit.max_force),
+        contact_time_ratio: orbit.contact_time_ratio,
+        phase_shift_deg: orbit.phase_shift_deg(),
+        max_indentation: orbit.max_indentation,
+        contact_fraction: orbit.contact_fraction,
+        tapping_amplitude: orbit.tapping_amplitude,
+        pulse_phase: orbit.pulse_phase,
+        spectrum,
+        residual: Some(orbit.residual),
+        period_one: Some(orbit.period_one),
+    })
 }
 
 /// Computes the report for `settings` and an inhomogeneity whose Young's modulus is
 /// `inhomogeneity_factor` times the sample's (same Poisson ratio).
 pub fn compute(settings: &Settings, inhomogeneity_factor: f64) -> Result<PaperReport, PaperError> {
+    compute_with(settings, inhomogeneity_factor, Engine::Paper)
+}
+
+/// [`compute`] with the engine given: the paper's 1-DOF method or the coupled orbit.
+pub fn compute_with(
+    settings: &Settings,
+    inhomogeneity_factor: f64,
+    engine: Engine,
+) -> Result<PaperReport, PaperError> {
     let cantilever = cantilever(settings)?;
     let modes = cantilever
         .modes
@@ -151,14 +221,23 @@ pub fn compute(settings: &Settings, inhomogeneity_factor: f64) -> Result<PaperRe
         youngs_modulus: settings.sample.youngs_modulus * inhomogeneity_factor,
         ..settings.sample
     };
-    let (sample, _) = material_row("sample", settings.sample, settings, &cantilever)?;
-    let (inh, _) = material_row("inhomogeneity", inhomogeneity, settings, &cantilever)?;
+    let (sample, inh) = match engine {
+        Engine::Paper => (
+            material_row("sample", settings.sample, settings, &cantilever)?.0,
+            material_row("inhomogeneity", inhomogeneity, settings, &cantilever)?.0,
+        ),
+        Engine::Coupled => (
+            coupled_row("sample", settings.sample, settings, &cantilever)?,
+            coupled_row("inhomogeneity", inhomogeneity, settings, &cantilever)?,
+        ),
+    };
     let contrast = relative_contrast(&sample.spectrum, &inh.spectrum)
         .into_iter()
         .enumerate()
         .map(|(harmonic, relative)| ContrastRow { harmonic, relative })
         .collect();
     Ok(PaperReport {
+        engine: engine.name(),
         modes,
         materials: vec![sample, inh],
         contrast,
@@ -289,6 +368,95 @@ pub fn render_text(report: &PaperReport, paper_case: bool) -> String {
         let _ = writeln!(
             w,
             "  paper: H6 = 0.19 nm with |c_rel| = 0.3 %; H17, H18 about 0.025 nm with |c_rel| about 3 %"
+        );
+    }
+    out
+}
+
+/// The two engines side by side, with their difference: where the paper's 1-DOF method
+/// holds and where it parts from the coupled orbit (physics.md §6).
+pub fn render_engines(paper: &PaperReport, coupled: &PaperReport) -> String {
+    let mut out = String::new();
+    let w = &mut out;
+    let pct = |c: f64, p: f64| {
+        if p != 0.0 {
+            format!("{:+.2} %", 100.0 * (c / p - 1.0))
+        } else {
+            "–".to_owned()
+        }
+    };
+    let _ = writeln!(
+        w,
+        "Engines side by side: paper (1-DOF impact oscillator, the paper's method) and coupled\n\
+         (all modes, Hertz force from the instantaneous tip position, periodic orbit by shooting)"
+    );
+    let _ = writeln!(
+        w,
+        "  {:<14} {:<10} {:>12} {:>12} {:>11}",
+        "material", "quantity", "paper", "coupled", "difference"
+    );
+    for (p, c) in paper.materials.iter().zip(&coupled.materials) {
+        let rows = [
+            ("F (nN)", p.max_force * 1e9, c.max_force * 1e9, true),
+            ("tau", p.contact_time_ratio, c.contact_time_ratio, true),
+            ("theta (deg)", p.phase_shift_deg, c.phase_shift_deg, false),
+            (
+                "d (nm)",
+                p.max_indentation * 1e9,
+                c.max_indentation * 1e9,
+                true,
+            ),
+        ];
+        for (q, a, b, relative) in rows {
+            let diff = if relative {
+                pct(b, a)
+            } else {
+                format!("{:+.3}", b - a)
+            };
+            let _ = writeln!(
+                w,
+                "  {:<14} {:<10} {:>12.5} {:>12.5} {:>11}",
+                p.name, q, a, b, diff
+            );
+        }
+        if let (Some(r), Some(one)) = (c.residual, c.period_one) {
+            let _ = writeln!(
+                w,
+                "  {:<14} coupled orbit: shooting residual {r:.1e}, {}",
+                p.name,
+                if one {
+                    "period 1, stable"
+                } else {
+                    "NOT a stable period-1 orbit"
+                }
+            );
+        }
+    }
+    let _ = writeln!(w);
+    let _ = writeln!(
+        w,
+        "  {:>3} {:>14} {:>14} {:>11} {:>12} {:>12}",
+        "k", "paper (nm)", "coupled (nm)", "difference", "c_rel paper", "c_rel coupl."
+    );
+    let (ps, cs) = (&paper.materials[0].spectrum, &coupled.materials[0].spectrum);
+    for (((hp, hc), cp), cc) in ps
+        .iter()
+        .zip(cs)
+        .zip(&paper.contrast)
+        .zip(&coupled.contrast)
+    {
+        if hp.harmonic == 0 {
+            continue;
+        }
+        let _ = writeln!(
+            w,
+            "  {:>3} {:>14.6} {:>14.6} {:>11} {:>10.3} % {:>10.3} %",
+            hp.harmonic,
+            hp.amplitude * 1e9,
+            hc.amplitude * 1e9,
+            pct(hc.amplitude, hp.amplitude),
+            cp.relative * 100.0,
+            cc.relative * 100.0
         );
     }
     out

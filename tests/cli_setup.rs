@@ -285,3 +285,37 @@ fn sigterm_with_1500_half_open_connections_exits_cleanly() {
     );
     assert_eq!(status.code(), Some(0), "{status:?}");
 }
+
+/// `ftafm paper --engine coupled` prints the same schema from the coupled orbit, with its
+/// residual and period; the text shows both engines side by side.
+#[test]
+fn paper_reports_either_engine_and_both_side_by_side() {
+    let out = ftafm(&["paper", "--engine", "coupled", "--json"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let coupled: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let out = ftafm(&["paper", "--json"]);
+    let paper: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(coupled["engine"], "coupled");
+    assert_eq!(paper["engine"], "paper");
+    let (c, p) = (&coupled["materials"][0], &paper["materials"][0]);
+    // The same keys (the coupled rows add their orbit's residual and period).
+    for key in p.as_object().unwrap().keys() {
+        assert!(c.get(key).is_some(), "coupled lacks {key}");
+    }
+    assert_eq!(c["period_one"], true);
+    assert!(c["residual"].as_f64().unwrap() < 1e-9);
+    // §6: in the paper's case they agree to about a per cent in F.
+    let rel = c["max_force"].as_f64().unwrap() / p["max_force"].as_f64().unwrap() - 1.0;
+    assert!(rel.abs() < 0.015, "F differs by {rel}");
+    let out = ftafm(&["paper"]);
+    let stdout = text(&out.stdout);
+    assert!(stdout.contains("Engines side by side"), "{stdout}");
+    assert!(stdout.contains("period 1, stable"), "{stdout}");
+    let out = ftafm(&["paper", "--engine", "fast"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        text(&out.stderr).contains("--engine"),
+        "{}",
+        text(&out.stderr)
+    );
+}

@@ -3,6 +3,7 @@
 
 pub mod beam;
 pub mod contact;
+pub mod coupled;
 pub mod impact;
 pub mod inversion;
 pub mod sample_map;
@@ -10,6 +11,7 @@ pub mod spectrum;
 
 pub use beam::{Cantilever, Mode};
 pub use contact::{Elastic, HertzContact};
+pub use coupled::{CoupledError, CoupledOrbit, CoupledProblem};
 pub use impact::{ImpactOscillator, ImpactSolution, SolveOptions};
 pub use sample_map::{Outline, Region, SampleMap};
 pub use spectrum::Harmonic;
