@@ -199,6 +199,8 @@ window.ftafm = {
     return m ? m.r : null;
   },
   contrast: () => contrast.values(),
+  /** Which contrasts are outside the noise, and the contrast axis' half range (%). */
+  contrastResolved: () => contrast.resolved(),
   /** 0.5 s means of the FT-AFM estimates: { E (Pa), F (N), tau, latest message }. */
   force: () => force.values(),
   /** The scan image: channel, frame, line, colour range, the region's statistics. */

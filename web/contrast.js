@@ -165,6 +165,7 @@ export class ContrastPanel {
     let m = 0;
     if (this.hasRef) for (let k = 1; k <= K; k++) if (isFinite(this.c[k]) && this.reliable(k)) m = Math.max(m, Math.abs(this.c[k]) * 100);
     const top = m > 0 ? (STEPS.find((s) => s >= m * 1.1) ?? STEPS[STEPS.length - 1]) : 1;
+    this.axis = top;
     p.opts.y.ticks = null;
     p.begin([0.4, K + 0.6], [-top, top]);
     p.hline(0, "#7d838d");
@@ -202,5 +203,13 @@ export class ContrastPanel {
     const out = {};
     for (let k = 1; k <= K; k++) if (isFinite(this.c[k])) out[k] = this.c[k];
     return out;
+  }
+
+  /** For tests: {k: true} where c_rel is outside the noise (drawn in colour, not grey), and
+   * the axis' half range (%). */
+  resolved() {
+    const out = {};
+    for (let k = 1; k <= K; k++) if (isFinite(this.c[k])) out[k] = this.reliable(k);
+    return { reliable: out, axis: this.axis };
   }
 }

@@ -928,6 +928,8 @@ export class ImagePanel {
       frame: f?.frame ?? null,
       line: f?.lastLine ?? null,
       lines: f?.nRows ?? 0,
+      // The last finished frame: its identity and how many of its lines arrived.
+      lastFrame: this.last ? { generation: this.last.generation, frame: this.last.frame, pixels: this.last.pixels, lines: this.last.nRows } : null,
       pixels: f?.pixels ?? null,
       framesFinished: this.framesFinished,
       exportable: this.exportable,

@@ -86,6 +86,9 @@ pub struct Assembler {
     finished: Option<ImageFrame>,
     /// Pixels whose inversion failed (their FT-AFM channels are NaN).
     pub inversion_failed: u64,
+    /// Pixels of a raster of another size than the one configured (in flight across a
+    /// change of `/scan/pixels`), dropped.
+    pub misplaced: u64,
 }
 
 impl Assembler {
@@ -105,6 +108,7 @@ impl Assembler {
             current: None,
             finished: None,
             inversion_failed: 0,
+            misplaced: 0,
         };
         a.configure(settings);
         a
@@ -119,6 +123,11 @@ impl Assembler {
             0,
             0,
         );
+        // A frame opened under another geometry cannot take this one's pixels (its channels
+        // are sized for the old pixel count): the next pixel opens a fresh frame.
+        if raster.pixels != self.pixels {
+            self.current = None;
+        }
         self.pixels = raster.pixels;
         self.size = raster.size;
         self.origin = (
@@ -177,6 +186,11 @@ impl Assembler {
         let topo = rest.remove(&(p.generation, id.serial));
         self.topography = rest;
         if id.retrace {
+            return None;
+        }
+        if id.line >= self.pixels || id.column >= self.pixels {
+            // A pixel of the raster before (or after) a change of size: it has no place here.
+            self.misplaced += 1;
             return None;
         }
         let n = self.pixels as usize;

@@ -49,7 +49,8 @@ fn distribute(
     };
     let (mut json, mut binary) = (Some(json), Some(binary));
     let max_bytes = state.queue_bytes.load(Ordering::Relaxed);
-    let exempt = stream == StreamKind::Status;
+    // Scan lines and status are small and rare: they take the lane, never lost behind bulk.
+    let lane = matches!(stream, StreamKind::Status | StreamKind::Image);
     let (mut text_msg, mut bin_msg): (Option<Message>, Option<Message>) = (None, None);
     for client in clients.iter() {
         let Some(format) = client.format(s) else {
@@ -69,7 +70,7 @@ fn distribute(
                 })
                 .clone(),
         };
-        match client.data.offer(msg, stamps, max_bytes, exempt) {
+        match client.data.offer(msg, stamps, max_bytes, lane) {
             Ok(()) => {
                 state.streams[s].sent.fetch_add(1, Ordering::Relaxed);
             }

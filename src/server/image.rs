@@ -98,10 +98,13 @@ impl ImageLink {
                         Input::Reconfigure => {}
                         Input::Topography(t) => assembler.topography(t),
                         Input::Pixel(p) => {
-                            let before = assembler.inversion_failed;
+                            let (before, misplaced) =
+                                (assembler.inversion_failed, assembler.misplaced);
                             let lines = assembler.pixel(&p);
                             let failed = assembler.inversion_failed - before;
                             c.inversion_failed.fetch_add(failed, Ordering::Relaxed);
+                            c.dropped
+                                .fetch_add(assembler.misplaced - misplaced, Ordering::Relaxed);
                             for line in lines {
                                 c.lines.fetch_add(1, Ordering::Relaxed);
                                 if let Some(frame) = assembler.take_finished() {

@@ -95,39 +95,57 @@ fn payload_bytes(msg: &Message) -> usize {
     }
 }
 
+/// Messages the lane of a client holds: scan lines (a 1024-line frame) and status.
+const LANE: usize = 4096;
+
 /// A client's queue of data messages, bounded in messages and in bytes (a slow client loses
-/// its own, never anyone else's and never the pipeline's).
+/// its own, never anyone else's and never the pipeline's), and beside it a lane for the
+/// small, rare messages that must not be lost behind bulk data: scan lines and status.
 pub(crate) struct DataQueue {
     tx: mpsc::Sender<Outgoing>,
+    lane: mpsc::Sender<Outgoing>,
     bytes: Arc<AtomicUsize>,
 }
 
 /// The writer's end of a [`DataQueue`].
 pub(crate) struct DataReceiver {
     rx: mpsc::Receiver<Outgoing>,
+    lane: mpsc::Receiver<Outgoing>,
     bytes: Arc<AtomicUsize>,
 }
 
 impl DataReceiver {
-    /// The next message; its bytes leave the queue's count.
+    /// The next message, the lane's first; its bytes leave the queue's count.
     pub async fn recv(&mut self) -> Option<Outgoing> {
-        let o = self.rx.recv().await?;
+        let o = tokio::select! {
+            biased;
+            Some(o) = self.lane.recv() => o,
+            Some(o) = self.rx.recv() => o,
+            else => return None,
+        };
         self.bytes.fetch_sub(o.size, Ordering::Relaxed);
         Some(o)
     }
 }
 
 impl DataQueue {
-    /// A queue of `capacity` messages and its receiving end (the session's writer).
+    /// A queue of `capacity` messages, its lane, and their receiving end (the session's
+    /// writer).
     pub fn new(capacity: usize) -> (Self, DataReceiver) {
         let (tx, rx) = mpsc::channel(capacity);
+        let (lane_tx, lane_rx) = mpsc::channel(LANE);
         let bytes = Arc::new(AtomicUsize::new(0));
         (
             Self {
                 tx,
+                lane: lane_tx,
                 bytes: bytes.clone(),
             },
-            DataReceiver { rx, bytes },
+            DataReceiver {
+                rx,
+                lane: lane_rx,
+                bytes,
+            },
         )
     }
 
@@ -138,30 +156,29 @@ impl DataQueue {
 
     /// Queues `msg` with `stamps` without waiting. A full queue refuses it: all its
     /// messages, or `max_bytes` (unless the queue is empty, so one message larger than the
-    /// bound still goes, or `exempt`: the small `status` messages must never starve behind
-    /// spectra).
+    /// bound still goes). Messages for the `lane` (scan lines, status) bypass both bounds up
+    /// to the lane's own [`LANE`] messages, so they never starve behind spectra.
     pub fn offer(
         &self,
         msg: Message,
         stamps: Stamps,
         max_bytes: usize,
-        exempt: bool,
+        lane: bool,
     ) -> Result<(), TrySendError<Message>> {
         let size = payload_bytes(&msg);
         let queued = self.bytes.load(Ordering::Relaxed);
-        if !exempt && queued > 0 && queued.saturating_add(size) > max_bytes {
+        if !lane && queued > 0 && queued.saturating_add(size) > max_bytes {
             return Err(TrySendError::Full(msg));
         }
         self.bytes.fetch_add(size, Ordering::Relaxed);
-        self.tx
-            .try_send(Outgoing { msg, stamps, size })
-            .map_err(|e| {
-                self.bytes.fetch_sub(size, Ordering::Relaxed);
-                match e {
-                    TrySendError::Full(o) => TrySendError::Full(o.msg),
-                    TrySendError::Closed(o) => TrySendError::Closed(o.msg),
-                }
-            })
+        let queue = if lane { &self.lane } else { &self.tx };
+        queue.try_send(Outgoing { msg, stamps, size }).map_err(|e| {
+            self.bytes.fetch_sub(size, Ordering::Relaxed);
+            match e {
+                TrySendError::Full(o) => TrySendError::Full(o.msg),
+                TrySendError::Closed(o) => TrySendError::Closed(o.msg),
+            }
+        })
     }
 }
 
