@@ -131,3 +131,60 @@ async fn demodulators_out_of_band_are_named_and_silent_and_follow_the_drive() {
     assert_eq!(harmonics(&frame), (1..=19).collect());
     d.shutdown().await;
 }
+
+/// A preset loads at runtime as one change: the lever's nodes together, the drive following
+/// its f1, the inclusions following a new sample; an unknown name changes nothing.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn presets_load_while_running() {
+    let mut s = default_settings();
+    s.synth.sample_rate = 2e6;
+    s.spectrum.size = 4096;
+    for d in &mut s.demods {
+        d.rate = 200.0;
+    }
+    let d = Daemon::start(s).await;
+    let mut ws = connect(d.addr).await;
+    let list = call(&mut ws, json!({"id": 1, "op": "presets"})).await;
+    let names: Vec<&str> = list["presets"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["name"].as_str().unwrap())
+        .collect();
+    assert!(
+        names.contains(&"tap300") && names.contains(&"polystyrene"),
+        "{list}"
+    );
+    let r = call(&mut ws, json!({"id": 2, "op": "preset", "name": "tap150"})).await;
+    assert_eq!(r["ok"], true, "{r}");
+    assert_eq!(r["kind"], "cantilever");
+    let get = |path: &'static str| json!({"id": 3, "op": "get", "path": path});
+    assert_eq!(call(&mut ws, get("/cantilever/f1")).await["value"], 150e3);
+    assert_eq!(call(&mut ws, get("/drive/frequency")).await["value"], 150e3);
+    assert_eq!(call(&mut ws, get("/cantilever/k")).await["value"], 5.0);
+    let r = call(
+        &mut ws,
+        json!({"id": 4, "op": "preset", "name": "polystyrene"}),
+    )
+    .await;
+    assert_eq!(r["ok"], true, "{r}");
+    assert_eq!(
+        call(&mut ws, get("/sample/youngs_modulus")).await["value"],
+        3.2e9
+    );
+    assert_eq!(
+        call(&mut ws, get("/inclusions/0/youngs_modulus")).await["value"],
+        0.9 * 3.2e9
+    );
+    let r = call(&mut ws, json!({"id": 5, "op": "preset", "name": "tap3000"})).await;
+    assert_eq!(code(&r), "invalid_value", "{r}");
+    assert!(
+        r["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("tap300, tap150"),
+        "{r}"
+    );
+    assert_eq!(call(&mut ws, get("/cantilever/f1")).await["value"], 150e3);
+    d.shutdown().await;
+}

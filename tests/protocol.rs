@@ -331,13 +331,24 @@ fn every_op_parses() {
 fn op_names_match_parsing() {
     assert_eq!(
         Op::NAMES,
-        ["hello", "list", "get", "set", "subscribe", "unsubscribe"]
+        [
+            "hello",
+            "list",
+            "get",
+            "set",
+            "presets",
+            "preset",
+            "subscribe",
+            "unsubscribe"
+        ]
     );
     let ops = [
         r#"{"op":"hello"}"#,
         r#"{"op":"list"}"#,
         r#"{"op":"get","path":"/a"}"#,
         r#"{"op":"set","path":"/a","value":1}"#,
+        r#"{"op":"presets"}"#,
+        r#"{"op":"preset","name":"tap300"}"#,
         r#"{"op":"subscribe","stream":"demods"}"#,
         r#"{"op":"unsubscribe","stream":"demods"}"#,
     ];

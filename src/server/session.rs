@@ -301,6 +301,40 @@ async fn respond(
             let (path, applied) = result?;
             Ok(fields(json!({ "path": path, "value": applied })))
         }
+        Op::Presets => Ok(fields(json!({ "presets": crate::config::PRESETS
+            .iter()
+            .map(|p| json!({ "name": p.name, "kind": p.kind, "summary": p.summary() }))
+            .collect::<Vec<_>>() }))),
+        Op::Preset { name } => {
+            let state = state.clone();
+            tokio::task::spawn_blocking(move || {
+                let preset = crate::config::preset(&name).map_err(|e| ProtocolError {
+                    code: ErrorCode::InvalidValue,
+                    message: e.to_string(),
+                })?;
+                let mut control = state
+                    .control
+                    .lock()
+                    .map_err(|_| internal("control lock poisoned"))?;
+                let origin = format!("preset {}", preset.name);
+                let next =
+                    crate::config::overlay_str(control.settings.clone(), preset.toml, &origin)
+                        .map_err(|e| ProtocolError {
+                            code: ErrorCode::InvalidValue,
+                            message: e.to_string(),
+                        })?;
+                control.replace(next, &origin)?;
+                state.force.rebuild(control.settings.clone());
+                state.image.configure(&control.settings);
+                Ok::<_, ProtocolError>(fields(json!({
+                    "preset": preset.name,
+                    "kind": preset.kind,
+                    "warnings": control.settings.warnings(),
+                })))
+            })
+            .await
+            .map_err(|_| internal("the settings task failed"))?
+        }
         Op::Subscribe { stream, format } => {
             client.subscribe(stream, format);
             let next_seq = state.streams[super::state::stream_index(stream)]

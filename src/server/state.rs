@@ -38,6 +38,25 @@ pub(crate) struct Control {
 }
 
 impl Control {
+    /// Applies whole new settings (already validated), e.g. a preset; `what` names the
+    /// change in errors. On error nothing changes.
+    pub fn replace(&mut self, next: Settings, what: &str) -> Result<(), ProtocolError> {
+        if let Some(p) = &mut self.pipeline {
+            p.apply(&next).map_err(|e| match e {
+                PipelineError::Busy => ProtocolError {
+                    code: ErrorCode::Busy,
+                    message: format!("{what}: {e}; retry shortly"),
+                },
+                other => ProtocolError {
+                    code: ErrorCode::InvalidValue,
+                    message: format!("{what}: {other}"),
+                },
+            })?;
+        }
+        self.settings = next;
+        Ok(())
+    }
+
     /// Validates and applies one node change; on error nothing changes.
     pub fn set(&mut self, path: &str, value: &Value) -> Result<Value, ProtocolError> {
         let mut next = self.settings.clone();

@@ -33,6 +33,13 @@ pub enum Op {
         /// JSON text frames (default) or binary frames.
         format: Format,
     },
+    /// The presets (real cantilevers and samples) the instrument can load.
+    Presets,
+    /// Load a preset: its nodes change together, as one transactional set.
+    Preset {
+        /// The preset's name (`ftafm presets`).
+        name: String,
+    },
     /// Stop a stream for this client.
     Unsubscribe {
         /// Which stream.
@@ -42,8 +49,16 @@ pub enum Op {
 
 impl Op {
     /// Every op's name, as a request spells it.
-    pub const NAMES: [&'static str; 6] =
-        ["hello", "list", "get", "set", "subscribe", "unsubscribe"];
+    pub const NAMES: [&'static str; 8] = [
+        "hello",
+        "list",
+        "get",
+        "set",
+        "presets",
+        "preset",
+        "subscribe",
+        "unsubscribe",
+    ];
 
     /// This op's name, as a request spells it.
     pub const fn name(&self) -> &'static str {
@@ -52,6 +67,8 @@ impl Op {
             Op::List { .. } => "list",
             Op::Get { .. } => "get",
             Op::Set { .. } => "set",
+            Op::Presets => "presets",
+            Op::Preset { .. } => "preset",
             Op::Subscribe { .. } => "subscribe",
             Op::Unsubscribe { .. } => "unsubscribe",
         }
@@ -139,6 +156,15 @@ fn parse_op(fields: &Map<String, Value>) -> Result<Op, ProtocolError> {
             })?;
             Ok(Op::Set { path, value })
         }
+        "presets" => Ok(Op::Presets),
+        "preset" => match fields.get("name") {
+            Some(Value::String(name)) => Ok(Op::Preset { name: name.clone() }),
+            _ => Err(bad(
+                "op \"preset\" needs field \"name\", a string: one of the presets the op \
+                 \"presets\" lists (e.g. \"tap300\")"
+                    .to_owned(),
+            )),
+        },
         "subscribe" => Ok(Op::Subscribe {
             stream: stream(fields, op)?,
             format: format(fields)?,
