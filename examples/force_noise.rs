@@ -345,7 +345,9 @@ async fn main() {
         }
         let mut s = settings.clone();
         s.sample.youngs_modulus = modulus;
-        let paper = &ftafm::paper::compute(&s, 1.0).expect("paper").materials[0];
+        let paper = &ftafm::cli::paper::compute(&s, 1.0)
+            .expect("paper")
+            .materials[0];
         let (e_mean, e_std) = stats(&e);
         let (t_mean, t_std) = stats(&tau);
         let (f_mean, f_std) = stats(&f);

@@ -92,7 +92,7 @@ fn the_silicon_case_agrees_with_the_paper_engine_within_a_few_per_cent() {
     let s = default_settings();
     let orbit = problem(&s).solve(32).unwrap();
     check_invariants(&s, &orbit);
-    let report = ftafm::paper::compute(&s, 0.9).unwrap();
+    let report = ftafm::cli::paper::compute(&s, 0.9).unwrap();
     let paper = &report.materials[0];
     let rel = |a: f64, b: f64| a / b - 1.0;
     eprintln!(
@@ -130,7 +130,7 @@ fn hard_tapping_parts_from_the_paper_engine_at_the_high_harmonics() {
     s.surface.distance = 10e-9;
     let orbit = problem(&s).solve(32).unwrap();
     check_invariants(&s, &orbit);
-    let report = ftafm::paper::compute(&s, 0.9).unwrap();
+    let report = ftafm::cli::paper::compute(&s, 0.9).unwrap();
     let paper = &report.materials[0];
     for k in [17, 18] {
         let (c, p) = (orbit.spectrum[k], paper.spectrum[k].amplitude);

@@ -1180,7 +1180,9 @@ fn the_estimator_at_1khz_without_noise_recovers_tau_force_and_modulus() {
         settings.noise.enable = false;
         settings.sample.youngs_modulus = modulus;
         let frames = chain_frames(&settings, 0.02, 0.01);
-        let paper = &ftafm::paper::compute(&settings, 1.0).unwrap().materials[0];
+        let paper = &ftafm::cli::paper::compute(&settings, 1.0)
+            .unwrap()
+            .materials[0];
         for method in [InversionMethod::Full, InversionMethod::TwoHarmonic] {
             settings.inversion.method = method;
             let mut estimator = ForceEstimator::new(&settings).unwrap().unwrap();

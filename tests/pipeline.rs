@@ -2,8 +2,8 @@
 
 use std::time::{Duration, Instant};
 
+use ftafm::cli::paper;
 use ftafm::config::{Settings, default_settings};
-use ftafm::paper;
 use ftafm::pipeline::{DemodFrame, Pipeline, PipelineOutput};
 use ringbuf::traits::Consumer;
 

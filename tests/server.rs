@@ -482,7 +482,7 @@ async fn a_softer_sample_lowers_the_high_harmonics() {
     }
     let after = harmonic_amplitude(&mut ws, h17, 20).await;
     // physics: the 10 % softer inhomogeneity lowers H17 by ≈ 2.7 % (`ftafm paper`).
-    let report = ftafm::paper::compute(&settings, 0.9).unwrap();
+    let report = ftafm::cli::paper::compute(&settings, 0.9).unwrap();
     let (expect_before, expect_after) = (
         report.materials[0].spectrum[17].amplitude,
         report.materials[1].spectrum[17].amplitude,
@@ -686,7 +686,7 @@ async fn the_force_stream_recovers_contact_time_force_and_modulus() {
                 let e = force_mean(&mut ws, 10, "youngs_modulus").await;
                 let mut s = settings.clone();
                 s.sample.youngs_modulus = modulus;
-                let paper = &ftafm::paper::compute(&s, 1.0).unwrap().materials[0];
+                let paper = &ftafm::cli::paper::compute(&s, 1.0).unwrap().materials[0];
                 let (dt, df, de) = (
                     tau / paper.contact_time_ratio - 1.0,
                     force / paper.max_force - 1.0,

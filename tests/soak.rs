@@ -3,8 +3,8 @@
 
 use std::process::{Command, Output};
 
+use ftafm::cli::soak::{SoakOptions, SoakReport};
 use ftafm::config::{Settings, default_settings};
-use ftafm::soak::{SoakOptions, SoakReport};
 use tokio::net::TcpListener;
 use tokio::sync::oneshot;
 
@@ -44,7 +44,9 @@ async fn eight_clients_for_twenty_seconds_lose_nothing() {
     let (clients, seconds, rate) = (8usize, 20.0, 1000.0);
     let options = SoakOptions::new(format!("ws://{addr}/ws"), clients, seconds);
     let mut ticks = 0;
-    let report = ftafm::soak::run(&options, |_| ticks += 1).await.unwrap();
+    let report = ftafm::cli::soak::run(&options, |_| ticks += 1)
+        .await
+        .unwrap();
     let _ = stop.send(());
     server.await.unwrap().unwrap();
 
@@ -52,7 +54,7 @@ async fn eight_clients_for_twenty_seconds_lose_nothing() {
     assert!(
         !report.lost_anything(),
         "{}",
-        ftafm::soak::render_text(&report)
+        ftafm::cli::soak::render_text(&report)
     );
     assert_eq!(report.gaps, 0, "{report:?}");
     assert_eq!(report.disconnects, 0, "{report:?}");
@@ -200,11 +202,11 @@ async fn eight_clients_for_twenty_seconds_lose_nothing() {
     }
     let back: SoakReport = serde_json::from_value(v).unwrap();
     assert_eq!(back, report);
-    assert!(ftafm::soak::render_text(&report).contains("growth"));
+    assert!(ftafm::cli::soak::render_text(&report).contains("growth"));
 
     // The HTML report: written, self-contained, with the figures and their data.
     let path = std::env::temp_dir().join(format!("ftafm-soak-test-{}.html", std::process::id()));
-    ftafm::soak::html::write(&report, &path).unwrap();
+    ftafm::cli::soak::html::write(&report, &path).unwrap();
     let page = std::fs::read_to_string(&path).unwrap();
     let _ = std::fs::remove_file(&path);
     assert!(page.starts_with("<!DOCTYPE html>"));
@@ -285,7 +287,7 @@ fn stalls_measures_the_machine_alone() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(0), "{stderr}");
     let stdout = String::from_utf8_lossy(&out.stdout);
-    let report: ftafm::soak::StallReport =
+    let report: ftafm::cli::soak::StallReport =
         serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
     assert!((1.4..3.0).contains(&report.seconds), "{report:?}");
     // About one nap a millisecond; at least a third of that whatever the machine does.

@@ -3,8 +3,8 @@
 
 use std::f64::consts::PI;
 
+use ftafm::cli::paper;
 use ftafm::config::{Settings, default_settings};
-use ftafm::paper;
 use ftafm::physics::spectrum::{cut_cosine_train, photodiode_transfer};
 use ftafm::synth::{BOLTZMANN, SynthPlan, SynthState};
 use rustfft::num_complex::Complex64;

@@ -542,7 +542,7 @@ pub fn render(r: &SoakReport) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::soak::{HistogramBin, TimelinePoint};
+    use crate::cli::soak::{HistogramBin, TimelinePoint};
 
     #[test]
     fn axes_and_durations() {

@@ -15,6 +15,7 @@
 pub mod html;
 
 use std::collections::BTreeMap;
+use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -27,6 +28,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 
+use super::EXIT_USAGE;
 use crate::pipeline::{StallEvent, StallMeter, unix_ns as now_ns};
 use crate::server::protocol::StreamKind;
 
@@ -1388,6 +1390,97 @@ pub fn render_text(r: &SoakReport) -> String {
         _ => format!("memory    {}\n", s.memory),
     };
     out
+}
+
+/// The command line.
+pub fn command(
+    url: String,
+    clients: i64,
+    seconds: f64,
+    streams: &str,
+    json: bool,
+    fail_on_loss: bool,
+    html: Option<std::path::PathBuf>,
+) -> Result<ExitCode, ExitCode> {
+    let usage = |message: String| {
+        eprintln!("ftafm: {message}");
+        ExitCode::from(EXIT_USAGE)
+    };
+    let clients = usize::try_from(clients)
+        .ok()
+        .filter(|&n| n <= crate::cli::soak::MAX_CLIENTS)
+        .ok_or_else(|| {
+            usage(format!(
+                "--clients = {clients} is out of range: allowed 1 ≤ N ≤ {}",
+                crate::cli::soak::MAX_CLIENTS
+            ))
+        })?;
+    let options = crate::cli::soak::SoakOptions {
+        url,
+        clients,
+        seconds,
+        streams: streams
+            .split(',')
+            .map(str::trim)
+            .filter(|s| !s.is_empty())
+            .map(String::from)
+            .collect(),
+    };
+    options.validate().map_err(|e| usage(e.to_string()))?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .thread_name("ftafm-soak")
+        .build()
+        .map_err(|e| {
+            eprintln!("ftafm: cannot start the async runtime: {e}");
+            ExitCode::FAILURE
+        })?;
+    let report = runtime
+        .block_on(crate::cli::soak::run(&options, |p| {
+            eprintln!(
+                "[{:>5.0} s] {} messages, gaps {}, disconnects {}, p99 {:.3} ms",
+                p.elapsed,
+                p.messages,
+                p.gaps,
+                p.disconnects,
+                p.p99_ns as f64 / 1e6
+            );
+        }))
+        .map_err(|e| match e {
+            crate::cli::soak::SoakError::InvalidOption { .. } => usage(e.to_string()),
+            _ => {
+                eprintln!("ftafm: {e}");
+                ExitCode::FAILURE
+            }
+        })?;
+    let html = html.unwrap_or_else(|| {
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs())
+            .unwrap_or(0);
+        std::env::temp_dir().join(format!("ftafm-soak-{now}.html"))
+    });
+    match crate::cli::soak::html::write(&report, &html) {
+        Ok(()) => eprintln!("ftafm: report written to {}", html.display()),
+        Err(e) => eprintln!("ftafm: cannot write the report {}: {e}", html.display()),
+    }
+    if json {
+        println!("{}", serde_json::to_string(&report).expect("plain numbers"));
+    } else {
+        print!("{}", crate::cli::soak::render_text(&report));
+    }
+    if fail_on_loss && report.lost_anything() {
+        eprintln!(
+            "ftafm: loss: {} seq gaps, {} overrun samples in {} blocks, {} late blocks",
+            report.gaps,
+            report.server.overruns,
+            report.server.overrun_blocks,
+            report.server.late_blocks
+        );
+        return Err(ExitCode::FAILURE);
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 #[cfg(test)]

@@ -2,9 +2,11 @@
 //! cantilever, tip and sample, and for a softer (or harder) inhomogeneity.
 
 use std::fmt::Write as _;
+use std::process::ExitCode;
 
 use serde::Serialize;
 
+use super::{ConfigArg, EXIT_USAGE, load};
 use crate::config::{Engine, Material, Settings};
 use crate::model::{cantilever, impact_oscillator};
 use crate::physics::beam::BeamError;
@@ -471,4 +473,60 @@ pub fn is_paper_case(settings: &Settings) -> bool {
         && settings.sample == d.sample
         && settings.drive == d.drive
         && settings.surface == d.surface
+}
+
+/// The command line.
+pub fn command(
+    config: &ConfigArg,
+    factor: f64,
+    engine: Option<&str>,
+    json: bool,
+) -> Result<ExitCode, ExitCode> {
+    let settings = load(config)?;
+    let engine = match engine {
+        None => settings.synth.engine,
+        Some(name) => crate::config::Engine::from_name(name).ok_or_else(|| {
+            eprintln!(
+                "ftafm: --engine = {name:?} is not an engine: allowed \"paper\", \"coupled\""
+            );
+            ExitCode::from(EXIT_USAGE)
+        })?,
+    };
+    let modulus = settings.sample.youngs_modulus * factor;
+    if !(factor.is_finite() && factor > 0.0 && modulus <= crate::config::MAX_YOUNGS_MODULUS) {
+        eprintln!(
+            "ftafm: --inhomogeneity-factor = {factor} is out of range: allowed 0 < F and \
+             F × /sample/youngs_modulus ({:e} Pa) ≤ {:e} Pa",
+            settings.sample.youngs_modulus,
+            crate::config::MAX_YOUNGS_MODULUS
+        );
+        return Err(ExitCode::from(EXIT_USAGE));
+    }
+    let computed = |engine| {
+        compute_with(&settings, factor, engine).map_err(|e| {
+            eprintln!("ftafm: {e}");
+            ExitCode::FAILURE
+        })
+    };
+    let report = computed(engine)?;
+    if json {
+        let text =
+            serde_json::to_string(&report).expect("the report has no maps with non-string keys");
+        println!("{text}");
+    } else {
+        let paper_case = is_paper_case(&settings) && factor == 0.9;
+        println!("Engine: {}", report.engine);
+        print!("{}", render_text(&report, paper_case));
+        let other = computed(match engine {
+            crate::config::Engine::Paper => crate::config::Engine::Coupled,
+            crate::config::Engine::Coupled => crate::config::Engine::Paper,
+        })?;
+        let (p, c) = match engine {
+            crate::config::Engine::Paper => (&report, &other),
+            crate::config::Engine::Coupled => (&other, &report),
+        };
+        println!();
+        print!("{}", render_engines(p, c));
+    }
+    Ok(ExitCode::SUCCESS)
 }

@@ -4,10 +4,12 @@
 //! gives the throughputs and the real-time factor. With `realtime` it is paced by the wall
 //! clock, as the daemon runs, which is the soak test: it must finish with zero overruns.
 
+use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
+use super::{ConfigArg, EXIT_USAGE, load, print_report};
 use crate::config::Settings;
 use crate::pipeline::{CountersSnapshot, Pipeline, PipelineError};
 
@@ -133,4 +135,32 @@ pub fn render_text(r: &BenchReport) -> String {
         c.spectrum_frames_dropped,
         c.ring_fill_max,
     )
+}
+
+/// The command line.
+pub fn command(
+    config: &ConfigArg,
+    seconds: f64,
+    realtime: bool,
+    json: bool,
+) -> Result<ExitCode, ExitCode> {
+    if !(seconds.is_finite() && seconds > 0.0 && seconds <= 86_400.0) {
+        eprintln!("ftafm: --seconds = {seconds} is out of range: allowed 0 < S ≤ 86400");
+        return Err(ExitCode::from(EXIT_USAGE));
+    }
+    let settings = load(config)?;
+    let report = crate::cli::bench::run(&settings, seconds, realtime, |t, c| {
+        eprintln!(
+            "[{t:>5.0} s] {:.1} M samples processed, overruns {}, ring {} samples",
+            c.samples_processed as f64 / 1e6,
+            c.overrun_samples,
+            c.ring_fill
+        );
+    })
+    .map_err(|e| {
+        eprintln!("ftafm: {e}");
+        ExitCode::FAILURE
+    })?;
+    print_report(json, &report, crate::cli::bench::render_text);
+    Ok(ExitCode::SUCCESS)
 }

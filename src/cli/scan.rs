@@ -3,11 +3,13 @@
 //! the contrast and contrast-to-noise ratio of each inclusion against the base material.
 
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 use std::time::Instant;
 
 use ringbuf::traits::Consumer;
 use serde::Serialize;
 
+use super::{ConfigArg, EXIT_USAGE, load, print_report};
 use crate::config::Settings;
 use crate::imaging::{Assembler, ImageFrame, export};
 use crate::pipeline::{CountersSnapshot, Pipeline, PipelineError};
@@ -278,4 +280,34 @@ pub fn render_text(r: &ScanReport) -> String {
         s += &format!("wrote {}\n", f.display());
     }
     s
+}
+
+/// The command line.
+pub fn command(
+    config: &ConfigArg,
+    frames: i64,
+    out: Option<PathBuf>,
+    realtime: bool,
+    json: bool,
+) -> Result<ExitCode, ExitCode> {
+    if !(1..=1000).contains(&frames) {
+        eprintln!("ftafm: --frames = {frames} is out of range: allowed 1 ≤ N ≤ 1000");
+        return Err(ExitCode::from(EXIT_USAGE));
+    }
+    let mut settings = load(config)?;
+    settings.synth.realtime = realtime;
+    let report = crate::cli::scan::run(
+        &settings,
+        frames as usize,
+        out.as_deref(),
+        |line, lines, frame, wall| {
+            eprintln!("[{wall:>5.0} s] frame {frame}, line {line}/{lines}");
+        },
+    )
+    .map_err(|e| {
+        eprintln!("ftafm: {e}");
+        ExitCode::FAILURE
+    })?;
+    print_report(json, &report, crate::cli::scan::render_text);
+    Ok(ExitCode::SUCCESS)
 }
