@@ -127,6 +127,22 @@ fn a_300_khz_lever_runs_every_offline_command() {
     // Driven on resonance, it taps gently: tens of nN, not the 2442 nN of a lever driven at
     // a third of its resonance.
     assert!(force > 1e-9 && force < 500e-9, "F = {force} N");
+    // And a (small) scan records with the in-band harmonics only.
+    let scan = TempToml::new(
+        "lever300-scan",
+        "[cantilever]\nf1 = 300e3\nk = 40\n[scan]\npixels = 8\nline_rate = 20\n",
+    );
+    let out = ftafm(&["scan", "--config", scan.path(), "--frames", "1", "--json"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let channels: Vec<&str> = report["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["name"].as_str().unwrap())
+        .collect();
+    assert!(channels.contains(&"h16"), "{channels:?}");
+    assert!(!channels.contains(&"h17"), "an out-of-band harmonic imaged: {channels:?}");
 }
 
 #[test]

@@ -18,15 +18,16 @@ const here = path.dirname(fileURLToPath(import.meta.url));
 const docs = path.join(here, "../../docs");
 const work = mkdtempSync(path.join(tmpdir(), "ftafm-shots-"));
 const overlay = path.join(work, "scan.toml");
-// A 32 × 32 scan at 8 lines/s so that a frame finishes within the session.
-writeFileSync(overlay, "[scan]\nenable = true\npixels = 32\nline_rate = 8.0\n");
+// A 24 × 24 scan at 1 line/s (21 ms per pixel, a frame in 24 s): long enough a dwell that
+// the softer disc shows in h17 above the default noise.
+writeFileSync(overlay, "[scan]\nenable = true\npixels = 24\nline_rate = 1.0\n");
 const daemon = await startDaemon("127.0.0.1:0", ["--config", overlay]);
 const browser = await chromium.launch({
   executablePath: process.env.CHROMIUM ?? "/usr/bin/chromium",
   args: ["--headless", "--no-sandbox", "--disable-gpu"],
 });
 try {
-  const page = await browser.newPage({ viewport: { width: 1600, height: 1000 } });
+  const page = await browser.newPage({ viewport: { width: 1600, height: 1360 } });
   await page.goto(daemon.url);
   await page.waitForSelector('#conn[data-state="open"]');
   const simulated = async (s) => {
@@ -46,7 +47,8 @@ try {
   await page.waitForTimeout(500);
   await page.screenshot({ path: path.join(docs, "dashboard.png") });
   await page.locator("#p-image").scrollIntoViewIfNeeded();
-  await page.waitForFunction(() => window.ftafm.image().framesFinished >= 1, null, { timeout: 120000 });
+  // A frame almost complete on screen (the image clears at each new frame).
+  await page.waitForFunction(() => { const i = window.ftafm.image(); return i.framesFinished >= 1 && i.lines >= 22; }, null, { timeout: 180000 });
   await page.locator("#p-force").scrollIntoViewIfNeeded();
   await page.waitForTimeout(1500);
   await page.evaluate(() => window.scrollTo(0, document.getElementById("p-force").offsetTop - 10));
