@@ -142,7 +142,10 @@ fn a_300_khz_lever_runs_every_offline_command() {
         .map(|c| c["name"].as_str().unwrap())
         .collect();
     assert!(channels.contains(&"h16"), "{channels:?}");
-    assert!(!channels.contains(&"h17"), "an out-of-band harmonic imaged: {channels:?}");
+    assert!(
+        !channels.contains(&"h17"),
+        "an out-of-band harmonic imaged: {channels:?}"
+    );
 }
 
 #[test]

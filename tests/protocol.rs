@@ -431,7 +431,6 @@ fn not_json_is_bad_request_with_null_id() {
         r#"{"id":1,"op":"hello""#,
         r#"{"id":1,"op":"hello"} trailing"#,
         r#"{'op':'hello'}"#,
-        "{\"op\":\"hello\",\"id\":NaN}",
     ] {
         assert_error(
             text,
@@ -439,6 +438,45 @@ fn not_json_is_bad_request_with_null_id() {
             Value::Null,
             &["not valid JSON"],
         );
+    }
+}
+
+/// A NaN in a request hung a client that matched replies by id: the reply now keeps it.
+#[test]
+fn non_finite_numbers_are_refused_keeping_the_id() {
+    for (text, id, token) in [
+        (
+            r#"{"id":7,"op":"set","path":"/drive/free_amplitude","value":NaN}"#,
+            json!(7),
+            "NaN",
+        ),
+        (
+            r#"{"id":"a","op":"set","path":"/x","value":-Infinity}"#,
+            json!("a"),
+            "-Infinity",
+        ),
+        (
+            r#"{"op":"set","id":[1,"é"],"path":"/x","value":1e999}"#,
+            json!([1, "é"]),
+            "1e999",
+        ),
+        (
+            r#"{"op":"set","path":"/x","value":Infinity}"#,
+            Value::Null,
+            "Infinity",
+        ),
+    ] {
+        assert_error(
+            text,
+            ErrorCode::BadRequest,
+            id,
+            &["non-finite number", token, "finite"],
+        );
+    }
+    // A NaN inside a string is text, not a number.
+    let text = r#"{"id":1,"op":"get","path":"/NaN"}"#;
+    if let Err((_, e)) = parse_request(text) {
+        assert!(!e.message.contains("non-finite"), "{text}: {e}");
     }
 }
 

@@ -99,6 +99,17 @@ const MAX_QUOTED: usize = 60;
 /// start with `/`; whether the node exists and accepts the value is the node tree's job.
 pub fn parse_request(text: &str) -> Result<Request, (Value, ProtocolError)> {
     let parsed: Value = serde_json::from_str(text).map_err(|e| {
+        // A NaN, an Infinity or a number beyond f64 (`1e999`) is not JSON. Say so, and keep
+        // the request's id so that a client matching replies by id gets its answer.
+        if let Some((id, token)) = non_finite(text) {
+            return (
+                id,
+                bad(format!(
+                    "request has the non-finite number {token}: JSON numbers are finite (no \
+                     NaN, Infinity or values beyond ±1.8e308); send a finite value"
+                )),
+            );
+        }
         (
             Value::Null,
             bad(format!(
@@ -120,6 +131,67 @@ pub fn parse_request(text: &str) -> Result<Request, (Value, ProtocolError)> {
         Ok(op) => Ok(Request { id, op }),
         Err(error) => Err((id, error)),
     }
+}
+
+/// If `text` is JSON but for non-finite numbers (bare `NaN`, `Infinity`, `-Infinity`, or a
+/// literal beyond f64 like `1e999`), the request's id (`Null` if none) and the first such
+/// token (cut short). Those tokens are replaced by `null` to read the rest.
+fn non_finite(text: &str) -> Option<(Value, String)> {
+    let bytes = text.as_bytes();
+    let mut out: Vec<u8> = Vec::with_capacity(text.len());
+    let mut first: Option<String> = None;
+    let mut i = 0;
+    let mut in_string = false;
+    while i < bytes.len() {
+        let c = bytes[i];
+        if in_string {
+            out.push(c);
+            if c == b'\\' && i + 1 < bytes.len() {
+                out.push(bytes[i + 1]);
+                i += 2;
+                continue;
+            }
+            if c == b'"' {
+                in_string = false;
+            }
+            i += 1;
+            continue;
+        }
+        if c == b'"' {
+            in_string = true;
+            out.push(b'"');
+            i += 1;
+            continue;
+        }
+        // A token of letters, digits, signs, dots and exponents.
+        let start = i;
+        while i < bytes.len()
+            && (bytes[i].is_ascii_alphanumeric() || matches!(bytes[i], b'+' | b'-' | b'.'))
+        {
+            i += 1;
+        }
+        if i == start {
+            out.push(c);
+            i += 1;
+            continue;
+        }
+        let token = &text[start..i];
+        let bad_token = matches!(token, "NaN" | "Infinity" | "-Infinity" | "+Infinity")
+            || token
+                .parse::<f64>()
+                .is_ok_and(|x| !x.is_finite() && !token.eq_ignore_ascii_case("inf"));
+        if bad_token {
+            first.get_or_insert_with(|| token.chars().take(24).collect());
+            out.extend_from_slice(b"null");
+        } else {
+            out.extend_from_slice(token.as_bytes());
+        }
+    }
+    let token = first?;
+    let Value::Object(fields) = serde_json::from_slice::<Value>(&out).ok()? else {
+        return None;
+    };
+    Some((fields.get("id").cloned().unwrap_or(Value::Null), token))
 }
 
 fn parse_op(fields: &Map<String, Value>) -> Result<Op, ProtocolError> {
