@@ -10,6 +10,39 @@ pub fn cantilever(settings: &Settings) -> Result<Cantilever, BeamError> {
     Cantilever::new(c.f1, c.k, &c.q, c.extra_modes)
 }
 
+/// Largest indentation, as a fraction of the tip radius, for which the Hertz contact (small
+/// strain, paraboloidal tip) is taken as within its range.
+pub const HERTZ_RANGE: f64 = 0.1;
+
+/// Where the operating point of `settings` leaves the model's range, in words (empty when it
+/// does not): the 1-DOF orbit's maximum indentation against the tip radius. Costs one 1-DOF
+/// solve (milliseconds): call it when the settings change, not per message.
+pub fn range_warnings(settings: &Settings) -> Vec<String> {
+    let Ok(cantilever) = cantilever(settings) else {
+        return Vec::new();
+    };
+    let oscillator = impact_oscillator(settings, &cantilever, settings.sample);
+    let Ok(solution) = oscillator.solve() else {
+        return Vec::new();
+    };
+    let radius = settings.cantilever.tip_radius;
+    let ratio = solution.max_indentation / radius;
+    if ratio > HERTZ_RANGE {
+        vec![format!(
+            "the tip indents the sample by {:.3} nm, {:.0} % of the tip radius {:.1} nm \
+             (/cantilever/tip_radius): beyond the Hertz contact's small-strain range (about \
+             {:.0} %), so forces and harmonics are qualitative here (a softer sample needs a \
+             smaller /drive/free_amplitude or a larger /surface/distance)",
+            solution.max_indentation * 1e9,
+            100.0 * ratio,
+            radius * 1e9,
+            100.0 * HERTZ_RANGE
+        )]
+    } else {
+        Vec::new()
+    }
+}
+
 /// An elastic solid from a material table.
 pub fn elastic(material: Material) -> Elastic {
     Elastic {

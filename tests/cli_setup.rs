@@ -106,6 +106,16 @@ fn info_lists_every_mode_and_the_drive() {
         );
     }
     assert!(stdout.contains("drive 100 kHz (follows f1)"), "{stdout}");
+    // The paper's case is inside the Hertz model's range (δ ≈ 0.37 nm of R = 10 nm) ...
+    assert!(!stdout.contains("small-strain"), "{stdout}");
+    // ... a soft elastomer under the same lever is not, and info says so.
+    let out = ftafm(&["info", "--preset", "pdms"]);
+    let stdout = text(&out.stdout);
+    assert!(
+        stdout.contains("warning: the tip indents the sample by")
+            && stdout.contains("small-strain"),
+        "{stdout}"
+    );
 }
 
 /// The repro: `/cantilever/f1 = 300e3` with `k = 40` refused every command.

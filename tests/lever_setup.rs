@@ -186,5 +186,21 @@ async fn presets_load_while_running() {
         "{r}"
     );
     assert_eq!(call(&mut ws, get("/cantilever/f1")).await["value"], 150e3);
+    // A soft elastomer: the operating point leaves the Hertz model's range, and status says so.
+    let r = call(&mut ws, json!({"id": 6, "op": "preset", "name": "pdms"})).await;
+    assert_eq!(r["ok"], true, "{r}");
+    call(
+        &mut ws,
+        json!({"id": 7, "op": "subscribe", "stream": "status"}),
+    )
+    .await;
+    let status = first_of(&mut ws, "status", |m| {
+        m["warnings"].as_array().is_some_and(|w| {
+            w.iter()
+                .any(|w| w.as_str().unwrap().contains("small-strain"))
+        })
+    })
+    .await;
+    assert!(status["warnings"].is_array());
     d.shutdown().await;
 }

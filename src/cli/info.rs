@@ -43,7 +43,11 @@ pub fn command(config: &ConfigArg) -> Result<ExitCode, ExitCode> {
         },
         settings.synth.sample_rate / 1e6
     );
-    for warning in settings.warnings() {
+    for warning in settings
+        .warnings()
+        .into_iter()
+        .chain(crate::model::range_warnings(&settings))
+    {
         println!("warning: {warning}");
     }
     println!(

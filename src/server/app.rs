@@ -62,6 +62,7 @@ pub async fn run_with(
     // Last, so that no frame waits for the rest of the start-up before the hub takes it.
     let (pipeline, output) = Pipeline::start(&settings)?;
     let queue_bytes = settings.server.client_queue_bytes as usize;
+    let range_warnings = crate::model::range_warnings(&settings);
     let state = Arc::new(AppState {
         sample_rate: settings.synth.sample_rate,
         control: Mutex::new(Control {
@@ -77,6 +78,7 @@ pub async fn run_with(
         refused_origin: AtomicU64::new(0),
         refused_capacity: AtomicU64::new(0),
         refused_host: AtomicU64::new(0),
+        range_warnings: Mutex::new(range_warnings),
         queue_bytes: std::sync::atomic::AtomicUsize::new(queue_bytes),
         closed_stalled: AtomicU64::new(0),
         http: Arc::new(ConnectionCounters::default()),

@@ -223,6 +223,9 @@ pub(crate) async fn run(
                 ),
                 Err(_) => continue,
             };
+            if let Ok(range) = state.range_warnings.lock() {
+                warnings.extend(range.iter().cloned());
+            }
             let processed = counters.samples_processed - last_counters.samples_processed;
             let clipped = counters.clipped_samples - last_counters.clipped_samples;
             if clipped > 0 {

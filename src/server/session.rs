@@ -155,6 +155,13 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
     );
 }
 
+/// Whether a change of `path` moves the 1-DOF operating point (and so the model-range check).
+fn affects_physics(path: &str) -> bool {
+    ["/cantilever", "/tip", "/sample", "/drive", "/surface"]
+        .iter()
+        .any(|p| path.starts_with(p))
+}
+
 fn stall_timeout(state: &AppState) -> Duration {
     let seconds = state
         .control
@@ -294,6 +301,12 @@ async fn respond(
                 if super::image::affects_images(&path) {
                     state.image.configure(&control.settings);
                 }
+                if affects_physics(&path) {
+                    let warnings = crate::model::range_warnings(&control.settings);
+                    if let Ok(mut w) = state.range_warnings.lock() {
+                        *w = warnings;
+                    }
+                }
                 Ok::<_, ProtocolError>((path, applied))
             })
             .await
@@ -326,6 +339,10 @@ async fn respond(
                 control.replace(next, &origin)?;
                 state.force.rebuild(control.settings.clone());
                 state.image.configure(&control.settings);
+                let warnings = crate::model::range_warnings(&control.settings);
+                if let Ok(mut w) = state.range_warnings.lock() {
+                    *w = warnings;
+                }
                 Ok::<_, ProtocolError>(fields(json!({
                     "preset": preset.name,
                     "kind": preset.kind,

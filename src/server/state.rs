@@ -393,6 +393,9 @@ pub(crate) struct AppState {
     pub refused_origin: AtomicU64,
     pub refused_capacity: AtomicU64,
     pub closed_stalled: AtomicU64,
+    /// Where the operating point leaves the model's range ([`crate::model::range_warnings`]),
+    /// recomputed when the physics changes; `status` carries them.
+    pub range_warnings: Mutex<Vec<String>>,
     /// Requests refused for their `Host` (not a name of this server, or none).
     pub refused_host: AtomicU64,
     /// `/server/client_queue_bytes`, for the fan-out (which must not take the settings lock
