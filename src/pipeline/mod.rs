@@ -92,6 +92,32 @@ pub enum PipelineError {
     Thread(&'static str, std::io::Error),
 }
 
+/// Returns the whole pages of `v`'s spare capacity to the system (`MADV_DONTNEED`): the
+/// pools' buffers are sized for the largest spectrum and trace (so the real-time threads never
+/// allocate), and after a large spectrum they would otherwise keep it resident for good. The
+/// capacity stays; a page touched again later is a fresh zero page. Called off the real-time
+/// threads, when a buffer comes back to its pool.
+fn release_spare_pages<T>(v: &mut Vec<T>) {
+    #[cfg(target_os = "linux")]
+    {
+        const PAGE: usize = 4096;
+        let size = std::mem::size_of::<T>();
+        let base = v.as_mut_ptr() as usize;
+        let start = (base + v.len() * size).div_ceil(PAGE) * PAGE;
+        let end = (base + v.capacity() * size) / PAGE * PAGE;
+        if end > start {
+            // SAFETY: [start, end) lies inside the Vec's allocation, beyond its initialised
+            // elements (spare capacity holds no values); MADV_DONTNEED on private anonymous
+            // memory only makes those pages read as zeros when next touched.
+            unsafe {
+                libc::madvise(start as *mut libc::c_void, end - start, libc::MADV_DONTNEED);
+            }
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = v;
+}
+
 /// Frames for the consumer (the server, a bench, a test).
 pub struct PipelineOutput {
     /// Demodulator frames, in time order.
@@ -113,13 +139,17 @@ pub struct PipelineOutput {
 }
 
 impl PipelineOutput {
-    /// Gives a spectrum buffer back to the pool.
-    pub fn recycle(&mut self, buffer: SpectrumBuffer) {
+    /// Gives a spectrum buffer back to the pool, the pages of its unused capacity back to
+    /// the system.
+    pub fn recycle(&mut self, mut buffer: SpectrumBuffer) {
+        release_spare_pages(&mut buffer.magnitudes);
         let _ = self.free_spectra.try_push(buffer);
     }
 
-    /// Gives a scope buffer back to the pool.
-    pub fn recycle_scope(&mut self, buffer: ScopeBuffer) {
+    /// Gives a scope buffer back to the pool, the pages of its unused capacity back to the
+    /// system.
+    pub fn recycle_scope(&mut self, mut buffer: ScopeBuffer) {
+        release_spare_pages(&mut buffer.samples);
         let _ = self.free_scopes.try_push(buffer);
     }
 

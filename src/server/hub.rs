@@ -23,6 +23,18 @@ use crate::pipeline::{CountersSnapshot, FrameSignal, PipelineOutput, SAMPLE_RING
 /// allows, [`FrameSignal`](crate::pipeline::FrameSignal)); the tick serves the other
 /// streams and the status.
 const TICK: Duration = Duration::from_millis(1);
+/// Every how many status periods freed memory is handed back to the system (10 s).
+const TRIM_EVERY: u64 = 20;
+
+/// Hands memory the allocator holds free back to the system (glibc keeps it otherwise).
+fn release_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only returns free memory of the allocator's arenas to the system.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
 /// How often a `status` message goes out.
 const STATUS_PERIOD: Duration = Duration::from_millis(500);
 
@@ -145,6 +157,7 @@ pub(crate) async fn run(
     let mut synth_to_dsp = Latency::new();
     let mut synth_to_send = Latency::new();
     let mut last_status = Instant::now();
+    let mut status_count: u64 = 0;
     let mut last_counters = CountersSnapshot::default();
     loop {
         tokio::select! {
@@ -266,6 +279,13 @@ pub(crate) async fn run(
             );
             last_counters = counters;
             last_status = Instant::now();
+            status_count += 1;
+            if status_count % TRIM_EVERY == 0 {
+                // Memory freed after large settings (a 2^20-point spectrum's plan and
+                // messages) goes back to the system, not only to the allocator; off the hub,
+                // which must not stall.
+                tokio::task::spawn_blocking(release_freed_memory);
+            }
         }
     }
 }
