@@ -875,10 +875,10 @@ impl Field {
             Field::SampleYoungsModulus => "Young's modulus of the sample under the tip, in Pa.",
             Field::SamplePoisson => "Poisson ratio of the sample under the tip (dimensionless).",
             Field::DriveFrequency => {
-                "Drive frequency Ω/2π of the base excitation, in Hz; below half the sample rate. Setting it turns /drive/follow_f1 off."
+                "Drive frequency Ω/2π of the base excitation, in Hz; below half the sample rate. Setting it to another value than /cantilever/f1 turns /drive/follow_f1 off."
             }
             Field::DriveFollowF1 => {
-                "The drive frequency follows /cantilever/f1, like an instrument's auto-tune (true), or stays where /drive/frequency puts it (false); setting /drive/frequency turns it off."
+                "The drive frequency follows /cantilever/f1, like an instrument's auto-tune (true), or stays where /drive/frequency puts it (false); setting /drive/frequency to another value than f1 turns it off."
             }
             Field::DriveFreeAmplitude => {
                 "Free (non-contact) peak tip amplitude at the drive frequency, in m."
