@@ -2744,3 +2744,92 @@ fn paths_follow_one_rule_for_every_op() {
         "{error}"
     );
 }
+
+// ---------------------------------------------------------------------------------------------
+// Settings as a file, and batch sets
+
+/// `settings_toml` writes a file `--config` reads back to the very same settings: the
+/// default, and settings moved away from it in every kind of node (a preset's lever,
+/// demodulators, inclusions given relative and absolute, the drive off f1).
+#[test]
+fn settings_written_as_toml_read_back_the_same() {
+    let mut moved =
+        ftafm::config::load_with_presets(&["tap300".into(), "polystyrene".into()], None).unwrap();
+    moved
+        .set_many(&[
+            ("/demods/3/harmonic".into(), json!(7)),
+            ("/demods/31/enable".into(), json!(true)),
+            ("/inclusions/1/youngs_modulus".into(), json!(3.3e9)),
+            ("/drive/frequency".into(), json!(299e3)),
+            ("/cantilever/q".into(), json!([450.0, 600.0])),
+            ("/spectrum/window".into(), json!("blackman_harris")),
+        ])
+        .unwrap();
+    assert!(
+        !moved.drive.follow_f1,
+        "a drive frequency off f1 stops following it"
+    );
+    for settings in [default_settings(), moved] {
+        let text = ftafm::config::settings_toml(&settings).unwrap();
+        let back = load_str(&text, "saved.toml").unwrap_or_else(|e| panic!("{e}\n{text}"));
+        assert_eq!(back, settings, "{text}");
+    }
+}
+
+/// A batch set checks its nodes against each other once, after all are written (f1 and the
+/// drive moved together keep following), returns the values as applied in order, and on
+/// any error names its node and changes nothing.
+#[test]
+fn a_batch_set_is_checked_as_a_whole_and_all_or_nothing() {
+    let base = default_settings();
+    let mut s = base.clone();
+    let applied = s
+        .set_many(&[
+            ("/drive/frequency".into(), json!(50e3)),
+            ("/surface/distance".into(), json!(1.5e-8)),
+            ("/demods/2/harmonic".into(), json!(4.0)),
+        ])
+        .unwrap();
+    assert_eq!(applied, vec![json!(50e3), json!(1.5e-8), json!(4)]);
+    assert_eq!(s.drive.frequency, 50e3);
+    assert!(!s.drive.follow_f1);
+
+    // f1 and the drive together: following f1 with the drive given at the new f1 is fine.
+    let mut t = base.clone();
+    t.set_many(&[
+        ("/cantilever/f1".into(), json!(120e3)),
+        ("/drive/frequency".into(), json!(120e3)),
+    ])
+    .unwrap();
+    assert!(t.drive.follow_f1);
+    assert_eq!(t.drive.frequency, 120e3);
+
+    for (values, names) in [
+        (
+            vec![
+                ("/surface/distance".into(), json!(1e-8)),
+                ("/drive/frequncy".into(), json!(1.0)),
+            ],
+            "/drive/frequncy",
+        ),
+        (
+            vec![
+                ("/surface/distance".into(), json!(1e-8)),
+                ("/synth/sample_rate".into(), json!(20e6)),
+            ],
+            "/synth/sample_rate",
+        ),
+        (
+            vec![
+                ("/surface/distance".into(), json!(1e-8)),
+                ("/sample/youngs_modulus".into(), json!(-1.0)),
+            ],
+            "/sample/youngs_modulus",
+        ),
+    ] {
+        let mut u = base.clone();
+        let err = u.set_many(&values).unwrap_err().to_string();
+        assert!(err.contains(names), "{err}");
+        assert_eq!(u, base, "a refused batch changed something: {err}");
+    }
+}

@@ -115,6 +115,69 @@ fn settings_changes_reach_the_running_chain() {
     pipeline.stop();
 }
 
+/// Every change lands on one sample boundary for the whole chain: the synthesiser reports
+/// the first sample it made under the new settings, and the DSP thread takes up its plan of
+/// the same change with the block that starts at that very sample — for synthesis-only,
+/// lock-in-only and combined changes, applied back to back.
+#[test]
+fn a_change_takes_effect_at_one_sample_boundary_in_both_threads() {
+    let settings = free_running_quiet();
+    let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    run_until(&mut output, 0.002);
+    let mut next = settings.clone();
+    let mut last_index = 0;
+    for round in 0..12 {
+        let dsp_too = round % 3 != 0;
+        match round % 3 {
+            0 => next.surface.distance = 18e-9 + round as f64 * 1e-10,
+            1 => next.demods[5].harmonic = 6 + round,
+            _ => {
+                next.drive.follow_f1 = false;
+                next.drive.frequency = 99e3 + round as f64 * 100.0;
+                next.demods[7].rate = 500.0 + round as f64;
+            }
+        }
+        let epoch = pipeline.apply(&next).unwrap();
+        let index = pipeline
+            .effective_index(epoch, Duration::from_secs(60))
+            .expect("the free-running synthesiser reaches the change");
+        assert!(
+            index > last_index,
+            "round {round}: {index} after {last_index}"
+        );
+        assert_eq!(
+            index % ftafm::pipeline::BLOCK_SAMPLES as u64,
+            0,
+            "a block boundary"
+        );
+        last_index = index;
+        if dsp_too {
+            let deadline = Instant::now() + Duration::from_secs(60);
+            while pipeline.epochs().dsp_taken_up().0 < epoch {
+                assert!(
+                    Instant::now() < deadline,
+                    "round {round}: the DSP took no plan"
+                );
+                run_until(&mut output, 0.0);
+            }
+            assert_eq!(
+                pipeline.epochs().dsp_taken_up(),
+                (epoch, index),
+                "round {round}: the lock-in switched at another sample than the synthesis"
+            );
+        }
+    }
+    let frame = run_until(
+        &mut output,
+        last_index as f64 / settings.synth.sample_rate + 0.01,
+    );
+    assert_eq!(frame.values()[5].harmonic, 6 + 10);
+    let c = pipeline.counters();
+    assert_eq!(c.discontinuities, 0);
+    assert_eq!(c.overrun_samples, 0);
+    pipeline.stop();
+}
+
 #[test]
 fn real_time_pacing_follows_the_wall_clock() {
     let mut settings = default_settings();

@@ -194,6 +194,7 @@ fn constants_and_names() {
             "unknown_stream",
             "rate_limited",
             "busy",
+            "no_data",
             "internal"
         ]
     );
@@ -336,6 +337,8 @@ fn op_names_match_parsing() {
             "list",
             "get",
             "set",
+            "settings",
+            "load_settings",
             "presets",
             "preset",
             "subscribe",
@@ -347,6 +350,8 @@ fn op_names_match_parsing() {
         r#"{"op":"list"}"#,
         r#"{"op":"get","path":"/a"}"#,
         r#"{"op":"set","path":"/a","value":1}"#,
+        r#"{"op":"settings"}"#,
+        r#"{"op":"load_settings","toml":"[drive]"}"#,
         r#"{"op":"presets"}"#,
         r#"{"op":"preset","name":"tap300"}"#,
         r#"{"op":"subscribe","stream":"demods"}"#,
@@ -355,6 +360,15 @@ fn op_names_match_parsing() {
     for (text, name) in ops.iter().zip(Op::NAMES) {
         assert_eq!(parse_ok(text).op.name(), name);
     }
+    // A batch set is op "set" with "values".
+    let batch = parse_ok(r#"{"op":"set","values":{"/a":1,"/b":[2]}}"#);
+    assert_eq!(batch.op.name(), "set");
+    assert_eq!(
+        batch.op,
+        Op::SetMany {
+            values: vec![("/a".into(), json!(1)), ("/b".into(), json!([2]))]
+        }
+    );
 }
 
 #[test]

@@ -34,6 +34,19 @@ fn parse_default() -> Result<Settings, String> {
     Ok(settings)
 }
 
+/// `settings` as a complete config file: every node, in the tables of
+/// `config/default.toml`, which `--config` (and the protocol's `load_settings`) reads back
+/// to the same settings.
+pub fn settings_toml(settings: &Settings) -> Result<String, String> {
+    let body = toml::to_string(settings).map_err(|e| format!("settings as TOML: {e}"))?;
+    Ok(format!(
+        "# ftafm {} settings: every node (docs/configuration.md). Run them with\n\
+         # `ftafm --config FILE`, or load them into a running daemon (op load_settings).\n\n\
+         {body}",
+        env!("CARGO_PKG_VERSION")
+    ))
+}
+
 /// Settings from the file at `path` laid over the embedded default, or the default itself
 /// when `path` is `None`.
 pub fn load(path: Option<&Path>) -> Result<Settings, ConfigError> {

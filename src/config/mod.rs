@@ -37,7 +37,7 @@ pub use field::{
     MIN_CLIENT_QUEUE, MIN_CLIENT_QUEUE_BYTES, MIN_INVERSION_HARMONIC, MIN_INVERSION_POINTS,
     MIN_PIXEL_PERIODS, MIN_RATE, MIN_SCAN_PIXELS, MIN_SCOPE_LENGTH, MIN_SPECTRUM_SIZE, TextEntry,
 };
-pub use load::{DEFAULT_TOML, default_settings, load, load_str, overlay_str};
+pub use load::{DEFAULT_TOML, default_settings, load, load_str, overlay_str, settings_toml};
 pub use nodes::{NodeInfo, NodeSpec};
 pub use presets::{PRESETS, Preset, PresetKind, load_with_presets, preset};
 pub use range::{Bound, Range};

@@ -476,6 +476,31 @@ impl Settings {
         self.assign(path, value, Access::Runtime)
     }
 
+    /// The protocol's batch `set`: changes every node of `values` together and returns each
+    /// value as applied, in order. The nodes are written first and checked against each
+    /// other once, so a batch may move two nodes that constrain each other (a harmonic and
+    /// the drive frequency) where either `set` alone would be refused. Read-only nodes give
+    /// [`NodeError::ReadOnly`]; on any error, which names its node, `self` is unchanged.
+    pub fn set_many(&mut self, values: &[(String, Value)]) -> Result<Vec<Value>, NodeError> {
+        let mut next = self.clone();
+        for (path, value) in values {
+            let spec = node(path).ok_or_else(|| NodeError::UnknownPath { path: path.clone() })?;
+            if !spec.writable {
+                return Err(NodeError::ReadOnly { path: path.clone() });
+            }
+            next.write_node(spec, value)?;
+        }
+        let written: Vec<&str> = values.iter().map(|(p, _)| p.as_str()).collect();
+        next.derive_linked(&written)?;
+        next.validate()?;
+        let applied = values
+            .iter()
+            .map(|(path, _)| next.get(path))
+            .collect::<Result<Vec<_>, _>>()?;
+        *self = next;
+        Ok(applied)
+    }
+
     /// Like [`Settings::set`], but also for nodes that are read-only at runtime (as a config
     /// file may set them). Use it to build settings that take effect at the next start.
     pub fn apply(&mut self, path: &str, value: &Value) -> Result<Value, NodeError> {

@@ -16,6 +16,12 @@ pub struct BlockHeader {
     pub t_synth_ns: u64,
     /// The raster of the scan in progress, if one runs.
     pub raster: Option<crate::synth::Raster>,
+    /// The settings epoch in force from this block on ([`Pipeline::apply`]'s count): the
+    /// DSP thread takes up a plan of this epoch with this block, so a change of the
+    /// synthesis and of the lock-in lands on one sample boundary.
+    ///
+    /// [`Pipeline::apply`]: super::Pipeline::apply
+    pub epoch: u64,
 }
 
 /// Unix time in ns now.

@@ -20,6 +20,9 @@ pub struct DspPlan {
     bank_offset: u64,
     /// Stream index of the spectrum's sample 0.
     spectrum_offset: u64,
+    /// The settings epoch this plan belongs to: the DSP thread takes it up with the first
+    /// block of that epoch (`BlockHeader::epoch`).
+    pub(crate) epoch: u64,
 }
 
 impl DspPlan {
@@ -53,6 +56,7 @@ impl DspPlan {
             scope,
             bank_offset: 0,
             spectrum_offset: 0,
+            epoch: 0,
         })
     }
 

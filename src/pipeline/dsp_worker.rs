@@ -51,6 +51,11 @@ pub(crate) struct DspWorker {
     pub pixel_frame: DemodFrame,
     /// Wakes the consumer after a block that produced demodulator frames.
     pub signal: Option<Arc<super::FrameSignal>>,
+    /// A plan taken from the queue whose epoch has not reached the stream yet: it is taken
+    /// up with the first block of its epoch, where the synthesis changed too.
+    pub pending: Option<Box<DspPlan>>,
+    /// Where each plan was taken up, for the control side.
+    pub epochs: Arc<super::Epochs>,
 }
 
 /// Stream samples `lo..hi` of a block held in the ring as two slices.
@@ -88,17 +93,33 @@ impl DspWorker {
                 std::thread::park_timeout(IDLE);
                 continue;
             }
-            if let Some(next) = self.plans_in.try_pop() {
-                let old = std::mem::replace(&mut self.plan, next);
-                let _ = self.plans_out.try_push(old);
-                // A new bank starts on the next block, wherever the stream is.
-                expected = None;
-                Counters::add(&self.counters.dsp_plans_applied, 1);
-            }
             let Some(header) = self.headers.try_pop() else {
                 std::thread::park_timeout(IDLE);
                 continue;
             };
+            // Plans of this block's epoch (or earlier) take over from this block on. The
+            // header was pushed after its epoch's plans were queued, so they are visible.
+            loop {
+                if self.pending.is_none() {
+                    self.pending = self.plans_in.try_pop();
+                }
+                match self.pending.take() {
+                    Some(next) if next.epoch <= header.epoch => {
+                        self.epochs.dsp_took_up(next.epoch, header.index);
+                        let old = std::mem::replace(&mut self.plan, next);
+                        // The control side keeps plans in flight (this pending one
+                        // included) below the return queue's capacity.
+                        let _ = self.plans_out.try_push(old);
+                        // A new bank starts with this block.
+                        expected = None;
+                        Counters::add(&self.counters.dsp_plans_applied, 1);
+                    }
+                    later => {
+                        self.pending = later;
+                        break;
+                    }
+                }
+            }
             let fill = self.samples.occupied_len() as u64;
             self.counters.ring_fill.store(fill, Ordering::Relaxed);
             self.counters

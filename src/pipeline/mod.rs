@@ -16,6 +16,7 @@ mod block;
 mod counters;
 mod dsp_plan;
 mod dsp_worker;
+mod epochs;
 mod frame_signal;
 mod frames;
 pub mod realtime;
@@ -33,6 +34,7 @@ use ringbuf::{HeapCons, HeapProd, HeapRb};
 pub use block::{BlockHeader, unix_ns};
 pub use counters::{Counters, CountersSnapshot};
 pub use dsp_plan::{DspPlan, demodulators};
+pub use epochs::Epochs;
 pub use frame_signal::FrameSignal;
 pub use frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
 pub use scope::MAX_SCOPE_SAMPLES;
@@ -181,11 +183,12 @@ struct PlanLink<P> {
 
 impl<P> PlanLink<P> {
     /// Frees what the thread gave back; whether another plan may be queued. Plans in
-    /// flight (queued + not yet returned) stay below the capacity, so the thread's return
-    /// push always has room and never has to free anything itself.
+    /// flight (queued, held by the thread until their epoch arrives, and not yet returned)
+    /// stay within the capacity, so the thread's return push always has room and never
+    /// has to free anything itself. One slot is kept for the plan the thread may hold.
     fn has_room(&mut self) -> bool {
         while self.from_thread.try_pop().is_some() {}
-        self.to_thread.occupied_len() + self.from_thread.occupied_len() < PLAN_SLOTS
+        self.to_thread.occupied_len() + self.from_thread.occupied_len() < PLAN_SLOTS - 1
     }
 
     /// Queues `plan`; call only after [`has_room`](Self::has_room) said yes.
@@ -233,6 +236,10 @@ pub struct Pipeline {
     /// The scan's tap tables, kept so that a change of the raster or the gains does not
     /// solve them again.
     tap_tables: Option<Arc<TapTables>>,
+    /// Published settings epochs and where they took effect.
+    epochs: Arc<Epochs>,
+    /// The last epoch published.
+    epoch: u64,
 }
 
 impl Pipeline {
@@ -272,6 +279,7 @@ impl Pipeline {
         // The heartbeats' clock starts here, off the real-time threads.
         counters::monotonic_ns();
         let realtime = Arc::new(AtomicBool::new(settings.synth.realtime));
+        let epochs = Arc::new(Epochs::default());
         let scan = ScanRuntime::new(&synth_plan);
         let mut synth = SynthWorker {
             plan: synth_plan,
@@ -286,6 +294,8 @@ impl Pipeline {
             stop: stop_synth.clone(),
             realtime: realtime.clone(),
             consumer: None,
+            epochs: epochs.clone(),
+            pending: None,
         };
         let dsp = DspWorker {
             plan: dsp_plan,
@@ -309,6 +319,8 @@ impl Pipeline {
             hold: hold_dsp.clone(),
             pixel_frame: DemodFrame::empty(),
             signal: signal.clone(),
+            pending: None,
+            epochs: epochs.clone(),
         };
         let mut pipeline = Self {
             settings: settings.clone(),
@@ -322,6 +334,8 @@ impl Pipeline {
             synth_thread: None,
             dsp_thread: None,
             tap_tables,
+            epochs,
+            epoch: 0,
         };
         let spawn = |name: &'static str, f: Box<dyn FnOnce() + Send>| {
             let paced = settings.synth.realtime;
@@ -370,10 +384,24 @@ impl Pipeline {
         }
     }
 
+    /// Where settings epoch `epoch` (from [`apply`](Self::apply)) took effect: the stream
+    /// index of its first sample, waiting up to `timeout` for the synthesiser to get there
+    /// (`None` if it did not, e.g. free-running with the DSP held).
+    pub fn effective_index(&self, epoch: u64, timeout: std::time::Duration) -> Option<u64> {
+        self.epochs.wait_effective(epoch, timeout)
+    }
+
+    /// The settings epochs and where they took effect in each thread.
+    pub fn epochs(&self) -> &Epochs {
+        &self.epochs
+    }
+
     /// Takes up new settings: rebuilds (here, off the real-time threads) the plans whose
-    /// inputs changed and hands them over; the threads switch between blocks. The 1-DOF
-    /// solve of a physics change takes a few milliseconds. On error nothing changes.
-    pub fn apply(&mut self, settings: &Settings) -> Result<(), PipelineError> {
+    /// inputs changed and hands them over; both threads switch at the same block boundary.
+    /// The 1-DOF solve of a physics change takes a few milliseconds. Returns the settings
+    /// epoch it published, for [`effective_index`](Self::effective_index). On error nothing
+    /// changes.
+    pub fn apply(&mut self, settings: &Settings) -> Result<u64, PipelineError> {
         let old = &self.settings;
         if settings.synth.sample_rate != old.synth.sample_rate {
             return Err(PipelineError::Restart("/synth/sample_rate"));
@@ -399,7 +427,11 @@ impl Pipeline {
         let synth = synth_changed
             .then(|| SynthPlan::with_tables(settings, self.tap_tables.as_ref()))
             .transpose()?;
-        let dsp = dsp_changed.then(|| DspPlan::new(settings)).transpose()?;
+        let mut dsp = dsp_changed.then(|| DspPlan::new(settings)).transpose()?;
+        let epoch = self.epoch + 1;
+        if let Some(plan) = &mut dsp {
+            plan.epoch = epoch;
+        }
         // The threads take a plan between blocks: a burst of changes waits for them a
         // little rather than failing at once.
         let waiting_since = std::time::Instant::now();
@@ -414,7 +446,8 @@ impl Pipeline {
             }
             std::thread::sleep(std::time::Duration::from_micros(200));
         }
-        if let Some(plan) = synth {
+        if let Some(mut plan) = synth {
+            plan.epoch = epoch;
             if let Some(scan) = &plan.scan {
                 self.tap_tables = Some(scan.tables.clone());
             }
@@ -423,10 +456,14 @@ impl Pipeline {
         if let Some(plan) = dsp {
             self.dsp_link.send(Box::new(plan));
         }
+        // Published after the plans are queued: the synthesiser takes them all up with the
+        // first block it stamps with this epoch.
+        self.epoch = epoch;
+        self.epochs.requested.store(epoch, Ordering::Release);
         self.realtime
             .store(settings.synth.realtime, Ordering::Relaxed);
         self.settings = settings.clone();
-        Ok(())
+        Ok(epoch)
     }
 
     /// Stops both threads, waits for them and returns the final counters, for which

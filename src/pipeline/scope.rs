@@ -132,6 +132,7 @@ mod tests {
                 frequency_word: 1 << 60,
                 t_synth_ns: 0,
                 raster: None,
+                epoch: 0,
             };
             capture.feed(
                 &header,

@@ -10,6 +10,7 @@ use ringbuf::{HeapCons, HeapProd};
 
 use super::block::{BlockHeader, unix_ns};
 use super::counters::Counters;
+use super::epochs::Epochs;
 use crate::synth::{PixelTopography, ScanRuntime, SynthPlan, SynthState};
 
 /// Samples per block: 0.41 ms at 10 MS/s, short against the 1 ms output period.
@@ -31,6 +32,11 @@ pub(crate) struct SynthWorker {
     /// The DSP thread, woken when a block is ready so that it can sleep until then instead
     /// of polling (`unpark` is a flag and, only if the thread sleeps, one futex wake).
     pub consumer: Option<std::thread::Thread>,
+    /// The newest settings epoch the control side has published (its plans are queued
+    /// before it is), and where each epoch took effect.
+    pub epochs: Arc<Epochs>,
+    /// A plan taken from the queue whose epoch is not published yet.
+    pub pending: Option<Box<SynthPlan>>,
 }
 
 impl SynthWorker {
@@ -43,14 +49,30 @@ impl SynthWorker {
         // A scan configured from the start begins at the first sample.
         self.scan
             .retarget(&self.plan, &self.plan, self.state.sample_index());
+        let mut stamped = self.epochs.requested.load(Ordering::Acquire);
         while !self.stop.load(Ordering::Relaxed) {
-            if let Some(next) = self.plans_in.try_pop() {
+            // Read before the plans: every plan of this epoch was queued before it was
+            // published, so all of them are taken up with this block.
+            let epoch = self.epochs.requested.load(Ordering::Acquire);
+            loop {
+                if self.pending.is_none() {
+                    self.pending = self.plans_in.try_pop();
+                }
+                // A plan queued for an epoch not yet published waits for it, so that no
+                // block runs a plan under an earlier epoch's stamp.
+                let next = match self.pending.take() {
+                    Some(next) if next.epoch <= epoch => next,
+                    later => {
+                        self.pending = later;
+                        break;
+                    }
+                };
                 self.state.retarget(&self.plan, &next);
                 self.scan
                     .retarget(&self.plan, &next, self.state.sample_index());
                 let old = std::mem::replace(&mut self.plan, next);
-                // The control side keeps (plans in flight) ≤ capacity, so this has room; the
-                // old plan is freed there, not here.
+                // The control side keeps plans in flight (a held one included) within the
+                // return queue's capacity, so this has room; the old plan is freed there.
                 let _ = self.plans_out.try_push(old);
                 Counters::add(&self.counters.synth_plans_applied, 1);
             }
@@ -62,6 +84,10 @@ impl SynthWorker {
             was_realtime = realtime;
 
             let header_index = self.state.sample_index();
+            if epoch != stamped {
+                self.epochs.took_effect(epoch, header_index);
+                stamped = epoch;
+            }
             let phase = self.state.phase();
             let clipped_before = self.state.counters.clipped;
             let busy = Instant::now();
@@ -97,6 +123,7 @@ impl SynthWorker {
                 frequency_word: self.plan.frequency_word,
                 t_synth_ns: unix_ns(),
                 raster: self.plan.scan.as_ref().and(self.scan.raster),
+                epoch,
             };
             if !self.push(&block, header, realtime) {
                 Counters::add(&self.counters.overrun_samples, BLOCK_SAMPLES as u64);

@@ -86,6 +86,7 @@ pub async fn run_with(
         force,
         image,
         stall,
+        latest_demods: Mutex::new(None),
     });
     let hub = tokio::spawn(hub::run(state.clone(), output, estimates, image_lines));
     // Every route but /healthz checks that the request names this server (DNS rebinding);

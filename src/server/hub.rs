@@ -166,7 +166,9 @@ pub(crate) async fn run(
             _ = shutdown.changed() => return,
         }
         let force_wanted = state.subscribed(StreamKind::Force);
+        let mut newest = None;
         while let Some(frame) = output.demods.try_pop() {
+            newest = Some(frame);
             if force_wanted {
                 state.force.offer(&frame);
             }
@@ -179,6 +181,11 @@ pub(crate) async fn run(
                 |seq| protocol::demods_binary(seq, &frame),
             );
             synth_to_send.record(unix_ns() as i64 - frame.t_synth_ns as i64);
+        }
+        if newest.is_some()
+            && let Ok(mut latest) = state.latest_demods.lock()
+        {
+            *latest = newest;
         }
         // Topography first: a pixel's height is handed out before its harmonics.
         while let Some(t) = output.topography.try_pop() {

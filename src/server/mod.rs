@@ -10,6 +10,7 @@ mod image;
 mod latency;
 mod latest;
 pub mod listen;
+mod measured;
 mod metrics;
 pub mod protocol;
 mod session;

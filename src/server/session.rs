@@ -14,7 +14,7 @@ use serde_json::{Map, Value, json};
 use tokio::sync::mpsc;
 
 use super::protocol::{self, ErrorCode, Op, ProtocolError, Request};
-use super::state::{AppState, ClientHandle, DataQueue, DataReceiver};
+use super::state::{AppState, ClientHandle, Control, DataQueue, DataReceiver};
 use crate::pipeline::unix_ns;
 
 /// Requests a client may make per second on average, and in a burst.
@@ -218,6 +218,52 @@ async fn write(
     }
 }
 
+/// Runs a settings change under the control lock, off the async workers (the 1-DOF solve
+/// of a physics change takes milliseconds), then brings along what follows the settings:
+/// the queue bound, the force estimator, the images and the model-range warnings. `f`
+/// returns the paths it changed (`None`: possibly any) and its result.
+async fn change<R: Send + 'static>(
+    state: &Arc<AppState>,
+    f: impl FnOnce(&mut Control) -> Result<(Option<Vec<String>>, R), ProtocolError> + Send + 'static,
+) -> Result<R, ProtocolError> {
+    let state = state.clone();
+    let internal = |m: &str| ProtocolError {
+        code: ErrorCode::Internal,
+        message: m.to_string(),
+    };
+    tokio::task::spawn_blocking(move || {
+        let mut control = state
+            .control
+            .lock()
+            .map_err(|_| internal("control lock poisoned"))?;
+        let (paths, result) = f(&mut control)?;
+        let touched = |affects: fn(&str) -> bool| {
+            paths
+                .as_ref()
+                .is_none_or(|paths| paths.iter().any(|p| affects(p)))
+        };
+        state.queue_bytes.store(
+            control.settings.server.client_queue_bytes as usize,
+            Ordering::Relaxed,
+        );
+        if touched(super::force::affects_estimator) {
+            state.force.rebuild(control.settings.clone());
+        }
+        if touched(super::image::affects_images) {
+            state.image.configure(&control.settings);
+        }
+        if touched(affects_physics) {
+            let warnings = crate::model::range_warnings(&control.settings);
+            if let Ok(mut w) = state.range_warnings.lock() {
+                *w = warnings;
+            }
+        }
+        Ok(result)
+    })
+    .await
+    .map_err(|_| internal("the settings task failed"))?
+}
+
 /// One request → one reply.
 async fn handle(text: &str, state: &Arc<AppState>, client: &ClientHandle) -> Message {
     let reply = match protocol::parse_request(text) {
@@ -267,6 +313,10 @@ async fn respond(
             };
             Ok(fields(json!({ "nodes": nodes })))
         }
+        Op::Get { path } if super::measured::is_measured(&path) => {
+            let value = super::measured::read(state, &path)?;
+            Ok(fields(json!({ "path": path, "value": value })))
+        }
         Op::Get { path } => {
             let control = state
                 .control
@@ -283,52 +333,67 @@ async fn respond(
             Ok(fields(reply))
         }
         Op::Set { path, value } => {
-            let state = state.clone();
-            // The 1-DOF solve of a physics change takes milliseconds: off the async workers.
-            let result = tokio::task::spawn_blocking(move || {
-                let mut control = state
-                    .control
-                    .lock()
-                    .map_err(|_| internal("control lock poisoned"))?;
-                let applied = control.set(&path, &value)?;
-                state.queue_bytes.store(
-                    control.settings.server.client_queue_bytes as usize,
-                    Ordering::Relaxed,
-                );
-                if super::force::affects_estimator(&path) {
-                    state.force.rebuild(control.settings.clone());
+            let (path, applied, t) = change(state, move |control| {
+                let (applied, t) = control.set(&path, &value)?;
+                Ok((Some(vec![path.clone()]), (path, applied, t)))
+            })
+            .await?;
+            Ok(fields(json!({ "path": path, "value": applied, "t": t })))
+        }
+        Op::SetMany { values } => {
+            let (applied, t) = change(state, move |control| {
+                let (applied, t) = control.set_many(&values)?;
+                let paths: Vec<String> = values.iter().map(|(p, _)| p.clone()).collect();
+                let applied: Map<String, Value> = paths.iter().cloned().zip(applied).collect();
+                Ok((Some(paths), (applied, t)))
+            })
+            .await?;
+            Ok(fields(json!({ "values": applied, "t": t })))
+        }
+        Op::Settings => {
+            let control = state
+                .control
+                .lock()
+                .map_err(|_| internal("control lock poisoned"))?;
+            let toml = crate::config::settings_toml(&control.settings).map_err(|e| internal(&e))?;
+            Ok(fields(json!({ "toml": toml })))
+        }
+        Op::LoadSettings { toml } => {
+            change(state, move |control| {
+                let next = crate::config::overlay_str(control.settings.clone(), &toml, "settings")
+                    .map_err(|e| ProtocolError {
+                        code: ErrorCode::InvalidValue,
+                        message: e.to_string(),
+                    })?;
+                if next.synth.sample_rate != control.settings.synth.sample_rate {
+                    return Err(ProtocolError {
+                        code: ErrorCode::ReadOnly,
+                        message: format!(
+                            "/synth/sample_rate is read-only at runtime: these settings have {} \
+                             Hz, the instrument runs at {} Hz; start the daemon with them \
+                             (ftafm --config FILE) instead",
+                            next.synth.sample_rate, control.settings.synth.sample_rate
+                        ),
+                    });
                 }
-                if super::image::affects_images(&path) {
-                    state.image.configure(&control.settings);
-                }
-                if affects_physics(&path) {
-                    let warnings = crate::model::range_warnings(&control.settings);
-                    if let Ok(mut w) = state.range_warnings.lock() {
-                        *w = warnings;
-                    }
-                }
-                Ok::<_, ProtocolError>((path, applied))
+                let t = control.replace(next, "settings")?;
+                Ok((
+                    None,
+                    fields(json!({ "t": t, "warnings": control.settings.warnings() })),
+                ))
             })
             .await
-            .map_err(|_| internal("the settings task failed"))?;
-            let (path, applied) = result?;
-            Ok(fields(json!({ "path": path, "value": applied })))
         }
         Op::Presets => Ok(fields(json!({ "presets": crate::config::PRESETS
             .iter()
             .map(|p| json!({ "name": p.name, "kind": p.kind, "summary": p.summary() }))
             .collect::<Vec<_>>() }))),
         Op::Preset { name } => {
-            let state = state.clone();
-            tokio::task::spawn_blocking(move || {
+            change(state, move |control| {
                 let preset = crate::config::preset(&name).map_err(|e| ProtocolError {
                     code: ErrorCode::InvalidValue,
                     message: e.to_string(),
                 })?;
-                let mut control = state
-                    .control
-                    .lock()
-                    .map_err(|_| internal("control lock poisoned"))?;
                 let origin = format!("preset {}", preset.name);
                 let next =
                     crate::config::overlay_str(control.settings.clone(), preset.toml, &origin)
@@ -336,21 +401,18 @@ async fn respond(
                             code: ErrorCode::InvalidValue,
                             message: e.to_string(),
                         })?;
-                control.replace(next, &origin)?;
-                state.force.rebuild(control.settings.clone());
-                state.image.configure(&control.settings);
-                let warnings = crate::model::range_warnings(&control.settings);
-                if let Ok(mut w) = state.range_warnings.lock() {
-                    *w = warnings;
-                }
-                Ok::<_, ProtocolError>(fields(json!({
-                    "preset": preset.name,
-                    "kind": preset.kind,
-                    "warnings": control.settings.warnings(),
-                })))
+                let t = control.replace(next, &origin)?;
+                Ok((
+                    None,
+                    fields(json!({
+                        "preset": preset.name,
+                        "kind": preset.kind,
+                        "t": t,
+                        "warnings": control.settings.warnings(),
+                    })),
+                ))
             })
             .await
-            .map_err(|_| internal("the settings task failed"))?
         }
         Op::Subscribe { stream, format } => {
             client.subscribe(stream, format);

@@ -37,44 +37,58 @@ pub(crate) struct Control {
     pub pipeline: Option<Pipeline>,
 }
 
+/// Longest a settings change waits to learn the sample it took effect at (a block is
+/// 0.4 ms at 10 MS/s; only a synthesiser that cannot move, free-running with its DSP held,
+/// takes this long).
+const EFFECT_WAIT: std::time::Duration = std::time::Duration::from_secs(1);
+
 impl Control {
     /// Applies whole new settings (already validated), e.g. a preset; `what` names the
-    /// change in errors. On error nothing changes.
-    pub fn replace(&mut self, next: Settings, what: &str) -> Result<(), ProtocolError> {
+    /// change in errors. Returns the simulated time (s) from which the chain runs them
+    /// (`None` without a pipeline or if the synthesiser did not get there in time). On
+    /// error nothing changes.
+    pub fn replace(&mut self, next: Settings, what: &str) -> Result<Option<f64>, ProtocolError> {
+        let mut t = None;
         if let Some(p) = &mut self.pipeline {
-            p.apply(&next).map_err(|e| match e {
-                PipelineError::Busy => ProtocolError {
-                    code: ErrorCode::Busy,
-                    message: format!("{what}: {e}; retry shortly"),
-                },
-                other => ProtocolError {
-                    code: ErrorCode::InvalidValue,
-                    message: format!("{what}: {other}"),
-                },
-            })?;
+            let epoch = p.apply(&next).map_err(|e| pipeline_error(e, what))?;
+            t = p
+                .effective_index(epoch, EFFECT_WAIT)
+                .map(|index| index as f64 / next.synth.sample_rate);
         }
         self.settings = next;
-        Ok(())
+        Ok(t)
     }
 
-    /// Validates and applies one node change; on error nothing changes.
-    pub fn set(&mut self, path: &str, value: &Value) -> Result<Value, ProtocolError> {
+    /// Validates and applies one node change; returns the value as applied and the
+    /// simulated time it took effect (see [`replace`](Self::replace)). On error nothing
+    /// changes.
+    pub fn set(
+        &mut self,
+        path: &str,
+        value: &Value,
+    ) -> Result<(Value, Option<f64>), ProtocolError> {
         let mut next = self.settings.clone();
         let applied = next.set(path, value).map_err(|e| ProtocolError::from(&e))?;
-        if let Some(p) = &mut self.pipeline {
-            p.apply(&next).map_err(|e| match e {
-                PipelineError::Busy => ProtocolError {
-                    code: ErrorCode::Busy,
-                    message: format!("{path}: {e}; retry shortly"),
-                },
-                other => ProtocolError {
-                    code: ErrorCode::InvalidValue,
-                    message: format!("{path} = {value}: {other}"),
-                },
-            })?;
-        }
-        self.settings = next;
-        Ok(applied)
+        let t = self.replace(next, &format!("{path} = {value}"))?;
+        Ok((applied, t))
+    }
+
+    /// Validates and applies several node changes together, at one sample boundary; returns
+    /// the values as applied (in order) and the simulated time they took effect. On error
+    /// (which names the node) nothing changes.
+    pub fn set_many(
+        &mut self,
+        values: &[(String, Value)],
+    ) -> Result<(Vec<Value>, Option<f64>), ProtocolError> {
+        let mut next = self.settings.clone();
+        let applied = next.set_many(values).map_err(|e| ProtocolError::from(&e))?;
+        let what = values
+            .iter()
+            .map(|(p, _)| p.as_str())
+            .collect::<Vec<_>>()
+            .join(", ");
+        let t = self.replace(next, &what)?;
+        Ok((applied, t))
     }
 
     pub fn counters(&self) -> CountersSnapshot {
@@ -82,6 +96,20 @@ impl Control {
             .as_ref()
             .map(|p| p.counters())
             .unwrap_or_default()
+    }
+}
+
+/// A pipeline's refusal as the protocol's error; `what` names the change.
+fn pipeline_error(e: PipelineError, what: &str) -> ProtocolError {
+    match e {
+        PipelineError::Busy => ProtocolError {
+            code: ErrorCode::Busy,
+            message: format!("{what}: {e}; retry shortly"),
+        },
+        other => ProtocolError {
+            code: ErrorCode::InvalidValue,
+            message: format!("{what}: {other}"),
+        },
     }
 }
 
@@ -407,6 +435,8 @@ pub(crate) struct AppState {
     pub latency_totals: Mutex<[super::status::LatencySummary; 2]>,
     /// The `force` stream's worker.
     pub force: super::force::ForceLink,
+    /// The newest demodulator frame, for reads of measured values (`/demods/N/sample`).
+    pub latest_demods: Mutex<Option<crate::pipeline::DemodFrame>>,
     pub image: super::image::ImageLink,
     /// The machine's stalls, measured beside the server (None if its thread would not
     /// start; the daemon runs without it).

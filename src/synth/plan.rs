@@ -113,6 +113,10 @@ pub struct SynthPlan {
     /// The scan, when `/scan/enable` is on: the tip moves over the sample map under the
     /// amplitude feedback ([`process_scan`](Self::process_scan)).
     pub scan: Option<ScanPlan>,
+    /// The settings epoch this plan belongs to (set by the pipeline when it queues the
+    /// plan): the synthesiser takes it up once that epoch is published, with the block it
+    /// stamps with it.
+    pub epoch: u64,
 }
 
 /// Per-mode constants as structure of arrays, zero past the plan's modes.
@@ -260,6 +264,7 @@ impl SynthPlan {
             thermal_sigma,
             detector_sigma,
             adc,
+            epoch: 0,
         })
     }
 

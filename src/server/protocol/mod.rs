@@ -161,13 +161,16 @@ pub enum ErrorCode {
     RateLimited,
     /// The server cannot do it now (e.g. a settings change is in progress); retry.
     Busy,
+    /// A measured value was asked for that does not exist now (e.g. the latest output of
+    /// a disabled demodulator).
+    NoData,
     /// A bug or an unexpected failure in the server.
     Internal,
 }
 
 impl ErrorCode {
     /// Every code.
-    pub const ALL: [ErrorCode; 9] = [
+    pub const ALL: [ErrorCode; 10] = [
         ErrorCode::BadRequest,
         ErrorCode::UnknownOp,
         ErrorCode::UnknownPath,
@@ -176,6 +179,7 @@ impl ErrorCode {
         ErrorCode::UnknownStream,
         ErrorCode::RateLimited,
         ErrorCode::Busy,
+        ErrorCode::NoData,
         ErrorCode::Internal,
     ];
 
@@ -190,6 +194,7 @@ impl ErrorCode {
             ErrorCode::UnknownStream => "unknown_stream",
             ErrorCode::RateLimited => "rate_limited",
             ErrorCode::Busy => "busy",
+            ErrorCode::NoData => "no_data",
             ErrorCode::Internal => "internal",
         }
     }

@@ -26,6 +26,18 @@ pub enum Op {
         /// The new value, unchecked (the node tree validates it).
         value: Value,
     },
+    /// Change several nodes together, at one sample boundary (`set` with `values`).
+    SetMany {
+        /// (node path, new value) pairs, unchecked.
+        values: Vec<(String, Value)>,
+    },
+    /// The running settings as a TOML config file.
+    Settings,
+    /// Lay a TOML config over the running settings, as one transactional change.
+    LoadSettings {
+        /// The TOML text (a whole file from `settings`, or a partial one).
+        toml: String,
+    },
     /// Start (or re-format) a stream for this client.
     Subscribe {
         /// Which stream.
@@ -49,11 +61,13 @@ pub enum Op {
 
 impl Op {
     /// Every op's name, as a request spells it.
-    pub const NAMES: [&'static str; 8] = [
+    pub const NAMES: [&'static str; 10] = [
         "hello",
         "list",
         "get",
         "set",
+        "settings",
+        "load_settings",
         "presets",
         "preset",
         "subscribe",
@@ -66,7 +80,9 @@ impl Op {
             Op::Hello => "hello",
             Op::List { .. } => "list",
             Op::Get { .. } => "get",
-            Op::Set { .. } => "set",
+            Op::Set { .. } | Op::SetMany { .. } => "set",
+            Op::Settings => "settings",
+            Op::LoadSettings { .. } => "load_settings",
             Op::Presets => "presets",
             Op::Preset { .. } => "preset",
             Op::Subscribe { .. } => "subscribe",
@@ -219,6 +235,16 @@ fn parse_op(fields: &Map<String, Value>) -> Result<Op, ProtocolError> {
         "get" => Ok(Op::Get {
             path: required_path(fields, op)?,
         }),
+        "set" if fields.get("values").is_some_and(|v| !v.is_null()) => set_many(fields),
+        "settings" => Ok(Op::Settings),
+        "load_settings" => match fields.get("toml") {
+            Some(Value::String(toml)) => Ok(Op::LoadSettings { toml: toml.clone() }),
+            other => Err(bad(format!(
+                "op \"load_settings\" needs field \"toml\", a string holding a config file (as \
+                 op \"settings\" returns it); got {}",
+                other.map_or_else(|| "nothing".to_owned(), describe)
+            ))),
+        },
         "set" => {
             let path = required_path(fields, op)?;
             let value = fields.get("value").cloned().ok_or_else(|| {
@@ -249,6 +275,54 @@ fn parse_op(fields: &Map<String, Value>) -> Result<Op, ProtocolError> {
             format!("unknown op {}; ops: {}", quote(unknown), op_list()),
         )),
     }
+}
+
+/// Most nodes one batch `set` may change (there are about 300).
+const MAX_BATCH: usize = 1024;
+
+/// `set` with `values`: an object of node path → value, at least one, no `path` beside it.
+fn set_many(fields: &Map<String, Value>) -> Result<Op, ProtocolError> {
+    if fields.get("path").is_some_and(|p| !p.is_null()) {
+        return Err(bad(
+            "op \"set\" takes either \"path\" and \"value\" (one node) or \"values\" (several), \
+             not both"
+                .to_owned(),
+        ));
+    }
+    let example = r#"{"/drive/frequency": 1e5, "/surface/distance": 2e-8}"#;
+    let values = match fields.get("values") {
+        Some(Value::Object(values)) if !values.is_empty() && values.len() <= MAX_BATCH => values,
+        Some(Value::Object(values)) if values.is_empty() => {
+            return Err(bad(format!(
+                "field \"values\" of op \"set\" is empty: give at least one node, e.g. {example}"
+            )));
+        }
+        Some(Value::Object(values)) => {
+            return Err(bad(format!(
+                "field \"values\" of op \"set\" has {} nodes: at most {MAX_BATCH}",
+                values.len()
+            )));
+        }
+        other => {
+            return Err(bad(format!(
+                "field \"values\" of op \"set\" must be an object of node path → value, e.g. \
+                 {example}; got {}",
+                other.map_or_else(|| "nothing".to_owned(), describe)
+            )));
+        }
+    };
+    let mut pairs = Vec::with_capacity(values.len());
+    for (path, value) in values {
+        if !path.starts_with('/') {
+            return Err(bad(format!(
+                "key {} of field \"values\" of op \"set\" must be a node path starting with \
+                 \"/\" (such as \"/drive/frequency\")",
+                quote(path)
+            )));
+        }
+        pairs.push((path.clone(), value.clone()));
+    }
+    Ok(Op::SetMany { values: pairs })
 }
 
 fn required_path(fields: &Map<String, Value>, op: &str) -> Result<String, ProtocolError> {

@@ -1,0 +1,221 @@
+//! What scripts and the Python package need from the daemon, over a real WebSocket: the
+//! simulated time a change took effect, batch sets at one sample boundary, the latest
+//! measured value of a demodulator by path, and the settings as a config file.
+
+use serde_json::{Value, json};
+
+mod common;
+use common::*;
+
+/// Demodulator frames until one reflects samples at or after `t` (s).
+async fn demods_from(ws: &mut Ws, t: f64) -> Value {
+    loop {
+        let frame = next_of(ws, "demods").await;
+        if frame["t"].as_f64().unwrap() >= t {
+            return frame;
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_set_says_when_it_took_effect_and_a_batch_is_all_or_nothing() {
+    let d = Daemon::start(light()).await;
+    let mut ws = connect(d.addr).await;
+    let one = call(
+        &mut ws,
+        json!({"id": 1, "op": "set", "path": "/surface/distance", "value": 1.8e-8}),
+    )
+    .await;
+    assert_eq!(one["ok"], true, "{one}");
+    let t1 = one["t"].as_f64().expect("t of the change");
+    assert!(t1 > 0.0, "{one}");
+
+    // Data from samples after t shows the change; data before it cannot.
+    call(&mut ws, json!({"op": "subscribe", "stream": "demods"})).await;
+    let batch = call(
+        &mut ws,
+        json!({"id": 2, "op": "set", "values": {
+            "/surface/distance": 1.5e-8, "/demods/1/harmonic": 5.0, "/demods/1/rate": 200}}),
+    )
+    .await;
+    assert_eq!(batch["ok"], true, "{batch}");
+    assert_eq!(
+        batch["values"],
+        json!({"/surface/distance": 1.5e-8, "/demods/1/harmonic": 5, "/demods/1/rate": 200.0})
+    );
+    let t2 = batch["t"].as_f64().unwrap();
+    assert!(t2 > t1, "{t2} after {t1}");
+    let after = demods_from(&mut ws, t2 + 0.05).await;
+    let demod1 = after["demods"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|v| v["index"] == 1)
+        .unwrap();
+    assert_eq!(demod1["harmonic"], 5, "{after}");
+
+    // A refused batch names its node and changes nothing, the good nodes in it included.
+    for (values, code_wanted, names) in [
+        (
+            json!({"/surface/distance": 1e-8, "/demods/1/harmonic": -1}),
+            "invalid_value",
+            "/demods/1/harmonic",
+        ),
+        (
+            json!({"/surface/distance": 1e-8, "/synth/sample_rate": 4e6}),
+            "read_only",
+            "/synth/sample_rate",
+        ),
+        (
+            json!({"/surface/distance": 1e-8, "/surface/distanse": 1}),
+            "unknown_path",
+            "/surface/distanse",
+        ),
+    ] {
+        let r = call(&mut ws, json!({"id": 9, "op": "set", "values": values})).await;
+        assert_eq!((r["id"].clone(), code(&r)), (json!(9), code_wanted), "{r}");
+        assert!(
+            r["error"]["message"].as_str().unwrap().contains(names),
+            "{r}"
+        );
+        let get = call(&mut ws, json!({"op": "get", "path": "/surface/distance"})).await;
+        assert_eq!(get["value"], 1.5e-8, "a refused batch changed a node");
+    }
+    for bad in [
+        json!({"op": "set", "values": {}}),
+        json!({"op": "set", "values": [1, 2]}),
+        json!({"op": "set", "values": {"surface/distance": 1e-8}}),
+        json!({"op": "set", "path": "/surface/distance", "value": 1e-8,
+               "values": {"/surface/distance": 1e-8}}),
+    ] {
+        let r = call(&mut ws, bad.clone()).await;
+        assert_eq!(code(&r), "bad_request", "{bad} → {r}");
+    }
+    d.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_latest_output_of_a_demodulator_is_read_by_path() {
+    let mut settings = light();
+    settings.demods[4].enable = false;
+    let d = Daemon::start(settings).await;
+    let mut ws = connect(d.addr).await;
+    // The first output may not be there yet: no_data until it is.
+    let sample = loop {
+        let r = call(&mut ws, json!({"op": "get", "path": "/demods/0/sample"})).await;
+        if r["ok"] == true {
+            break r;
+        }
+        assert_eq!(code(&r), "no_data", "{r}");
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+    };
+    let v = &sample["value"];
+    assert_eq!(v["harmonic"], 1);
+    let (x, y, r) = (
+        v["x"].as_f64().unwrap(),
+        v["y"].as_f64().unwrap(),
+        v["r"].as_f64().unwrap(),
+    );
+    assert!((x.hypot(y) - r).abs() <= 1e-12 * r, "{v}");
+    assert!(r > 1e-9, "the tapping amplitude, {r} m");
+
+    // It is the newest: after a change, the value comes from samples after it.
+    let set = call(
+        &mut ws,
+        json!({"op": "set", "path": "/surface/distance", "value": 1.6e-8}),
+    )
+    .await;
+    let t = set["t"].as_f64().unwrap();
+    let later = loop {
+        let r = call(&mut ws, json!({"op": "get", "path": "/demods/0/sample"})).await;
+        if r["value"]["t"].as_f64().unwrap() > t {
+            break r;
+        }
+    };
+    assert!(later["value"]["t"].as_f64().unwrap() > v["t"].as_f64().unwrap());
+
+    let disabled = call(
+        &mut ws,
+        json!({"id": 5, "op": "get", "path": "/demods/4/sample"}),
+    )
+    .await;
+    assert_eq!(
+        (disabled["id"].clone(), code(&disabled)),
+        (json!(5), "no_data")
+    );
+    assert!(
+        disabled["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("/demods/4/enable"),
+        "{disabled}"
+    );
+    let beyond = call(&mut ws, json!({"op": "get", "path": "/demods/32/sample"})).await;
+    assert_eq!(code(&beyond), "unknown_path", "{beyond}");
+    d.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn settings_go_out_as_a_config_file_and_come_back() {
+    let d = Daemon::start(light()).await;
+    let mut ws = connect(d.addr).await;
+    let saved = call(&mut ws, json!({"id": 1, "op": "settings"})).await;
+    let toml = saved["toml"].as_str().unwrap().to_owned();
+    // It is the running settings, whole: what `--config` reads back to the same.
+    let running = ftafm::config::load_str(&toml, "saved").unwrap();
+    assert_eq!(running, light());
+
+    call(
+        &mut ws,
+        json!({"op": "set", "values": {"/surface/distance": 1.2e-8, "/sample/youngs_modulus": 3e9}}),
+    )
+    .await;
+    let loaded = call(
+        &mut ws,
+        json!({"id": 2, "op": "load_settings", "toml": toml}),
+    )
+    .await;
+    assert_eq!(loaded["ok"], true, "{loaded}");
+    assert!(loaded["t"].as_f64().unwrap() > 0.0);
+    for (path, value) in [
+        ("/surface/distance", 2e-8),
+        ("/sample/youngs_modulus", 129e9),
+    ] {
+        let get = call(&mut ws, json!({"op": "get", "path": path})).await;
+        assert_eq!(get["value"], value, "{path} restored");
+    }
+
+    // A partial file changes its nodes only; a bad one names the key and changes nothing.
+    let partial = call(
+        &mut ws,
+        json!({"op": "load_settings", "toml": "[surface]\ndistance = 1.9e-8\n"}),
+    )
+    .await;
+    assert_eq!(partial["ok"], true, "{partial}");
+    for (text, code_wanted, names) in [
+        (
+            "[surface]\ndistance = -1.0\n",
+            "invalid_value",
+            "/surface/distance",
+        ),
+        ("[surface]\ndistanse = 1e-8\n", "invalid_value", "distanse"),
+        (
+            "[synth]\nsample_rate = 4e6\n",
+            "read_only",
+            "/synth/sample_rate",
+        ),
+        ("[surface\n", "invalid_value", "settings"),
+    ] {
+        let r = call(&mut ws, json!({"op": "load_settings", "toml": text})).await;
+        assert_eq!(code(&r), code_wanted, "{text} → {r}");
+        assert!(
+            r["error"]["message"].as_str().unwrap().contains(names),
+            "{r}"
+        );
+    }
+    let get = call(&mut ws, json!({"op": "get", "path": "/surface/distance"})).await;
+    assert_eq!(get["value"], 1.9e-8);
+    let missing = call(&mut ws, json!({"op": "load_settings"})).await;
+    assert_eq!(code(&missing), "bad_request");
+    d.shutdown().await;
+}
