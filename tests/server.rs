@@ -40,6 +40,31 @@ async fn every_op_answers_and_ids_are_echoed() {
     assert_eq!(modulus["writable"], true);
     assert_eq!(modulus["value"], 129e9);
     assert!(modulus["max"].is_number() && modulus["description"].is_string());
+    assert_eq!(modulus["type"], "float");
+    assert!(modulus.get("allowed").is_none());
+    let window = nodes
+        .iter()
+        .find(|n| n["path"] == "/spectrum/window")
+        .unwrap();
+    assert_eq!(window["type"], "text");
+    assert_eq!(
+        window["allowed"],
+        json!(["rectangular", "hann", "blackman_harris", "flat_top"])
+    );
+    let types: std::collections::BTreeSet<&str> =
+        nodes.iter().map(|n| n["type"].as_str().unwrap()).collect();
+    assert_eq!(
+        types,
+        [
+            "bool",
+            "float",
+            "float_list",
+            "integer",
+            "text",
+            "text_list"
+        ]
+        .into()
+    );
     let demod3 = call(
         &mut ws,
         json!({"id": [1, 2], "op": "list", "path": "/demods/3"}),

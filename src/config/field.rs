@@ -313,6 +313,20 @@ pub enum Kind {
     },
 }
 
+impl Kind {
+    /// The name of the value's type in the protocol's `list` (`type`).
+    pub fn type_name(self) -> &'static str {
+        match self {
+            Kind::Float(_) => "float",
+            Kind::Integer { .. } | Kind::PowerOfTwo { .. } => "integer",
+            Kind::Bool => "bool",
+            Kind::Text(_) => "text",
+            Kind::FloatList { .. } => "float_list",
+            Kind::TextList { .. } => "text_list",
+        }
+    }
+}
+
 /// The form each entry of a [`Kind::TextList`] takes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum TextEntry {

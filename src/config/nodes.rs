@@ -442,6 +442,13 @@ pub struct NodeInfo {
     pub max: Value,
     /// One sentence with the unit.
     pub description: String,
+    /// The value's type: `"float"`, `"integer"` (a power of two where `description` says
+    /// so), `"bool"`, `"text"`, `"float_list"` or `"text_list"`.
+    #[serde(rename = "type")]
+    pub kind: String,
+    /// For a text node, the values it accepts; absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub allowed: Option<Vec<String>>,
     /// What the current value means for the instrument when it is not what the node alone
     /// suggests (e.g. a demodulator out of band); absent otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -674,6 +681,13 @@ impl Settings {
                     min,
                     max,
                     description: spec.description.clone(),
+                    kind: spec.kind.type_name().to_owned(),
+                    allowed: match spec.kind {
+                        Kind::Text(choices) => {
+                            Some(choices.iter().map(|c| (*c).to_owned()).collect())
+                        }
+                        _ => None,
+                    },
                     warning: self.node_warning(&spec.path),
                 })
             })
