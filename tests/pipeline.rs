@@ -178,6 +178,66 @@ fn a_change_takes_effect_at_one_sample_boundary_in_both_threads() {
     pipeline.stop();
 }
 
+/// A change that leaves the lock-in bank's settings alone (the spectrum's window, the
+/// scope) keeps the demodulators' filters running: no output drops back towards zero and
+/// settles again, as it does when the bank itself changes.
+#[test]
+fn a_change_beside_the_lock_in_keeps_its_filters_running() {
+    let settings = free_running_quiet();
+    let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    let steady = run_until(&mut output, 0.02).values()[0].r();
+    let mut next = settings.clone();
+    next.spectrum.window = ftafm::config::SpectrumWindow::BlackmanHarris;
+    next.scope.length = 512;
+    let epoch = pipeline.apply(&next).unwrap();
+    let index = pipeline
+        .effective_index(epoch, Duration::from_secs(60))
+        .unwrap();
+    let t_change = index as f64 / settings.synth.sample_rate;
+    // Every frame of the next 5 ms (50 filter time constants would be needed to recover
+    // from a restart at zero) stays at the steady amplitude.
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let mut seen = 0;
+    while seen < 5 {
+        assert!(Instant::now() < deadline, "no frames after the change");
+        while let Some(f) = output.demods.try_pop() {
+            if f.t > t_change && f.t < t_change + 0.005 {
+                let r = f.values()[0].r();
+                assert!(
+                    (r / steady - 1.0).abs() < 1e-3,
+                    "H1 {r:e} vs {steady:e} at t = {}",
+                    f.t
+                );
+                seen += 1;
+            }
+        }
+        while let Some(b) = output.spectra.try_pop() {
+            output.recycle(b);
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    assert_eq!(pipeline.counters().dsp_plans_applied, 1);
+
+    // The bank changed: its filters start again (the check above can fail).
+    next.demods[0].timeconstant *= 2.0;
+    let epoch = pipeline.apply(&next).unwrap();
+    let index = pipeline
+        .effective_index(epoch, Duration::from_secs(60))
+        .unwrap();
+    let t_change = index as f64 / settings.synth.sample_rate;
+    let first = loop {
+        let f = run_until(&mut output, t_change);
+        if f.t > t_change {
+            break f;
+        }
+    };
+    assert!(
+        first.values()[0].r() < 0.5 * steady,
+        "a new bank starts from zero"
+    );
+    pipeline.stop();
+}
+
 #[test]
 fn real_time_pacing_follows_the_wall_clock() {
     let mut settings = default_settings();

@@ -23,13 +23,17 @@ pub struct DspPlan {
     /// The settings epoch this plan belongs to: the DSP thread takes it up with the first
     /// block of that epoch (`BlockHeader::epoch`).
     pub(crate) epoch: u64,
+    /// What the bank was built from: a plan built from the same takes over the running
+    /// bank (its filters' state) instead of starting from zero.
+    bank_key: (f64, Vec<Demodulator>),
 }
 
 impl DspPlan {
     /// Builds the bank and spectrum of `settings` (plans FFTs, allocates every buffer).
     pub fn new(settings: &Settings) -> Result<Self, DspError> {
         let fs = settings.synth.sample_rate;
-        let bank = LockInBank::new(fs, settings.drive.frequency, &demodulators(settings))?;
+        let demods = demodulators(settings);
+        let bank = LockInBank::new(fs, settings.drive.frequency, &demods)?;
         let spectrum = if settings.spectrum.enable {
             let hop =
                 usize::try_from(samples_between(fs, settings.spectrum.rate)).unwrap_or(usize::MAX);
@@ -57,12 +61,23 @@ impl DspPlan {
             bank_offset: 0,
             spectrum_offset: 0,
             epoch: 0,
+            bank_key: (settings.drive.frequency, demods),
         })
     }
 
     /// Bins per spectrum frame (0 without a spectrum).
     pub fn spectrum_bins(&self) -> usize {
         self.spectrum.as_ref().map_or(0, |s| s.bin_count())
+    }
+
+    /// Takes over `old`'s running lock-in bank when this plan's is built from the same
+    /// settings, so that a change elsewhere (the spectrum, the scope, another node of the
+    /// plan) does not restart every demodulator's filter from zero. A swap: nothing is
+    /// allocated or freed (the real-time thread calls this).
+    pub(crate) fn inherit_bank(&mut self, old: &mut DspPlan) {
+        if self.bank_key == old.bank_key {
+            std::mem::swap(&mut self.bank, &mut old.bank);
+        }
     }
 
     /// The stream continues at `index` (a new plan, or after an overrun): map the bank's and

@@ -99,13 +99,18 @@ impl DspWorker {
             };
             // Plans of this block's epoch (or earlier) take over from this block on. The
             // header was pushed after its epoch's plans were queued, so they are visible.
+            let continuous = expected == Some(header.index);
             loop {
                 if self.pending.is_none() {
                     self.pending = self.plans_in.try_pop();
                 }
                 match self.pending.take() {
-                    Some(next) if next.epoch <= header.epoch => {
+                    Some(mut next) if next.epoch <= header.epoch => {
                         self.epochs.dsp_took_up(next.epoch, header.index);
+                        // Only a continuous stream may carry the filters' state over.
+                        if continuous {
+                            next.inherit_bank(&mut self.plan);
+                        }
                         let old = std::mem::replace(&mut self.plan, next);
                         // The control side keeps plans in flight (this pending one
                         // included) below the return queue's capacity.

@@ -1,0 +1,37 @@
+"""ftafm: the Python client of the ftafm virtual FT-AFM instrument.
+
+>>> import ftafm
+>>> with ftafm.Instrument("ws://127.0.0.1:8700/ws") as inst:   # doctest: +SKIP
+...     t = inst.set("/surface/distance", 15e-9)
+...     inst.wait_until(t + 0.05)
+...     print(inst.sample(0)["r"])
+
+- :class:`Instrument` (synchronous) and :mod:`ftafm.aio` (asyncio): get, set, set_many,
+  sample, poll, wait_until, record (HDF5), save_settings, load_settings, presets.
+- :mod:`ftafm.data`: stream messages as numpy arrays.
+- :mod:`ftafm.qcodes`: the QCoDeS driver (``pip install ftafm[qcodes]``).
+- :mod:`ftafm.testing`: a daemon on port 0 for test suites, and pytest fixtures.
+"""
+
+from .aio import DEFAULT_URL, Node
+from .client import Instrument
+from .data import DemodData, ForceData, ImageData, ScopeData, SpectrumData, StatusData, StreamData
+from .errors import ConnectionLost, InstrumentError
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "DEFAULT_URL",
+    "ConnectionLost",
+    "DemodData",
+    "ForceData",
+    "ImageData",
+    "Instrument",
+    "InstrumentError",
+    "Node",
+    "ScopeData",
+    "SpectrumData",
+    "StatusData",
+    "StreamData",
+    "__version__",
+]

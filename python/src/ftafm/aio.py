@@ -1,0 +1,355 @@
+"""The asyncio client: ``async with ftafm.aio.Instrument(url) as inst: ...``.
+
+One WebSocket connection; a reader task hands each reply to the request waiting for it
+(matched by id) and each data message to the streams being read. Every call of the
+synchronous :class:`ftafm.Instrument` is one of these coroutines.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import json
+import math
+import os
+from dataclasses import dataclass
+from typing import Any, AsyncIterator, Iterable, Mapping
+
+import websockets
+from websockets.asyncio.client import ClientConnection
+
+from . import data
+from .errors import ConnectionLost, InstrumentError
+
+#: Where ``ftafm serve`` listens by default.
+DEFAULT_URL = "ws://127.0.0.1:8700/ws"
+
+
+@dataclass(frozen=True)
+class Node:
+    """One node of the settings tree, as ``list`` describes it."""
+
+    path: str
+    value: Any
+    unit: str
+    writable: bool
+    type: str
+    min: Any
+    max: Any
+    description: str
+    allowed: tuple[str, ...] | None = None
+    warning: str | None = None
+
+    @classmethod
+    def from_json(cls, n: Mapping[str, Any]) -> "Node":
+        allowed = n.get("allowed")
+        return cls(
+            path=n["path"],
+            value=n["value"],
+            unit=n["unit"],
+            writable=n["writable"],
+            type=n.get("type", ""),
+            min=n.get("min"),
+            max=n.get("max"),
+            description=n.get("description", ""),
+            allowed=tuple(allowed) if allowed is not None else None,
+            warning=n.get("warning"),
+        )
+
+
+def _check_finite(value: Any, where: str) -> None:
+    """JSON has no NaN or infinity: refuse them here, with the node's name."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"{where} = {value!r}: values must be finite numbers")
+    if isinstance(value, (list, tuple)):
+        for v in value:
+            _check_finite(v, where)
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars and arrays as the JSON types they stand for."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return value
+
+
+class Instrument:
+    """A connection to an ftafm daemon (asyncio).
+
+    ``url`` is the daemon's WebSocket endpoint (default ``ws://127.0.0.1:8700/ws``, or the
+    ``FTAFM_URL`` environment variable); ``timeout`` bounds each request's wait for its
+    reply, in seconds.
+    """
+
+    def __init__(self, url: str | None = None, *, timeout: float = 10.0):
+        self.url = url or os.environ.get("FTAFM_URL", DEFAULT_URL)
+        self.timeout = timeout
+        self._ws: ClientConnection | None = None
+        self._reader: asyncio.Task[None] | None = None
+        self._ids = itertools.count(1)
+        self._pending: dict[int, asyncio.Future[dict[str, Any]]] = {}
+        self._readers: dict[str, list[asyncio.Queue[dict[str, Any] | None]]] = {}
+        self._closed: str | None = None
+        self.hello: dict[str, Any] = {}
+
+    # -- connection ----------------------------------------------------------------------
+
+    async def connect(self) -> "Instrument":
+        """Opens the connection and greets the daemon (``hello``)."""
+        self._ws = await websockets.connect(self.url, max_size=None, open_timeout=self.timeout)
+        self._closed = None
+        self._reader = asyncio.create_task(self._read())
+        self.hello = await self.request("hello")
+        return self
+
+    async def close(self) -> None:
+        """Closes the connection; waiting requests and streams end with ConnectionLost."""
+        if self._ws is not None:
+            await self._ws.close()
+        if self._reader is not None:
+            await asyncio.gather(self._reader, return_exceptions=True)
+        self._ws = None
+
+    async def __aenter__(self) -> "Instrument":
+        return await self.connect()
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    async def _read(self) -> None:
+        assert self._ws is not None
+        reason = "the daemon closed the connection"
+        try:
+            async for frame in self._ws:
+                if isinstance(frame, bytes):
+                    continue  # this client subscribes in JSON only
+                msg = json.loads(frame)
+                if "ok" in msg:
+                    fut = self._pending.pop(msg.get("id"), None)
+                    if fut is not None and not fut.done():
+                        fut.set_result(msg)
+                    continue
+                for queue in self._readers.get(msg.get("stream", ""), []):
+                    queue.put_nowait(msg)
+        except websockets.ConnectionClosed as e:
+            reason = f"the connection closed ({e})"
+        finally:
+            self._closed = reason
+            for fut in self._pending.values():
+                if not fut.done():
+                    fut.set_exception(ConnectionLost(reason))
+            self._pending.clear()
+            for queues in self._readers.values():
+                for q in queues:
+                    q.put_nowait(None)
+
+    # -- requests ------------------------------------------------------------------------
+
+    async def request(self, op: str, **fields: Any) -> dict[str, Any]:
+        """Sends one request and returns its reply; raises InstrumentError on a refusal."""
+        if self._ws is None or self._closed is not None:
+            raise ConnectionLost(self._closed or "not connected: use `async with` or connect()")
+        rid = next(self._ids)
+        fut: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
+        self._pending[rid] = fut
+        request = {"id": rid, "op": op, **fields}
+        await self._ws.send(json.dumps(request, allow_nan=False))
+        try:
+            reply = await asyncio.wait_for(fut, self.timeout)
+        except asyncio.TimeoutError:
+            self._pending.pop(rid, None)
+            raise InstrumentError(
+                "timeout", f"no reply to {op} within {self.timeout} s", request
+            ) from None
+        if not reply.get("ok"):
+            err = reply.get("error", {})
+            raise InstrumentError(err.get("code", "internal"), err.get("message", ""), request)
+        return reply
+
+    async def info(self) -> dict[str, Any]:
+        """Server name, version, protocol version and sample rate (Hz), and the warnings of
+        the operating point now (from ``status``)."""
+        info = {k: v for k, v in self.hello.items() if k not in ("id", "ok")}
+        status = await self.next("status")
+        info["warnings"] = status.get("warnings", [])
+        info["realtime_factor"] = status.get("realtime_factor")
+        return info
+
+    async def nodes(self, path: str | None = None) -> list[Node]:
+        """Every node (or those under ``path``) with its value, unit, type and range."""
+        fields = {"path": path} if path else {}
+        reply = await self.request("list", **fields)
+        return [Node.from_json(n) for n in reply["nodes"]]
+
+    async def get(self, path: str) -> Any:
+        """The value of the node at ``path`` (or a measured value: ``/demods/N/sample``)."""
+        return (await self.request("get", path=path))["value"]
+
+    async def set(self, path: str, value: Any) -> float | None:
+        """Sets one node; returns the simulated time (s) at which the change took effect."""
+        value = _plain(value)
+        _check_finite(value, path)
+        return (await self.request("set", path=path, value=value)).get("t")
+
+    async def set_many(self, values: Mapping[str, Any]) -> float | None:
+        """Sets several nodes together, at one sample boundary, all or nothing; returns the
+        simulated time (s) at which they took effect."""
+        plain = {p: _plain(v) for p, v in values.items()}
+        for p, v in plain.items():
+            _check_finite(v, p)
+        return (await self.request("set", values=plain)).get("t")
+
+    async def sample(self, demod: int = 0) -> dict[str, float]:
+        """The newest output of demodulator ``demod``: ``t`` (s), ``harmonic``, ``x``,
+        ``y``, ``r`` (m), ``phase`` (rad)."""
+        return await self.get(f"/demods/{demod}/sample")
+
+    async def presets(self) -> list[dict[str, str]]:
+        """The presets (real cantilevers and samples): name, kind, summary."""
+        return (await self.request("presets"))["presets"]
+
+    async def preset(self, name: str) -> float | None:
+        """Loads a preset; returns the simulated time (s) it took effect."""
+        return (await self.request("preset", name=name)).get("t")
+
+    async def settings_toml(self) -> str:
+        """The running settings as a config file (TOML)."""
+        return (await self.request("settings"))["toml"]
+
+    async def save_settings(self, file: str | os.PathLike[str]) -> None:
+        """Writes the running settings to ``file``, a config ``ftafm --config`` accepts."""
+        text = await self.settings_toml()
+        with open(file, "w", encoding="utf-8") as f:
+            f.write(text)
+
+    async def load_settings(self, file: str | os.PathLike[str]) -> float | None:
+        """Lays the config in ``file`` (whole or partial) over the running settings as one
+        change; returns the simulated time (s) it took effect."""
+        with open(file, encoding="utf-8") as f:
+            text = f.read()
+        return (await self.request("load_settings", toml=text)).get("t")
+
+    # -- streams -------------------------------------------------------------------------
+
+    async def _subscribe(
+        self, stream: str, queue: asyncio.Queue[dict[str, Any] | None] | None = None
+    ) -> asyncio.Queue[dict[str, Any] | None]:
+        if stream not in data.STREAMS:
+            raise ValueError(f"unknown stream {stream!r}; streams: {', '.join(data.STREAMS)}")
+        if queue is None:
+            queue = asyncio.Queue()
+        readers = self._readers.setdefault(stream, [])
+        readers.append(queue)
+        if len(readers) == 1:
+            try:
+                await self.request("subscribe", stream=stream)
+            except BaseException:
+                readers.remove(queue)
+                raise
+        return queue
+
+    async def _unsubscribe(self, stream: str, queue: asyncio.Queue[Any]) -> None:
+        readers = self._readers.get(stream, [])
+        if queue in readers:
+            readers.remove(queue)
+        if not readers and self._closed is None:
+            try:
+                await self.request("unsubscribe", stream=stream)
+            except ConnectionLost:
+                pass
+
+    async def messages(
+        self, stream: str, *, timeout: float | None = None
+    ) -> AsyncIterator[dict[str, Any]]:
+        """The messages of ``stream`` as they come (subscribed while iterating). Raises
+        InstrumentError ``timeout`` when none comes for ``timeout`` s (default: the
+        client's)."""
+        queue = await self._subscribe(stream)
+        wait = self.timeout if timeout is None else timeout
+        try:
+            while True:
+                try:
+                    msg = await asyncio.wait_for(queue.get(), wait)
+                except asyncio.TimeoutError:
+                    raise InstrumentError(
+                        "timeout", f"no {stream} message within {wait} s"
+                    ) from None
+                if msg is None:
+                    raise ConnectionLost(self._closed or "connection closed")
+                yield msg
+        finally:
+            await self._unsubscribe(stream, queue)
+
+    async def next(self, stream: str) -> dict[str, Any]:
+        """The next message of ``stream``."""
+        gen = self.messages(stream)
+        try:
+            return await gen.__anext__()
+        finally:
+            await gen.aclose()
+
+    async def poll(
+        self, stream: str, seconds: float, *, timeout: float | None = None
+    ) -> data.StreamData:
+        """The messages of ``stream`` over ``seconds`` of simulated time, as arrays.
+
+        Collects from the first message on until one reflects samples ``seconds`` later
+        (that one excluded). Simulated time runs with the wall clock in real time and
+        faster when free-running. ``timeout`` (s) bounds the wait for each message.
+        """
+        rows: list[dict[str, Any]] = []
+        gen = self.messages(stream, timeout=timeout)
+        try:
+            async for msg in gen:
+                if rows and msg["t"] >= rows[0]["t"] + seconds:
+                    break
+                rows.append(msg)
+        finally:
+            await gen.aclose()
+        return data.from_messages(stream, rows)
+
+    async def wait_until(self, t: float, *, timeout: float | None = None) -> float:
+        """Waits until the instrument has processed its signal up to simulated time ``t``
+        (s), e.g. a ``set``'s return value plus a settling time; returns the time reached.
+        ``timeout`` (s, default: the client's) bounds the wait for each status message."""
+        # The demodulators' frames (1 kHz) say it soonest; status (2 Hz) also while none
+        # is enabled.
+        queue: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue()
+        wait = self.timeout if timeout is None else timeout
+        subscribed = []
+        try:
+            for stream in ("demods", "status"):
+                await self._subscribe(stream, queue)
+                subscribed.append(stream)
+            while True:
+                try:
+                    msg = await asyncio.wait_for(queue.get(), wait)
+                except asyncio.TimeoutError:
+                    raise InstrumentError(
+                        "timeout", f"simulated time {t} s not reached: no data within {wait} s"
+                    ) from None
+                if msg is None:
+                    raise ConnectionLost(self._closed or "connection closed")
+                if msg["t"] >= t:
+                    return float(msg["t"])
+        finally:
+            for stream in subscribed:
+                await self._unsubscribe(stream, queue)
+
+    async def record(
+        self,
+        file: str | os.PathLike[str],
+        streams: Iterable[str] = ("demods",),
+        seconds: float = 1.0,
+    ) -> dict[str, int]:
+        """Records ``streams`` for ``seconds`` of simulated time into the HDF5 ``file``
+        (needs ``pip install ftafm[hdf5]``); returns the messages recorded per stream. See
+        :mod:`ftafm.record` for the layout."""
+        from .record import record
+
+        return await record(self, file, list(streams), seconds)
+
+
+async def connect(url: str | None = None, *, timeout: float = 10.0) -> Instrument:
+    """An open :class:`Instrument` (close it with ``await inst.close()``)."""
+    return await Instrument(url, timeout=timeout).connect()

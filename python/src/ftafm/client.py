@@ -1,0 +1,138 @@
+"""The synchronous client: ``with ftafm.Instrument(url) as inst: inst.set(...)``.
+
+Each method runs the coroutine of the same name of :class:`ftafm.aio.Instrument` on a
+private event loop in a background thread, so it works in scripts, notebooks (whose own
+loop it leaves alone) and QCoDeS alike.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import threading
+from typing import Any, Coroutine, Iterable, Mapping, TypeVar
+
+from . import aio, data
+
+T = TypeVar("T")
+
+
+class Instrument:
+    """A connection to an ftafm daemon.
+
+    ``url`` is its WebSocket endpoint (default ``ws://127.0.0.1:8700/ws``, or the
+    ``FTAFM_URL`` environment variable); ``timeout`` bounds each request's wait for its
+    reply, in seconds. Use it as a context manager, or call :meth:`close`.
+    """
+
+    def __init__(self, url: str | None = None, *, timeout: float = 10.0):
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(
+            target=self._loop.run_forever, name="ftafm-client", daemon=True
+        )
+        self._thread.start()
+        self._async = aio.Instrument(url, timeout=timeout)
+        try:
+            self._run(self._async.connect())
+        except BaseException:
+            self._stop_loop()
+            raise
+
+    def _run(self, coro: Coroutine[Any, Any, T]) -> T:
+        return asyncio.run_coroutine_threadsafe(coro, self._loop).result()
+
+    def _stop_loop(self) -> None:
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join()
+        self._loop.close()
+
+    @property
+    def url(self) -> str:
+        """The daemon's WebSocket endpoint."""
+        return self._async.url
+
+    @property
+    def hello(self) -> dict[str, Any]:
+        """The daemon's ``hello``: server, version, protocol, sample_rate (Hz)."""
+        return self._async.hello
+
+    def close(self) -> None:
+        """Closes the connection."""
+        if self._loop.is_closed():
+            return
+        try:
+            self._run(self._async.close())
+        finally:
+            self._stop_loop()
+
+    def __enter__(self) -> "Instrument":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def info(self) -> dict[str, Any]:
+        """Server, version, protocol, sample rate (Hz), warnings and real-time factor."""
+        return self._run(self._async.info())
+
+    def nodes(self, path: str | None = None) -> list[aio.Node]:
+        """Every node (or those under ``path``) with value, unit, type and range."""
+        return self._run(self._async.nodes(path))
+
+    def get(self, path: str) -> Any:
+        """The value of the node at ``path`` (or a measured value: ``/demods/N/sample``)."""
+        return self._run(self._async.get(path))
+
+    def set(self, path: str, value: Any) -> float | None:
+        """Sets one node; returns the simulated time (s) at which it took effect."""
+        return self._run(self._async.set(path, value))
+
+    def set_many(self, values: Mapping[str, Any]) -> float | None:
+        """Sets several nodes together at one sample boundary, all or nothing; returns the
+        simulated time (s) at which they took effect."""
+        return self._run(self._async.set_many(values))
+
+    def sample(self, demod: int = 0) -> dict[str, float]:
+        """The newest output of demodulator ``demod`` (t, harmonic, x, y, r, phase)."""
+        return self._run(self._async.sample(demod))
+
+    def wait_until(self, t: float, *, timeout: float | None = None) -> float:
+        """Waits until the signal is processed up to simulated time ``t`` (s)."""
+        return self._run(self._async.wait_until(t, timeout=timeout))
+
+    def poll(self, stream: str, seconds: float, *, timeout: float | None = None) -> data.StreamData:
+        """``stream``'s messages over ``seconds`` of simulated time, as numpy arrays."""
+        return self._run(self._async.poll(stream, seconds, timeout=timeout))
+
+    def next(self, stream: str) -> dict[str, Any]:
+        """The next message of ``stream``, as the daemon sent it."""
+        return self._run(self._async.next(stream))
+
+    def record(
+        self,
+        file: str | os.PathLike[str],
+        streams: Iterable[str] = ("demods",),
+        seconds: float = 1.0,
+    ) -> dict[str, int]:
+        """Records ``streams`` for ``seconds`` of simulated time to HDF5 ``file``."""
+        return self._run(self._async.record(file, streams, seconds))
+
+    def presets(self) -> list[dict[str, str]]:
+        """The presets: name, kind, summary."""
+        return self._run(self._async.presets())
+
+    def preset(self, name: str) -> float | None:
+        """Loads a preset; returns the simulated time (s) it took effect."""
+        return self._run(self._async.preset(name))
+
+    def settings_toml(self) -> str:
+        """The running settings as a config file (TOML)."""
+        return self._run(self._async.settings_toml())
+
+    def save_settings(self, file: str | os.PathLike[str]) -> None:
+        """Writes the running settings to ``file`` (``ftafm --config`` accepts it)."""
+        self._run(self._async.save_settings(file))
+
+    def load_settings(self, file: str | os.PathLike[str]) -> float | None:
+        """Lays the config in ``file`` over the running settings as one change."""
+        return self._run(self._async.load_settings(file))

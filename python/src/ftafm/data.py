@@ -1,0 +1,288 @@
+"""Stream messages as numpy arrays.
+
+``Instrument.poll`` returns one of these per stream: a row per message, in the order the
+daemon sent them, with ``t`` (simulated time, s), ``seq`` and ``t_synth_ns`` beside the
+stream's own fields, and ``gaps``, the number of messages the daemon dropped for this
+client in between (counted from ``seq``; a slow reader loses messages, never silently).
+A JSON ``null`` (a NaN or infinite value on the daemon's side) becomes NaN.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+#: Demodulators of the daemon's bank; demodulator N is column N of the demods arrays.
+DEMODULATORS = 32
+
+#: SI unit of each array, by stream and field (what HDF5 recordings store as ``unit``).
+UNITS: dict[str, dict[str, str]] = {
+    "common": {"t": "s", "seq": "1", "t_synth_ns": "ns"},
+    "demods": {"harmonic": "1", "x": "m", "y": "m", "r": "m", "phase": "rad"},
+    "spectrum": {"magnitudes": "m", "frequency": "Hz", "bin_width": "Hz"},
+    "scope": {"samples": "m", "dt": "s", "start_phase": "rad", "phase_step": "rad"},
+    "force": {
+        "contact_time_ratio": "1",
+        "contact_time_ratio_sigma": "1",
+        "max_force": "N",
+        "max_force_sigma": "N",
+        "youngs_modulus": "Pa",
+        "youngs_modulus_sigma": "Pa",
+        "pulse_phase": "rad",
+        "waveform": "N",
+    },
+    "status": {"realtime_factor": "1", "ring_fill": "1", "messages_dropped": "1"},
+    "image": {"line": "1", "frame": "1", "generation": "1"},
+}
+
+
+def unit(stream: str, name: str) -> str:
+    """The SI unit of array ``name`` of ``stream`` (``""`` if unknown)."""
+    return UNITS.get(stream, {}).get(name) or UNITS["common"].get(name, "")
+
+
+def _floats(values: Sequence[Any]) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in values], dtype=float)
+
+
+def _rows(rows: Sequence[Sequence[Any] | None]) -> np.ndarray:
+    """Rows of possibly different lengths as a 2-D float array, NaN-padded."""
+    width = max((len(r) for r in rows if r is not None), default=0)
+    out = np.full((len(rows), width), np.nan)
+    for i, r in enumerate(rows):
+        if r:
+            out[i, : len(r)] = [np.nan if v is None else v for v in r]
+    return out
+
+
+def count_gaps(seq: np.ndarray) -> int:
+    """Messages missing between consecutive ``seq`` values."""
+    if len(seq) < 2:
+        return 0
+    steps = np.diff(seq.astype(np.int64))
+    return int(np.sum(np.where(steps > 1, steps - 1, 0)))
+
+
+@dataclass
+class StreamData:
+    """Messages of one stream as arrays: ``t`` (s), ``seq``, ``t_synth_ns`` (Unix ns)."""
+
+    stream: str
+    t: np.ndarray
+    seq: np.ndarray
+    t_synth_ns: np.ndarray
+    gaps: int
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @classmethod
+    def _common(cls, stream: str, messages: Sequence[dict[str, Any]]) -> dict[str, Any]:
+        seq = np.array([m["seq"] for m in messages], dtype=np.int64)
+        return {
+            "stream": stream,
+            "t": _floats([m["t"] for m in messages]),
+            "seq": seq,
+            "t_synth_ns": np.array([m["t_synth_ns"] for m in messages], dtype=np.int64),
+            "gaps": count_gaps(seq),
+        }
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every array field by name (what a recording stores)."""
+        return {
+            k: v
+            for k, v in vars(self).items()
+            if isinstance(v, np.ndarray)
+        }
+
+
+@dataclass
+class DemodData(StreamData):
+    """The lock-in outputs: arrays of frames × 32 demodulators, column N for demodulator N.
+
+    Columns of demodulators that produced nothing in a frame (disabled, out of band) hold
+    NaN, and ``harmonic`` −1 there.
+    """
+
+    harmonic: np.ndarray = field(default_factory=lambda: np.empty((0, DEMODULATORS)))
+    x: np.ndarray = field(default_factory=lambda: np.empty((0, DEMODULATORS)))
+    y: np.ndarray = field(default_factory=lambda: np.empty((0, DEMODULATORS)))
+    r: np.ndarray = field(default_factory=lambda: np.empty((0, DEMODULATORS)))
+    phase: np.ndarray = field(default_factory=lambda: np.empty((0, DEMODULATORS)))
+
+    @classmethod
+    def from_messages(cls, messages: Sequence[dict[str, Any]]) -> "DemodData":
+        n = len(messages)
+        arrays = {k: np.full((n, DEMODULATORS), np.nan) for k in ("x", "y", "r", "phase")}
+        harmonic = np.full((n, DEMODULATORS), -1, dtype=np.int64)
+        for i, m in enumerate(messages):
+            for d in m["demods"]:
+                j = d["index"]
+                harmonic[i, j] = d["harmonic"]
+                for k in arrays:
+                    v = d[k]
+                    arrays[k][i, j] = np.nan if v is None else v
+        return cls(**cls._common("demods", messages), harmonic=harmonic, **arrays)
+
+    @property
+    def enabled(self) -> np.ndarray:
+        """Demodulator indices that produced output in at least one frame."""
+        return np.flatnonzero((self.harmonic >= 0).any(axis=0))
+
+    def column(self, harmonic: int) -> int:
+        """The first demodulator measuring ``harmonic`` in the last frame."""
+        if len(self) == 0:
+            raise ValueError("no frames")
+        hits = np.flatnonzero(self.harmonic[-1] == harmonic)
+        if len(hits) == 0:
+            raise ValueError(f"no demodulator measures harmonic {harmonic}")
+        return int(hits[0])
+
+
+@dataclass
+class SpectrumData(StreamData):
+    """Sliding-FFT magnitudes: ``magnitudes`` (spectra × bins, peak m), ``frequency`` (Hz)."""
+
+    bin_width: np.ndarray = field(default_factory=lambda: np.empty(0))
+    magnitudes: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+    frequency: np.ndarray = field(default_factory=lambda: np.empty(0))
+
+    @classmethod
+    def from_messages(cls, messages: Sequence[dict[str, Any]]) -> "SpectrumData":
+        mags = _rows([m["magnitudes"] for m in messages])
+        bw = _floats([m["bin_width"] for m in messages])
+        freq = np.arange(mags.shape[1]) * (bw[-1] if len(bw) else 0.0)
+        return cls(**cls._common("spectrum", messages), bin_width=bw, magnitudes=mags,
+                   frequency=freq)
+
+
+@dataclass
+class ScopeData(StreamData):
+    """Raw photodiode traces: ``samples`` (traces × samples, m), ``dt`` (s), phases (rad)."""
+
+    samples: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+    dt: np.ndarray = field(default_factory=lambda: np.empty(0))
+    start_phase: np.ndarray = field(default_factory=lambda: np.empty(0))
+    phase_step: np.ndarray = field(default_factory=lambda: np.empty(0))
+
+    @classmethod
+    def from_messages(cls, messages: Sequence[dict[str, Any]]) -> "ScopeData":
+        return cls(
+            **cls._common("scope", messages),
+            samples=_rows([m["samples"] for m in messages]),
+            dt=_floats([m["dt"] for m in messages]),
+            start_phase=_floats([m["start_phase"] for m in messages]),
+            phase_step=_floats([m["phase_step"] for m in messages]),
+        )
+
+
+_FORCE_SCALARS = (
+    "contact_time_ratio",
+    "contact_time_ratio_sigma",
+    "max_force",
+    "max_force_sigma",
+    "youngs_modulus",
+    "youngs_modulus_sigma",
+    "pulse_phase",
+)
+
+
+@dataclass
+class ForceData(StreamData):
+    """FT-AFM force estimates: τ, F (N), modulus (Pa), their sigmas, and the waveform (N)."""
+
+    contact_time_ratio: np.ndarray = field(default_factory=lambda: np.empty(0))
+    contact_time_ratio_sigma: np.ndarray = field(default_factory=lambda: np.empty(0))
+    max_force: np.ndarray = field(default_factory=lambda: np.empty(0))
+    max_force_sigma: np.ndarray = field(default_factory=lambda: np.empty(0))
+    youngs_modulus: np.ndarray = field(default_factory=lambda: np.empty(0))
+    youngs_modulus_sigma: np.ndarray = field(default_factory=lambda: np.empty(0))
+    pulse_phase: np.ndarray = field(default_factory=lambda: np.empty(0))
+    waveform: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+    method: list[str] = field(default_factory=list)
+    table_range: list[str] = field(default_factory=list)
+
+    @classmethod
+    def from_messages(cls, messages: Sequence[dict[str, Any]]) -> "ForceData":
+        scalars = {k: _floats([m.get(k) for m in messages]) for k in _FORCE_SCALARS}
+        return cls(
+            **cls._common("force", messages),
+            **scalars,
+            waveform=_rows([m.get("waveform") for m in messages]),
+            method=[m.get("method", "") for m in messages],
+            table_range=[m.get("table_range", "") for m in messages],
+        )
+
+
+@dataclass
+class StatusData(StreamData):
+    """Pipeline health: ``realtime_factor``, ``ring_fill``, ``messages_dropped`` as arrays,
+    and every message whole in ``messages`` (counters, latencies, warnings)."""
+
+    realtime_factor: np.ndarray = field(default_factory=lambda: np.empty(0))
+    ring_fill: np.ndarray = field(default_factory=lambda: np.empty(0))
+    messages_dropped: np.ndarray = field(default_factory=lambda: np.empty(0))
+    messages: list[dict[str, Any]] = field(default_factory=list)
+
+    @classmethod
+    def from_messages(cls, messages: Sequence[dict[str, Any]]) -> "StatusData":
+        return cls(
+            **cls._common("status", messages),
+            realtime_factor=_floats([m.get("realtime_factor") for m in messages]),
+            ring_fill=_floats([m.get("ring_fill") for m in messages]),
+            messages_dropped=_floats([m.get("messages_dropped") for m in messages]),
+            messages=list(messages),
+        )
+
+
+@dataclass
+class ImageData(StreamData):
+    """Scan lines: ``line``, ``frame``, ``generation`` per line and ``channels``, each
+    lines × pixels in the channel's unit (``units``)."""
+
+    line: np.ndarray = field(default_factory=lambda: np.empty(0))
+    frame: np.ndarray = field(default_factory=lambda: np.empty(0))
+    generation: np.ndarray = field(default_factory=lambda: np.empty(0))
+    channels: dict[str, np.ndarray] = field(default_factory=dict)
+    units: dict[str, str] = field(default_factory=dict)
+
+    @classmethod
+    def from_messages(cls, messages: Sequence[dict[str, Any]]) -> "ImageData":
+        names = sorted({k for m in messages for k in m.get("channels", {})})
+        return cls(
+            **cls._common("image", messages),
+            line=np.array([m["line"] for m in messages], dtype=np.int64),
+            frame=np.array([m["frame"] for m in messages], dtype=np.int64),
+            generation=np.array([m["generation"] for m in messages], dtype=np.int64),
+            channels={k: _rows([m["channels"].get(k) for m in messages]) for k in names},
+            units=dict(messages[-1].get("units", {})) if messages else {},
+        )
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out = super().arrays()
+        out.update({f"channels/{k}": v for k, v in self.channels.items()})
+        return out
+
+
+_KINDS: dict[str, type[StreamData]] = {
+    "demods": DemodData,
+    "spectrum": SpectrumData,
+    "scope": ScopeData,
+    "force": ForceData,
+    "status": StatusData,
+    "image": ImageData,
+}
+
+#: The streams the daemon offers.
+STREAMS = tuple(_KINDS)
+
+
+def from_messages(stream: str, messages: Sequence[dict[str, Any]]) -> StreamData:
+    """The arrays of ``messages`` of ``stream`` (a row per message)."""
+    try:
+        kind = _KINDS[stream]
+    except KeyError:
+        raise ValueError(f"unknown stream {stream!r}; streams: {', '.join(STREAMS)}") from None
+    return kind.from_messages(messages)  # type: ignore[attr-defined]
