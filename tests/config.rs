@@ -2045,7 +2045,8 @@ fn list_entries_have_the_protocol_fields() {
             "writable",
             "min",
             "max",
-            "description"
+            "description",
+            "type"
         ])
     );
     let poisson = nodes.iter().find(|n| n.path == "/sample/poisson").unwrap();

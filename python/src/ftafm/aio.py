@@ -13,7 +13,7 @@ import json
 import math
 import os
 from dataclasses import dataclass
-from typing import Any, AsyncIterator, Iterable, Mapping
+from typing import Any, AsyncGenerator, Iterable, Mapping, cast
 
 import websockets
 from websockets.asyncio.client import ClientConnection
@@ -202,11 +202,11 @@ class Instrument:
     async def sample(self, demod: int = 0) -> dict[str, float]:
         """The newest output of demodulator ``demod``: ``t`` (s), ``harmonic``, ``x``,
         ``y``, ``r`` (m), ``phase`` (rad)."""
-        return await self.get(f"/demods/{demod}/sample")
+        return cast(dict[str, float], await self.get(f"/demods/{demod}/sample"))
 
     async def presets(self) -> list[dict[str, str]]:
         """The presets (real cantilevers and samples): name, kind, summary."""
-        return (await self.request("presets"))["presets"]
+        return cast(list[dict[str, str]], (await self.request("presets"))["presets"])
 
     async def preset(self, name: str) -> float | None:
         """Loads a preset; returns the simulated time (s) it took effect."""
@@ -214,7 +214,7 @@ class Instrument:
 
     async def settings_toml(self) -> str:
         """The running settings as a config file (TOML)."""
-        return (await self.request("settings"))["toml"]
+        return str((await self.request("settings"))["toml"])
 
     async def save_settings(self, file: str | os.PathLike[str]) -> None:
         """Writes the running settings to ``file``, a config ``ftafm --config`` accepts."""
@@ -260,7 +260,7 @@ class Instrument:
 
     async def messages(
         self, stream: str, *, timeout: float | None = None
-    ) -> AsyncIterator[dict[str, Any]]:
+    ) -> AsyncGenerator[dict[str, Any], None]:
         """The messages of ``stream`` as they come (subscribed while iterating). Raises
         InstrumentError ``timeout`` when none comes for ``timeout`` s (default: the
         client's)."""

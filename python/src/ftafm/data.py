@@ -89,6 +89,11 @@ class StreamData:
             "gaps": count_gaps(seq),
         }
 
+    @classmethod
+    def from_messages(cls, messages: Sequence[dict[str, Any]]) -> "StreamData":
+        """The arrays of ``messages`` (a row per message)."""
+        raise NotImplementedError(f"{cls.__name__} is built by a stream's own class")
+
     def arrays(self) -> dict[str, np.ndarray]:
         """Every array field by name (what a recording stores)."""
         return {
@@ -124,7 +129,14 @@ class DemodData(StreamData):
                 for k in arrays:
                     v = d[k]
                     arrays[k][i, j] = np.nan if v is None else v
-        return cls(**cls._common("demods", messages), harmonic=harmonic, **arrays)
+        return cls(
+            **cls._common("demods", messages),
+            harmonic=harmonic,
+            x=arrays["x"],
+            y=arrays["y"],
+            r=arrays["r"],
+            phase=arrays["phase"],
+        )
 
     @property
     def enabled(self) -> np.ndarray:
@@ -178,17 +190,6 @@ class ScopeData(StreamData):
         )
 
 
-_FORCE_SCALARS = (
-    "contact_time_ratio",
-    "contact_time_ratio_sigma",
-    "max_force",
-    "max_force_sigma",
-    "youngs_modulus",
-    "youngs_modulus_sigma",
-    "pulse_phase",
-)
-
-
 @dataclass
 class ForceData(StreamData):
     """FT-AFM force estimates: τ, F (N), modulus (Pa), their sigmas, and the waveform (N)."""
@@ -206,10 +207,18 @@ class ForceData(StreamData):
 
     @classmethod
     def from_messages(cls, messages: Sequence[dict[str, Any]]) -> "ForceData":
-        scalars = {k: _floats([m.get(k) for m in messages]) for k in _FORCE_SCALARS}
+        def col(k: str) -> np.ndarray:
+            return _floats([m.get(k) for m in messages])
+
         return cls(
             **cls._common("force", messages),
-            **scalars,
+            contact_time_ratio=col("contact_time_ratio"),
+            contact_time_ratio_sigma=col("contact_time_ratio_sigma"),
+            max_force=col("max_force"),
+            max_force_sigma=col("max_force_sigma"),
+            youngs_modulus=col("youngs_modulus"),
+            youngs_modulus_sigma=col("youngs_modulus_sigma"),
+            pulse_phase=col("pulse_phase"),
             waveform=_rows([m.get("waveform") for m in messages]),
             method=[m.get("method", "") for m in messages],
             table_range=[m.get("table_range", "") for m in messages],
@@ -285,4 +294,4 @@ def from_messages(stream: str, messages: Sequence[dict[str, Any]]) -> StreamData
         kind = _KINDS[stream]
     except KeyError:
         raise ValueError(f"unknown stream {stream!r}; streams: {', '.join(STREAMS)}") from None
-    return kind.from_messages(messages)  # type: ignore[attr-defined]
+    return kind.from_messages(messages)

@@ -97,7 +97,7 @@ class _StreamWriter:
                 ds[n:] = arr
         if isinstance(batch, data.StatusData):
             text = np.array([json.dumps(m) for m in batch.messages], dtype=object)
-            import h5py
+            import h5py  # type: ignore[import-untyped]
 
             if "messages_json" not in self.group:
                 self.group.create_dataset(
