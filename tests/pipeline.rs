@@ -88,8 +88,11 @@ fn settings_changes_reach_the_running_chain() {
 
     let mut softer = settings.clone();
     softer.sample.youngs_modulus = 60e9;
-    pipeline.apply(&softer).unwrap();
-    let t_switch = run_until(&mut output, 0.0).t;
+    let epoch = pipeline.apply(&softer).unwrap();
+    let index = pipeline
+        .effective_index(epoch, Duration::from_secs(60))
+        .unwrap();
+    let t_switch = index as f64 / settings.synth.sample_rate;
     let after = run_until(&mut output, t_switch + 0.05);
     let expected = paper::compute(&softer, 1.0).unwrap().materials[0].spectrum[17].amplitude;
     let got = h17(&after).unwrap();
@@ -105,8 +108,13 @@ fn settings_changes_reach_the_running_chain() {
     // A demodulator moved to another harmonic reports it.
     let mut moved = softer.clone();
     moved.demods[0].harmonic = 40;
-    pipeline.apply(&moved).unwrap();
-    let t_switch = run_until(&mut output, 0.0).t;
+    let epoch = pipeline.apply(&moved).unwrap();
+    // The lock-in switches with the synthesis, at the sample the change took effect: in a
+    // free-running chain up to a ring's length after the samples the DSP works on now.
+    let index = pipeline
+        .effective_index(epoch, Duration::from_secs(60))
+        .unwrap();
+    let t_switch = index as f64 / settings.synth.sample_rate;
     let frame = run_until(&mut output, t_switch + 0.02);
     assert_eq!(frame.values()[0].harmonic, 40);
     let c = pipeline.counters();
@@ -167,11 +175,21 @@ fn a_change_takes_effect_at_one_sample_boundary_in_both_threads() {
             );
         }
     }
-    let frame = run_until(
-        &mut output,
-        last_index as f64 / settings.synth.sample_rate + 0.01,
-    );
-    assert_eq!(frame.values()[5].harmonic, 6 + 10);
+    // Demodulator 7 now runs at its own rate: frames hold whichever demodulators had an
+    // output at their time, so look demodulator 5 up by its index.
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let demod5 = loop {
+        assert!(Instant::now() < deadline, "no frame of demodulator 5");
+        let t = last_index as f64 / settings.synth.sample_rate + 0.01;
+        if let Some(v) = run_until(&mut output, t)
+            .values()
+            .iter()
+            .find(|v| v.index == 5)
+        {
+            break *v;
+        }
+    };
+    assert_eq!(demod5.harmonic, 6 + 10);
     let c = pipeline.counters();
     assert_eq!(c.discontinuities, 0);
     assert_eq!(c.overrun_samples, 0);
