@@ -13,4 +13,5 @@ pub mod model;
 pub mod physics;
 pub mod pipeline;
 pub mod server;
+pub mod sweep;
 pub mod synth;

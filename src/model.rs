@@ -10,6 +10,19 @@ pub fn cantilever(settings: &Settings) -> Result<Cantilever, BeamError> {
     Cantilever::new(c.f1, c.k, &c.q, c.extra_modes)
 }
 
+/// The free tip deflection amplitude (m) per metre of base (piezo) amplitude at the drive
+/// frequency `frequency` (Hz): the base's inertial load U·Ω² drives mode n through its
+/// participation Pn, so |w(L)|/U = Ω²·|Σn φn(L)·Pn·Hn(Ω)/ωn²| (the synthesiser's drive).
+pub fn free_response_per_base(cantilever: &Cantilever, frequency: f64) -> f64 {
+    let omega = 2.0 * std::f64::consts::PI * frequency;
+    let tip: rustfft::num_complex::Complex64 = cantilever
+        .modes
+        .iter()
+        .map(|m| m.transfer(omega) * (m.participation * m.tip_value / (m.omega * m.omega)))
+        .sum();
+    omega * omega * tip.norm()
+}
+
 /// Largest indentation, as a fraction of the tip radius, for which the Hertz contact (small
 /// strain, paraboloidal tip) is taken as within its range.
 pub const HERTZ_RANGE: f64 = 0.1;

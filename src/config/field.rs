@@ -7,7 +7,10 @@ use serde_json::Value;
 use super::nodes::show_json;
 use super::quantity::number;
 use super::range::Range;
-use super::settings::{Engine, InclusionShape, InversionMethod, Settings, SpectrumWindow};
+use super::settings::{
+    Engine, InclusionShape, InversionMethod, Settings, SpectrumWindow, SweepDirection,
+    SweepParameter, SweepScale,
+};
 
 /// Most cantilever modes simulated: entries of `/cantilever/q` plus `/cantilever/extra_modes`.
 pub const MAX_MODES: usize = 16;
@@ -130,6 +133,15 @@ const INTEGRAL_GAIN: Range = Range::closed(0.0, 1e6);
 const EXTENT: Range = Range::above_up_to(0.0, 1e-3);
 /// Height of an inclusion above the base material in m: ±1 µm (negative is a pit).
 const HEIGHT: Range = Range::closed(-1e-6, 1e-6);
+/// Start and stop of a sweep: any finite value here; the swept node's own range applies
+/// when the sweep starts.
+const SWEEP_VALUE: Range = Range::closed(-1e13, 1e13);
+/// Settling time of a sweep point (s).
+const SWEEP_SETTLING: Range = Range::closed(0.0, 100.0);
+/// Most points per leg of a sweep.
+pub const MAX_SWEEP_POINTS: u32 = 10_000;
+/// Most demodulator frames averaged per sweep point.
+pub const MAX_SWEEP_AVERAGING: u32 = 100_000;
 
 /// One node of the tree. Inclusion and demodulator nodes carry their index N of
 /// `/inclusions/N/…` and `/demods/N/…`.
@@ -239,6 +251,24 @@ pub enum Field {
     FeedbackProportional,
     /// `/feedback/integral` (1/s).
     FeedbackIntegral,
+    /// `/sweeper/parameter` (text).
+    SweeperParameter,
+    /// `/sweeper/start` (the parameter's unit).
+    SweeperStart,
+    /// `/sweeper/stop` (the parameter's unit).
+    SweeperStop,
+    /// `/sweeper/points` (points).
+    SweeperPoints,
+    /// `/sweeper/scale` (text).
+    SweeperScale,
+    /// `/sweeper/direction` (text).
+    SweeperDirection,
+    /// `/sweeper/settling` (s).
+    SweeperSettling,
+    /// `/sweeper/averaging` (frames).
+    SweeperAveraging,
+    /// `/sweeper/enable` (bool).
+    SweeperEnable,
     /// `/inclusions/N/enable` (bool).
     InclusionEnable(usize),
     /// `/inclusions/N/shape` (text).
@@ -504,7 +534,7 @@ impl Typed {
 
 impl Field {
     /// Nodes outside the index-keyed tables (inclusions, demodulators), in tree order.
-    pub(crate) const SCALARS: [Field; 52] = [
+    pub(crate) const SCALARS: [Field; 61] = [
         Field::CantileverF1,
         Field::CantileverK,
         Field::CantileverQ,
@@ -557,6 +587,15 @@ impl Field {
         Field::FeedbackSetpoint,
         Field::FeedbackProportional,
         Field::FeedbackIntegral,
+        Field::SweeperParameter,
+        Field::SweeperStart,
+        Field::SweeperStop,
+        Field::SweeperPoints,
+        Field::SweeperScale,
+        Field::SweeperDirection,
+        Field::SweeperSettling,
+        Field::SweeperAveraging,
+        Field::SweeperEnable,
     ];
 
     /// The nodes of inclusion `index`, in tree order.
@@ -641,6 +680,15 @@ impl Field {
             Field::FeedbackSetpoint => "/feedback/setpoint",
             Field::FeedbackProportional => "/feedback/proportional",
             Field::FeedbackIntegral => "/feedback/integral",
+            Field::SweeperParameter => "/sweeper/parameter",
+            Field::SweeperStart => "/sweeper/start",
+            Field::SweeperStop => "/sweeper/stop",
+            Field::SweeperPoints => "/sweeper/points",
+            Field::SweeperScale => "/sweeper/scale",
+            Field::SweeperDirection => "/sweeper/direction",
+            Field::SweeperSettling => "/sweeper/settling",
+            Field::SweeperAveraging => "/sweeper/averaging",
+            Field::SweeperEnable => "/sweeper/enable",
             Field::InclusionEnable(i) => return format!("/inclusions/{i}/enable"),
             Field::InclusionShape(i) => return format!("/inclusions/{i}/shape"),
             Field::InclusionX(i) => return format!("/inclusions/{i}/x"),
@@ -697,7 +745,9 @@ impl Field {
             | Field::ScopeLength
             | Field::ScopeDecimation
             | Field::InversionPoints => "samples",
-            Field::InversionAveraging => "frames",
+            Field::InversionAveraging | Field::SweeperAveraging => "frames",
+            Field::SweeperPoints => "points",
+            Field::SweeperSettling => "s",
             Field::ScanPixels => "pixels",
             Field::ServerMaxClients => "clients",
             Field::ServerClientQueue => "messages",
@@ -718,6 +768,12 @@ impl Field {
             | Field::DemodHarmonic(_)
             | Field::DemodOrder(_) => "1",
             Field::SynthEngine
+            | Field::SweeperParameter
+            | Field::SweeperStart
+            | Field::SweeperStop
+            | Field::SweeperScale
+            | Field::SweeperDirection
+            | Field::SweeperEnable
             | Field::SynthRealtime
             | Field::DriveFollowF1
             | Field::NoiseEnable
@@ -780,8 +836,22 @@ impl Field {
             | Field::InversionEnable
             | Field::ScanEnable
             | Field::FeedbackEnable
+            | Field::SweeperEnable
             | Field::InclusionEnable(_)
             | Field::DemodEnable(_) => Kind::Bool,
+            Field::SweeperParameter => Kind::Text(SweepParameter::NAMES),
+            Field::SweeperScale => Kind::Text(SweepScale::NAMES),
+            Field::SweeperDirection => Kind::Text(SweepDirection::NAMES),
+            Field::SweeperStart | Field::SweeperStop => Kind::Float(SWEEP_VALUE),
+            Field::SweeperPoints => Kind::Integer {
+                min: 2,
+                max: MAX_SWEEP_POINTS.into(),
+            },
+            Field::SweeperSettling => Kind::Float(SWEEP_SETTLING),
+            Field::SweeperAveraging => Kind::Integer {
+                min: 1,
+                max: MAX_SWEEP_AVERAGING.into(),
+            },
             Field::NoiseTemperature => Kind::Float(TEMPERATURE),
             Field::NoiseDetectorDensity => Kind::Float(DETECTOR_DENSITY),
             Field::NoiseAdcBits => Kind::Integer {
@@ -1013,6 +1083,33 @@ impl Field {
             Field::FeedbackIntegral => {
                 "Integral gain of the amplitude feedback, in 1/s: m of distance per second per m of amplitude error."
             }
+            Field::SweeperParameter => {
+                "The node a sweep steps: \"/drive/frequency\" (a tune: the base, i.e. piezo, amplitude is held at what gives /drive/free_amplitude at the drive frequency when the sweep starts, so the resonance shows), \"/surface/distance\" (an approach curve), \"/drive/free_amplitude\" or \"/sample/youngs_modulus\"."
+            }
+            Field::SweeperStart => {
+                "First value of a sweep, in the unit of /sweeper/parameter; within that node's range when the sweep starts."
+            }
+            Field::SweeperStop => {
+                "Last value of a sweep, in the unit of /sweeper/parameter; within that node's range when the sweep starts."
+            }
+            Field::SweeperPoints => {
+                "Points of each leg of a sweep, both ends included, in points: 2 to 10000."
+            }
+            Field::SweeperScale => {
+                "Spacing of a sweep's points: \"linear\" or \"log\" (start and stop > 0)."
+            }
+            Field::SweeperDirection => {
+                "Legs of a sweep: \"up\" (start to stop), \"down\" (stop to start) or \"both\" (up, then down: an approach and a retract)."
+            }
+            Field::SweeperSettling => {
+                "Simulated time waited at each point before averaging, in s; 0 waits automatically for mode 1 to ring down and the demodulators' filters to settle, to 1e-3."
+            }
+            Field::SweeperAveraging => {
+                "Demodulator frames averaged at each point of a sweep, in frames: 1 to 100000."
+            }
+            Field::SweeperEnable => {
+                "A sweep runs (true): set true to start one, false to abort it; it turns false by itself when the sweep is done, and the swept node is restored."
+            }
             Field::InclusionEnable(i) => {
                 return format!(
                     "Inclusion {i} is part of the sample map (true) or absent (false); where inclusions overlap, the higher index is on top."
@@ -1138,6 +1235,15 @@ impl Field {
             Field::FeedbackSetpoint => Typed::Float(s.feedback.setpoint),
             Field::FeedbackProportional => Typed::Float(s.feedback.proportional),
             Field::FeedbackIntegral => Typed::Float(s.feedback.integral),
+            Field::SweeperParameter => Typed::Text(s.sweeper.parameter.name()),
+            Field::SweeperStart => Typed::Float(s.sweeper.start),
+            Field::SweeperStop => Typed::Float(s.sweeper.stop),
+            Field::SweeperPoints => Typed::Integer(s.sweeper.points.into()),
+            Field::SweeperScale => Typed::Text(s.sweeper.scale.name()),
+            Field::SweeperDirection => Typed::Text(s.sweeper.direction.name()),
+            Field::SweeperSettling => Typed::Float(s.sweeper.settling),
+            Field::SweeperAveraging => Typed::Integer(s.sweeper.averaging.into()),
+            Field::SweeperEnable => Typed::Bool(s.sweeper.enable),
             Field::InclusionEnable(i) => Typed::Bool(s.inclusions.get(i)?.enable),
             Field::InclusionShape(i) => Typed::Text(s.inclusions.get(i)?.shape.name()),
             Field::InclusionX(i) => Typed::Float(s.inclusions.get(i)?.x),
@@ -1245,6 +1351,25 @@ impl Field {
             (Field::FeedbackSetpoint, Typed::Float(x)) => s.feedback.setpoint = x,
             (Field::FeedbackProportional, Typed::Float(x)) => s.feedback.proportional = x,
             (Field::FeedbackIntegral, Typed::Float(x)) => s.feedback.integral = x,
+            (Field::SweeperParameter, Typed::Text(name)) => {
+                s.sweeper.parameter = SweepParameter::from_name(name)?;
+            }
+            (Field::SweeperStart, Typed::Float(x)) => s.sweeper.start = x,
+            (Field::SweeperStop, Typed::Float(x)) => s.sweeper.stop = x,
+            (Field::SweeperPoints, Typed::Integer(n)) => {
+                s.sweeper.points = u32::try_from(n).ok()?
+            }
+            (Field::SweeperScale, Typed::Text(name)) => {
+                s.sweeper.scale = SweepScale::from_name(name)?;
+            }
+            (Field::SweeperDirection, Typed::Text(name)) => {
+                s.sweeper.direction = SweepDirection::from_name(name)?;
+            }
+            (Field::SweeperSettling, Typed::Float(x)) => s.sweeper.settling = x,
+            (Field::SweeperAveraging, Typed::Integer(n)) => {
+                s.sweeper.averaging = u32::try_from(n).ok()?;
+            }
+            (Field::SweeperEnable, Typed::Bool(b)) => s.sweeper.enable = b,
             (Field::InclusionEnable(i), Typed::Bool(b)) => s.inclusions.get_mut(i)?.enable = b,
             (Field::InclusionShape(i), Typed::Text(name)) => {
                 s.inclusions.get_mut(i)?.shape = InclusionShape::from_name(name)?;

@@ -344,7 +344,7 @@ impl NodeSpec {
     /// them: the static range narrowed by the limits that depend on other nodes. Whether an
     /// end itself is allowed is in the docs and in error messages; `null` for text, lists of
     /// text and bool.
-    fn bounds(&self, s: &Settings) -> (Value, Value) {
+    pub(crate) fn bounds(&self, s: &Settings) -> (Value, Value) {
         let sample_rate = s.synth.sample_rate;
         match self.kind {
             Kind::Float(range) | Kind::FloatList { entry: range, .. } => {

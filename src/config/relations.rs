@@ -61,6 +61,7 @@ impl Settings {
         check_demods(self)?;
         check_inversion(self)?;
         check_scan(self)?;
+        check_sweeper(self)?;
         check_physics(self)
     }
 }
@@ -651,6 +652,102 @@ pub(crate) fn highest_scan_pixels(s: &Settings) -> u64 {
 /// the lock-in sees each material), and the image stream carries at most
 /// [`MAX_PIXEL_RATE`] pixels per second. Checked whether or not the scan is enabled, so
 /// starting a scan never fails.
+/// While a sweep runs: its ends within the swept node's range now, log spacing only above
+/// 0, two different ends, some demodulator to measure with, and for a tune at a constant
+/// base amplitude a free amplitude within its range at every point.
+fn check_sweeper(s: &Settings) -> Result<(), NodeError> {
+    let w = &s.sweeper;
+    if !w.enable {
+        return Ok(());
+    }
+    let path = w.parameter.name();
+    let spec = super::registry::node(path).ok_or_else(|| NodeError::UnknownPath {
+        path: path.to_owned(),
+    })?;
+    let (low, high) = spec.bounds(s);
+    let (low, high) = (
+        low.as_f64().unwrap_or(f64::NEG_INFINITY),
+        high.as_f64().unwrap_or(f64::INFINITY),
+    );
+    for (key, value) in [("start", w.start), ("stop", w.stop)] {
+        let bad = spec.check(&super::field::Typed::Float(value)).err();
+        if bad.is_some() || value < low || value > high {
+            return Err(invalid(
+                format!("/sweeper/{key}"),
+                format!(
+                    "/sweeper/{key} = {} is outside the range of /sweeper/parameter = {path} now: \
+                     allowed {} … {} {}",
+                    number(value),
+                    number(low),
+                    number(high),
+                    spec.unit
+                ),
+            ));
+        }
+    }
+    if w.start == w.stop {
+        return Err(invalid(
+            "/sweeper/stop",
+            format!(
+                "/sweeper/stop = /sweeper/start = {}: a sweep needs two different ends",
+                number(w.stop)
+            ),
+        ));
+    }
+    if w.scale == super::settings::SweepScale::Log && (w.start <= 0.0 || w.stop <= 0.0) {
+        return Err(invalid(
+            "/sweeper/scale",
+            format!(
+                "/sweeper/scale = \"log\" needs /sweeper/start and /sweeper/stop above 0, got {} \
+                 and {}",
+                number(w.start),
+                number(w.stop)
+            ),
+        ));
+    }
+    if !(0..DEMODULATOR_COUNT).any(|i| s.demod_active(i)) {
+        return Err(invalid(
+            "/sweeper/enable",
+            "a sweep measures with the demodulators, and none is enabled and in band: enable \
+             one (/demods/N/enable)"
+                .to_owned(),
+        ));
+    }
+    if w.parameter == super::settings::SweepParameter::DriveFrequency
+        && let Ok(cantilever) = crate::model::cantilever(s)
+    {
+        let base = s.drive.free_amplitude
+            / crate::model::free_response_per_base(&cantilever, s.drive.frequency);
+        let n = w.points as usize;
+        let log = w.scale == super::settings::SweepScale::Log;
+        let free_max = super::registry::node("/drive/free_amplitude")
+            .map(|spec| spec.bounds(s).1.as_f64().unwrap_or(f64::INFINITY))
+            .unwrap_or(f64::INFINITY);
+        for p in crate::sweep::points(w.start, w.stop, n, log, true, false) {
+            let free = base * crate::model::free_response_per_base(&cantilever, p.value);
+            if free > free_max {
+                return Err(invalid(
+                    "/sweeper/stop",
+                    format!(
+                        "a tune from /sweeper/start = {} to /sweeper/stop = {} Hz at the base \
+                         amplitude that gives /drive/free_amplitude = {} at /drive/frequency \
+                         = {} reaches a free amplitude of {} at {}, above the largest allowed \
+                         {}: lower /drive/free_amplitude or narrow the sweep",
+                        number(w.start),
+                        number(w.stop),
+                        quantity(s.drive.free_amplitude, "m"),
+                        quantity(s.drive.frequency, "Hz"),
+                        quantity(free, "m"),
+                        quantity(p.value, "Hz"),
+                        quantity(free_max, "m")
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 fn check_scan(s: &Settings) -> Result<(), NodeError> {
     let scan = &s.scan;
     let pixels = u64::from(scan.pixels);

@@ -30,6 +30,7 @@ pub struct Settings {
     pub inversion: InversionSettings,
     pub scan: ScanSettings,
     pub feedback: FeedbackSettings,
+    pub sweeper: SweeperSettings,
     /// Inclusions in the sample; always [`INCLUSION_COUNT`] entries, index = N of
     /// `/inclusions/N` (a table keyed by index, like `[demods]`).
     #[serde(with = "super::indexed_table")]
@@ -360,6 +361,98 @@ pub struct FeedbackSettings {
     pub proportional: f64,
     /// Integral gain (m of distance per s per m of amplitude error, 1/s).
     pub integral: f64,
+}
+
+/// A text choice of the config and the protocol: its names, in the order of `ALL`.
+macro_rules! named_choice {
+    ($(#[$doc:meta])* $name:ident { $($(#[$vdoc:meta])* $variant:ident = $text:literal),+ $(,)? }) => {
+        $(#[$doc])*
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+        pub enum $name {
+            $($(#[$vdoc])* #[serde(rename = $text)] $variant),+
+        }
+
+        impl $name {
+            /// Every choice, in the order of `NAMES`.
+            pub const ALL: &'static [$name] = &[$($name::$variant),+];
+            /// The names used in config files and the protocol.
+            pub const NAMES: &'static [&'static str] = &[$($text),+];
+
+            /// This choice's name.
+            pub fn name(self) -> &'static str {
+                match self {
+                    $($name::$variant => $text),+
+                }
+            }
+
+            /// The choice called `name`, if there is one.
+            pub fn from_name(name: &str) -> Option<$name> {
+                Self::ALL.iter().copied().find(|c| c.name() == name)
+            }
+        }
+    };
+}
+
+named_choice! {
+    /// The node a sweep steps (`/sweeper/parameter`).
+    SweepParameter {
+        /// `/drive/frequency`: a tune, at a constant base (piezo) amplitude.
+        DriveFrequency = "/drive/frequency",
+        /// `/surface/distance`: an approach (and retract) curve.
+        SurfaceDistance = "/surface/distance",
+        /// `/drive/free_amplitude`.
+        DriveFreeAmplitude = "/drive/free_amplitude",
+        /// `/sample/youngs_modulus`.
+        SampleYoungsModulus = "/sample/youngs_modulus",
+    }
+}
+
+named_choice! {
+    /// Spacing of a sweep's points (`/sweeper/scale`).
+    SweepScale {
+        /// Evenly spaced values.
+        Linear = "linear",
+        /// Evenly spaced logarithms (start and stop > 0).
+        Log = "log",
+    }
+}
+
+named_choice! {
+    /// Legs of a sweep (`/sweeper/direction`).
+    SweepDirection {
+        /// From start to stop.
+        Up = "up",
+        /// From stop to start.
+        Down = "down",
+        /// From start to stop and back (an approach, then a retract).
+        Both = "both",
+    }
+}
+
+/// `[sweeper]`: steps one node through a range in simulated time and measures every
+/// demodulator at each point (the `sweep` stream); the node is restored afterwards.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SweeperSettings {
+    /// The node stepped.
+    pub parameter: SweepParameter,
+    /// First value (the parameter's unit).
+    pub start: f64,
+    /// Last value (the parameter's unit).
+    pub stop: f64,
+    /// Points per leg, both ends included.
+    pub points: u32,
+    /// Spacing of the points.
+    pub scale: SweepScale,
+    /// Legs: up, down, or both.
+    pub direction: SweepDirection,
+    /// Wait at each point before averaging (s of simulated time); 0: automatic, from the
+    /// cantilever's ring-down and the demodulators' filters.
+    pub settling: f64,
+    /// Demodulator frames averaged per point.
+    pub averaging: u32,
+    /// A sweep runs (set true to start, false to abort; it turns false when done).
+    pub enable: bool,
 }
 
 /// Shape of an inclusion (`/inclusions/N/shape`).

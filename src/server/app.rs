@@ -87,8 +87,11 @@ pub async fn run_with(
         image,
         stall,
         latest_demods: Mutex::new(None),
+        changes: tokio::sync::watch::channel(0).0,
+        sweep_frames: super::sweeper::FrameTap::new(),
     });
     let hub = tokio::spawn(hub::run(state.clone(), output, estimates, image_lines));
+    let sweeper = tokio::spawn(super::sweeper::run(state.clone()));
     // Every route but /healthz checks that the request names this server (DNS rebinding);
     // every response carries the security headers.
     let app = Router::new()
@@ -115,6 +118,8 @@ pub async fn run_with(
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
     let _ = hub.await;
+    // The sweeper ends on the shutdown signal; a change it awaits takes milliseconds.
+    let _ = tokio::time::timeout(Duration::from_secs(2), sweeper).await;
     let pipeline = state
         .control
         .lock()

@@ -41,7 +41,7 @@ const STATUS_PERIOD: Duration = Duration::from_millis(500);
 /// Offers one message of `stream` to its subscribers; `json` and `binary` build the two
 /// encodings, each at most once. `(t_synth_ns, t_dsp_ns)` go with it to every client's
 /// socket, where its latency is measured (0 = unknown).
-fn distribute(
+pub(crate) fn distribute(
     state: &AppState,
     stream: StreamKind,
     (t_synth_ns, t_dsp_ns): (u64, u64),
@@ -62,7 +62,10 @@ fn distribute(
     let (mut json, mut binary) = (Some(json), Some(binary));
     let max_bytes = state.queue_bytes.load(Ordering::Relaxed);
     // Scan lines and status are small and rare: they take the lane, never lost behind bulk.
-    let lane = matches!(stream, StreamKind::Status | StreamKind::Image);
+    let lane = matches!(
+        stream,
+        StreamKind::Status | StreamKind::Image | StreamKind::Sweep
+    );
     let (mut text_msg, mut bin_msg): (Option<Message>, Option<Message>) = (None, None);
     for client in clients.iter() {
         let Some(format) = client.format(s) else {
@@ -169,6 +172,7 @@ pub(crate) async fn run(
         let mut newest = None;
         while let Some(frame) = output.demods.try_pop() {
             newest = Some(frame);
+            state.sweep_frames.offer(&frame);
             if force_wanted {
                 state.force.offer(&frame);
             }

@@ -16,6 +16,7 @@ pub mod protocol;
 mod session;
 mod state;
 pub mod status;
+mod sweeper;
 
 pub use app::{ServerError, run, run_with};
 pub use listen::ConnectionLimits;

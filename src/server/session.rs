@@ -222,7 +222,7 @@ async fn write(
 /// of a physics change takes milliseconds), then brings along what follows the settings:
 /// the queue bound, the force estimator, the images and the model-range warnings. `f`
 /// returns the paths it changed (`None`: possibly any) and its result.
-async fn change<R: Send + 'static>(
+pub(crate) async fn change<R: Send + 'static>(
     state: &Arc<AppState>,
     f: impl FnOnce(&mut Control) -> Result<(Option<Vec<String>>, R), ProtocolError> + Send + 'static,
 ) -> Result<R, ProtocolError> {
@@ -237,6 +237,7 @@ async fn change<R: Send + 'static>(
             .lock()
             .map_err(|_| internal("control lock poisoned"))?;
         let (paths, result) = f(&mut control)?;
+        state.changes.send_modify(|n| *n += 1);
         let touched = |affects: fn(&str) -> bool| {
             paths
                 .as_ref()

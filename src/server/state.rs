@@ -18,7 +18,7 @@ use crate::config::Settings;
 use crate::pipeline::{CountersSnapshot, Pipeline, PipelineError};
 
 /// Streams in the order of [`StreamKind::ALL`]; indexes per-stream arrays.
-pub(crate) const STREAMS: usize = 6;
+pub(crate) const STREAMS: usize = 7;
 
 pub(crate) fn stream_index(s: StreamKind) -> usize {
     match s {
@@ -28,6 +28,7 @@ pub(crate) fn stream_index(s: StreamKind) -> usize {
         StreamKind::Status => 3,
         StreamKind::Force => 4,
         StreamKind::Image => 5,
+        StreamKind::Sweep => 6,
     }
 }
 
@@ -437,6 +438,10 @@ pub(crate) struct AppState {
     pub force: super::force::ForceLink,
     /// The newest demodulator frame, for reads of measured values (`/demods/N/sample`).
     pub latest_demods: Mutex<Option<crate::pipeline::DemodFrame>>,
+    /// Counts settings changes: the sweeper wakes on it.
+    pub changes: tokio::sync::watch::Sender<u64>,
+    /// Demodulator frames for a running sweep (the hub forwards them while one runs).
+    pub sweep_frames: super::sweeper::FrameTap,
     pub image: super::image::ImageLink,
     /// The machine's stalls, measured beside the server (None if its thread would not
     /// start; the daemon runs without it).

@@ -15,7 +15,16 @@
 
 from .aio import DEFAULT_URL, Node
 from .client import Instrument
-from .data import DemodData, ForceData, ImageData, ScopeData, SpectrumData, StatusData, StreamData
+from .data import (
+    DemodData,
+    ForceData,
+    ImageData,
+    ScopeData,
+    SpectrumData,
+    StatusData,
+    StreamData,
+    SweepResult,
+)
 from .errors import ConnectionLost, InstrumentError
 
 __version__ = "0.1.0"
@@ -33,5 +42,6 @@ __all__ = [
     "SpectrumData",
     "StatusData",
     "StreamData",
+    "SweepResult",
     "__version__",
 ]

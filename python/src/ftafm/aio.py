@@ -308,6 +308,65 @@ class Instrument:
             await gen.aclose()
         return data.from_messages(stream, rows)
 
+    async def sweep(
+        self,
+        path: str,
+        start: float,
+        stop: float,
+        points: int = 121,
+        *,
+        scale: str | None = None,
+        direction: str | None = None,
+        settling: float | None = None,
+        averaging: int | None = None,
+        timeout: float | None = None,
+    ) -> data.SweepResult:
+        """Sweeps the node at ``path`` from ``start`` to ``stop`` in ``points`` points with
+        the daemon's sweeper (``/sweeper/*``; docs/sweeper.md) and returns every point.
+
+        ``scale`` ``"linear"``/``"log"``, ``direction`` ``"up"``/``"down"``/``"both"``,
+        ``settling`` (s, 0 automatic) and ``averaging`` (frames) default to the daemon's
+        ``/sweeper`` nodes. A frequency sweep holds the base amplitude constant (a tune);
+        the swept node is restored afterwards. ``timeout`` (s) bounds the wait for each
+        point.
+        """
+        values: dict[str, Any] = {
+            "/sweeper/parameter": path,
+            "/sweeper/start": start,
+            "/sweeper/stop": stop,
+            "/sweeper/points": points,
+        }
+        for key, value in (("scale", scale), ("direction", direction),
+                           ("settling", settling), ("averaging", averaging)):
+            if value is not None:
+                values[f"/sweeper/{key}"] = value
+        await self.set_many(values)
+        queue: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue()
+        wait = self.timeout if timeout is None else timeout
+        await self._subscribe("sweep", queue)
+        rows: list[dict[str, Any]] = []
+        try:
+            await self.set("/sweeper/enable", True)
+            sweep_id = None
+            while True:
+                try:
+                    msg = await asyncio.wait_for(queue.get(), wait)
+                except asyncio.TimeoutError:
+                    raise InstrumentError(
+                        "timeout", f"no sweep point within {wait} s"
+                    ) from None
+                if msg is None:
+                    raise ConnectionLost(self._closed or "connection closed")
+                if sweep_id is None:
+                    sweep_id = msg.get("sweep")
+                if msg.get("sweep") != sweep_id:
+                    continue
+                if msg.get("done"):
+                    return data.SweepResult.from_messages(rows, msg)
+                rows.append(msg)
+        finally:
+            await self._unsubscribe("sweep", queue)
+
     async def wait_until(self, t: float, *, timeout: float | None = None) -> float:
         """Waits until the instrument has processed its signal up to simulated time ``t``
         (s), e.g. a ``set``'s return value plus a settling time; returns the time reached.

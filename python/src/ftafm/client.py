@@ -104,6 +104,19 @@ class Instrument:
         """``stream``'s messages over ``seconds`` of simulated time, as numpy arrays."""
         return self._run(self._async.poll(stream, seconds, timeout=timeout))
 
+    def sweep(
+        self,
+        path: str,
+        start: float,
+        stop: float,
+        points: int = 121,
+        **options: Any,
+    ) -> data.SweepResult:
+        """Sweeps ``path`` from ``start`` to ``stop`` with the daemon's sweeper and returns
+        every point (options: ``scale``, ``direction``, ``settling``, ``averaging``,
+        ``timeout``; see :meth:`ftafm.aio.Instrument.sweep`)."""
+        return self._run(self._async.sweep(path, start, stop, points, **options))
+
     def next(self, stream: str) -> dict[str, Any]:
         """The next message of ``stream``, as the daemon sent it."""
         return self._run(self._async.next(stream))

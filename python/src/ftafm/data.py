@@ -275,6 +275,76 @@ class ImageData(StreamData):
         return out
 
 
+@dataclass
+class SweepResult:
+    """A sweep's points as arrays (``Instrument.sweep``): ``value`` (the parameter's unit)
+    and ``leg`` (``"up"``/``"down"``) per point, every demodulator's averaged ``x``, ``y``,
+    ``r`` (m), ``phase`` (rad) and ``harmonic`` as points × 32 (NaN / −1 where it gave
+    nothing), ``free_amplitude`` (m) per point of a tune, and ``final``, the sweep's final
+    message (``outcome``, and ``tune`` or ``approach``)."""
+
+    parameter: str
+    value: np.ndarray
+    leg: list[str]
+    harmonic: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    r: np.ndarray
+    phase: np.ndarray
+    free_amplitude: np.ndarray
+    final: dict[str, Any]
+
+    def __len__(self) -> int:
+        return len(self.value)
+
+    @classmethod
+    def from_messages(cls, points: Sequence[dict[str, Any]], final: dict[str, Any]) -> "SweepResult":
+        n = len(points)
+        arrays = {k: np.full((n, DEMODULATORS), np.nan) for k in ("x", "y", "r", "phase")}
+        harmonic = np.full((n, DEMODULATORS), -1, dtype=np.int64)
+        for i, m in enumerate(points):
+            for d in m["demods"]:
+                j = d["index"]
+                harmonic[i, j] = d["harmonic"]
+                for k in arrays:
+                    v = d[k]
+                    arrays[k][i, j] = np.nan if v is None else v
+        return cls(
+            parameter=str(final.get("parameter", "")),
+            value=_floats([m["value"] for m in points]),
+            leg=[str(m["leg"]) for m in points],
+            harmonic=harmonic,
+            x=arrays["x"],
+            y=arrays["y"],
+            r=arrays["r"],
+            phase=arrays["phase"],
+            free_amplitude=_floats([m.get("free_amplitude") for m in points]),
+            final=dict(final),
+        )
+
+    @property
+    def outcome(self) -> str:
+        """``"done"``, ``"aborted"`` or ``"failed"`` (``final["reason"]`` says why)."""
+        return str(self.final.get("outcome", ""))
+
+    def column(self, harmonic: int) -> int:
+        """The first demodulator measuring ``harmonic`` at the last point."""
+        if len(self) == 0:
+            raise ValueError("no points")
+        hits = np.flatnonzero(self.harmonic[-1] == harmonic)
+        if len(hits) == 0:
+            raise ValueError(f"no demodulator measures harmonic {harmonic}")
+        return int(hits[0])
+
+    def r_of(self, harmonic: int) -> np.ndarray:
+        """Amplitude (m) of ``harmonic`` at every point."""
+        return self.r[:, self.column(harmonic)]
+
+    def phase_of(self, harmonic: int) -> np.ndarray:
+        """Phase (rad) of ``harmonic`` at every point."""
+        return self.phase[:, self.column(harmonic)]
+
+
 _KINDS: dict[str, type[StreamData]] = {
     "demods": DemodData,
     "spectrum": SpectrumData,
@@ -282,6 +352,7 @@ _KINDS: dict[str, type[StreamData]] = {
     "force": ForceData,
     "status": StatusData,
     "image": ImageData,
+    "sweep": StreamData,
 }
 
 #: The streams the daemon offers.

@@ -45,7 +45,7 @@ impl BinaryHeader {
             StreamKind::Demods => count * DEMOD_RECORD_BYTES,
             StreamKind::Spectrum => 8 + 4 * count,
             StreamKind::Scope => 24 + 4 * count,
-            StreamKind::Status | StreamKind::Force | StreamKind::Image => count,
+            StreamKind::Status | StreamKind::Force | StreamKind::Image | StreamKind::Sweep => count,
         }
     }
 }
@@ -307,6 +307,17 @@ pub fn image_json(seq: u64, line: &ImageLine) -> String {
     }
     out.raw("}}");
     out.into_string()
+}
+
+/// A stream whose binary payload is its JSON message: the header, then `count` bytes of
+/// UTF-8 (the sweep).
+pub fn json_binary(stream: StreamKind, seq: u64, t: f64, t_synth_ns: u64, json: &str) -> Vec<u8> {
+    let count = count_of(json.len());
+    let json = &json.as_bytes()[..count as usize];
+    let mut out = Vec::with_capacity(BINARY_HEADER_BYTES + json.len());
+    binary_header(&mut out, stream, seq, t, t_synth_ns, count);
+    out.extend_from_slice(json);
+    out
 }
 
 /// Header, then `count` bytes of UTF-8: the same JSON object as [`image_json`].

@@ -21,7 +21,8 @@ use crate::config::NodeError;
 pub use data::{
     BINARY_HEADER_BYTES, BINARY_MAGIC, BINARY_VERSION, BinaryHeader, DEMOD_RECORD_BYTES,
     decode_header, demods_binary, demods_json, force_binary, force_json, image_binary, image_json,
-    scope_binary, scope_json, spectrum_binary, spectrum_json, status_binary, status_json,
+    json_binary, scope_binary, scope_json, spectrum_binary, spectrum_json, status_binary,
+    status_json,
 };
 pub use reply::{error_reply, ok_reply};
 pub use request::{Op, Request, parse_request};
@@ -47,17 +48,20 @@ pub enum StreamKind {
     Force,
     /// Scan images, one message per finished trace line.
     Image,
+    /// Sweeper results, one message per point and a final one.
+    Sweep,
 }
 
 impl StreamKind {
     /// Every stream, in the order of their binary codes.
-    pub const ALL: [StreamKind; 6] = [
+    pub const ALL: [StreamKind; 7] = [
         StreamKind::Demods,
         StreamKind::Spectrum,
         StreamKind::Scope,
         StreamKind::Status,
         StreamKind::Force,
         StreamKind::Image,
+        StreamKind::Sweep,
     ];
 
     /// The name used in requests and in the `stream` field of data messages.
@@ -69,6 +73,7 @@ impl StreamKind {
             StreamKind::Status => "status",
             StreamKind::Force => "force",
             StreamKind::Image => "image",
+            StreamKind::Sweep => "sweep",
         }
     }
 
@@ -78,7 +83,7 @@ impl StreamKind {
     }
 
     /// The stable code in byte 6 of the binary header: demods 1, spectrum 2, scope 3,
-    /// status 4, force 5, image 6.
+    /// status 4, force 5, image 6, sweep 7.
     pub const fn code(self) -> u8 {
         match self {
             StreamKind::Demods => 1,
@@ -87,6 +92,7 @@ impl StreamKind {
             StreamKind::Status => 4,
             StreamKind::Force => 5,
             StreamKind::Image => 6,
+            StreamKind::Sweep => 7,
         }
     }
 

@@ -1,0 +1,42 @@
+"""Instrument.sweep against the daemon's sweeper."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import ftafm
+
+
+def test_a_tune_and_an_approach_curve(ftafm_instrument: ftafm.Instrument) -> None:
+    inst = ftafm_instrument
+    inst.set("/surface/distance", 200e-9)
+    tune = inst.sweep("/drive/frequency", 99.5e3, 100.5e3, 41)
+    assert isinstance(tune, ftafm.SweepResult) and tune.outcome == "done"
+    assert len(tune) == 41 and tune.leg == ["up"] * 41
+    assert tune.value[0] == 99.5e3 and tune.value[-1] == 100.5e3
+    h1 = tune.r_of(1)
+    assert np.argmax(h1) == 20, "the peak at f1"
+    assert abs(tune.final["tune"]["f0"] / 100e3 - 1) < 5e-4
+    assert abs(tune.final["tune"]["q"] / 100 - 1) < 0.03
+    assert np.all(tune.free_amplitude > 0)
+    assert inst.get("/drive/frequency") == 100e3, "restored"
+
+    inst.set("/surface/distance", 20e-9)
+    curve = inst.sweep("/surface/distance", 36e-9, 12e-9, 13, direction="both")
+    assert curve.outcome == "done" and len(curve) == 26
+    assert curve.leg[:13] == ["up"] * 13 and curve.leg[13:] == ["down"] * 13
+    approach = curve.final["approach"]
+    assert 27e-9 <= approach["contact_up"] <= 31e-9
+    r = curve.r_of(1)[:13]
+    assert r[-1] < 0.5 * r[0], "tapping at 12 nm"
+    assert inst.get("/surface/distance") == 20e-9
+
+
+def test_a_bad_sweep_raises_naming_the_node(ftafm_instrument: ftafm.Instrument) -> None:
+    with pytest.raises(ftafm.InstrumentError) as e:
+        ftafm_instrument.sweep("/surface/distance", -1e-9, 10e-9, 5)
+    assert e.value.code == "invalid_value" and "/sweeper/start" in e.value.message
+    with pytest.raises(ftafm.InstrumentError) as e:
+        ftafm_instrument.sweep("/cantilever/k", 1, 2, 5)
+    assert "/sweeper/parameter" in e.value.message or "/surface/distance" in e.value.message

@@ -1,0 +1,487 @@
+//! The sweeper (`/sweeper/*`, the `sweep` stream): steps one node through a sweep's points
+//! in simulated time, lets the cantilever and the lock-in settle at each, averages every
+//! demodulator's output and sends a message per point; at the end a final message with
+//! what the sweep shows (a tune's resonance, an approach curve's contact, jumps and
+//! hysteresis), and the node is restored. The arithmetic is in [`crate::sweep`].
+
+use std::sync::Arc;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Duration;
+
+use serde_json::{Map, Value, json};
+use tokio::sync::mpsc;
+
+use super::protocol::{self, ErrorCode, ProtocolError, StreamKind};
+use super::state::AppState;
+use crate::config::{
+    DEMODULATOR_COUNT, Settings, SweepDirection, SweepParameter, SweepScale, SweeperSettings,
+};
+use crate::pipeline::DemodFrame;
+use crate::sweep::{self, Leg};
+
+/// Frames queued for a running sweep: 4 s at 1 kHz.
+const FRAME_QUEUE: usize = 4096;
+/// Longest wait for a demodulator frame (wall time) before a sweep gives up.
+const FRAME_WAIT: Duration = Duration::from_secs(10);
+/// Inaccuracy the automatic settling time allows for (relative).
+const SETTLE_TO: f64 = 1e-3;
+
+/// Demodulator frames handed from the hub to a running sweep, and the count of those it
+/// could not take.
+pub(crate) struct FrameTap {
+    active: AtomicBool,
+    tx: mpsc::Sender<DemodFrame>,
+    rx: Mutex<Option<mpsc::Receiver<DemodFrame>>>,
+    /// Frames a sweep missed because its queue was full (counted, never silent).
+    pub dropped: AtomicU64,
+}
+
+impl FrameTap {
+    pub fn new() -> Self {
+        let (tx, rx) = mpsc::channel(FRAME_QUEUE);
+        Self {
+            active: AtomicBool::new(false),
+            tx,
+            rx: Mutex::new(Some(rx)),
+            dropped: AtomicU64::new(0),
+        }
+    }
+
+    /// Hub side: a frame, kept while a sweep runs.
+    pub fn offer(&self, frame: &DemodFrame) {
+        if self.active.load(Ordering::Relaxed) && self.tx.try_send(*frame).is_err() {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+/// Counts sweeps since the daemon started: `sweep` in every message of one.
+static SWEEPS: AtomicU64 = AtomicU64::new(0);
+
+/// Runs until shutdown: waits for `/sweeper/enable`, runs the sweep, waits again.
+pub(crate) async fn run(state: Arc<AppState>) {
+    let Some(mut frames) = state.sweep_frames.rx.lock().ok().and_then(|mut r| r.take()) else {
+        return;
+    };
+    let mut changes = state.changes.subscribe();
+    let mut shutdown = state.shutdown.clone();
+    loop {
+        let settings = state.control.lock().ok().map(|c| c.settings.clone());
+        if let Some(settings) = settings.filter(|s| s.sweeper.enable) {
+            if run_sweep(&state, settings, &mut frames, &mut changes)
+                .await
+                .is_err()
+            {
+                return; // shutting down
+            }
+            continue;
+        }
+        tokio::select! {
+            r = changes.changed() => if r.is_err() { return },
+            _ = shutdown.changed() => return,
+        }
+    }
+}
+
+/// The simulated time (s) a point waits before averaging when `/sweeper/settling` is 0:
+/// mode 1's ring-down and the slowest active demodulator filter's settling, to
+/// [`SETTLE_TO`].
+pub(crate) fn automatic_settling(s: &Settings) -> f64 {
+    let ring = crate::model::cantilever(s)
+        .map(|c| {
+            let m = c.fundamental();
+            sweep::ring_down(m.frequency, m.q, SETTLE_TO)
+        })
+        .unwrap_or(0.0);
+    let filter = (0..DEMODULATOR_COUNT)
+        .filter(|&i| s.demod_active(i))
+        .map(|i| sweep::filter_settling(s.demods[i].order, s.demods[i].timeconstant, SETTLE_TO))
+        .fold(0.0, f64::max);
+    ring + filter
+}
+
+/// What a sweep measured at one point.
+struct Measured {
+    value: f64,
+    leg: Leg,
+    /// Per demodulator index: harmonic, mean x, mean y (NaN when it gave nothing).
+    demods: [(u32, f64, f64); DEMODULATOR_COUNT],
+}
+
+impl Measured {
+    /// r of the first demodulator at `harmonic`.
+    fn r_at(&self, harmonic: u32) -> Option<f64> {
+        self.demods
+            .iter()
+            .find(|(h, x, _)| *h == harmonic && x.is_finite())
+            .map(|(_, x, y)| x.hypot(*y))
+    }
+
+    fn phase_at(&self, harmonic: u32) -> Option<f64> {
+        self.demods
+            .iter()
+            .find(|(h, x, _)| *h == harmonic && x.is_finite())
+            .map(|(_, x, y)| y.atan2(*x))
+    }
+}
+
+/// How a sweep ended.
+enum Outcome {
+    Done,
+    Aborted,
+    Failed(String),
+}
+
+/// The values set at one point: the parameter, and for a tune the free amplitude that
+/// keeps the base amplitude constant.
+fn point_values(
+    w: &SweeperSettings,
+    value: f64,
+    tune: Option<&(crate::physics::Cantilever, f64)>,
+) -> Vec<(String, Value)> {
+    let mut values = vec![(w.parameter.name().to_owned(), json!(value))];
+    if let Some((cantilever, base)) = tune {
+        let free = base * crate::model::free_response_per_base(cantilever, value);
+        values.push(("/drive/free_amplitude".to_owned(), json!(free)));
+    }
+    values
+}
+
+/// The nodes a sweep of `w` changes, as they are before it: what it restores.
+fn restore_values(s: &Settings, w: &SweeperSettings) -> Vec<(String, Value)> {
+    let mut values: Vec<(String, Value)> = match w.parameter {
+        SweepParameter::DriveFrequency => vec![
+            ("/drive/frequency".to_owned(), json!(s.drive.frequency)),
+            (
+                "/drive/free_amplitude".to_owned(),
+                json!(s.drive.free_amplitude),
+            ),
+            ("/drive/follow_f1".to_owned(), json!(s.drive.follow_f1)),
+        ],
+        p => vec![(p.name().to_owned(), s.get(p.name()).unwrap_or(Value::Null))],
+    };
+    values.push(("/sweeper/enable".to_owned(), json!(false)));
+    values
+}
+
+/// Sends one `sweep` message with `fields` after the envelope.
+fn send(state: &AppState, t: f64, t_synth_ns: u64, fields: Map<String, Value>) {
+    super::hub::distribute(
+        state,
+        StreamKind::Sweep,
+        (t_synth_ns, 0),
+        |seq| envelope(seq, t, t_synth_ns, &fields),
+        |seq| {
+            protocol::json_binary(
+                StreamKind::Sweep,
+                seq,
+                t,
+                t_synth_ns,
+                &envelope(seq, t, t_synth_ns, &fields),
+            )
+        },
+    );
+}
+
+fn envelope(seq: u64, t: f64, t_synth_ns: u64, fields: &Map<String, Value>) -> String {
+    let mut m = Map::new();
+    m.insert("stream".into(), json!("sweep"));
+    m.insert("seq".into(), json!(seq));
+    m.insert("t".into(), json!(t));
+    m.insert("t_synth_ns".into(), json!(t_synth_ns));
+    m.extend(fields.clone());
+    Value::Object(m).to_string()
+}
+
+/// Runs the sweep `settings.sweeper` describes. `Err` only when the daemon shuts down.
+async fn run_sweep(
+    state: &Arc<AppState>,
+    settings: Settings,
+    frames: &mut mpsc::Receiver<DemodFrame>,
+    changes: &mut tokio::sync::watch::Receiver<u64>,
+) -> Result<(), ()> {
+    let w = settings.sweeper.clone();
+    let id = SWEEPS.fetch_add(1, Ordering::Relaxed) + 1;
+    let points = sweep::points(
+        w.start,
+        w.stop,
+        w.points as usize,
+        w.scale == SweepScale::Log,
+        w.direction != SweepDirection::Down,
+        w.direction != SweepDirection::Up,
+    );
+    let settle = if w.settling > 0.0 {
+        w.settling
+    } else {
+        automatic_settling(&settings)
+    };
+    let tune = (w.parameter == SweepParameter::DriveFrequency)
+        .then(|| crate::model::cantilever(&settings).ok())
+        .flatten()
+        .map(|c| {
+            let base = settings.drive.free_amplitude
+                / crate::model::free_response_per_base(&c, settings.drive.frequency);
+            (c, base)
+        });
+    let restore = restore_values(&settings, &w);
+    tracing::info!(
+        sweep = id,
+        parameter = w.parameter.name(),
+        points = points.len(),
+        settle_s = settle,
+        "sweep started"
+    );
+
+    while frames.try_recv().is_ok() {}
+    state.sweep_frames.active.store(true, Ordering::Relaxed);
+    let mut shutdown = state.shutdown.clone();
+    let mut measured: Vec<Measured> = Vec::with_capacity(points.len());
+    let (mut t_last, mut t_synth_last) = (0.0, 0u64);
+    let mut outcome = Outcome::Done;
+    'points: for (i, p) in points.iter().enumerate() {
+        let values = point_values(&w, p.value, tune.as_ref());
+        let paths: Vec<String> = values.iter().map(|(p, _)| p.clone()).collect();
+        let change = super::session::change(state, move |control| {
+            let (_, t) = control.set_many(&values)?;
+            Ok((Some(paths), t))
+        })
+        .await;
+        let t_set = match change {
+            Ok(t) => t.unwrap_or(t_last),
+            Err(e) => {
+                outcome = Outcome::Failed(format!(
+                    "{} = {} at point {i}: {}",
+                    w.parameter.name(),
+                    p.value,
+                    e.message
+                ));
+                break;
+            }
+        };
+        let from = t_set + settle;
+        let mut sums = [(0u32, 0.0f64, 0.0f64, 0u32); DEMODULATOR_COUNT];
+        let mut taken = 0;
+        while taken < w.averaging {
+            tokio::select! {
+                f = frames.recv() => {
+                    let Some(f) = f else { return Err(()) };
+                    if f.t < from {
+                        continue;
+                    }
+                    for v in f.values() {
+                        let s = &mut sums[usize::from(v.index)];
+                        *s = (v.harmonic, s.1 + v.x, s.2 + v.y, s.3 + 1);
+                    }
+                    taken += 1;
+                    (t_last, t_synth_last) = (f.t, f.t_synth_ns);
+                }
+                r = changes.changed() => {
+                    if r.is_err() {
+                        return Err(());
+                    }
+                    let enabled = state.control.lock().map(|c| c.settings.sweeper.enable).unwrap_or(false);
+                    if !enabled {
+                        outcome = Outcome::Aborted;
+                        break 'points;
+                    }
+                }
+                _ = shutdown.changed() => return Err(()),
+                _ = tokio::time::sleep(FRAME_WAIT) => {
+                    outcome = Outcome::Failed(format!(
+                        "no demodulator output for {} s at point {i}", FRAME_WAIT.as_secs()
+                    ));
+                    break 'points;
+                }
+            }
+        }
+        let mut demods = [(0u32, f64::NAN, f64::NAN); DEMODULATOR_COUNT];
+        for (d, s) in demods.iter_mut().zip(&sums) {
+            if s.3 > 0 {
+                *d = (s.0, s.1 / f64::from(s.3), s.2 / f64::from(s.3));
+            }
+        }
+        let m = Measured {
+            value: p.value,
+            leg: p.leg,
+            demods,
+        };
+        let list: Vec<Value> = m
+            .demods
+            .iter()
+            .enumerate()
+            .filter(|(_, (_, x, _))| x.is_finite())
+            .map(|(index, (h, x, y))| {
+                json!({"index": index, "harmonic": h, "x": x, "y": y,
+                       "r": x.hypot(*y), "phase": y.atan2(*x)})
+            })
+            .collect();
+        let mut fields = Map::new();
+        fields.insert("sweep".into(), json!(id));
+        fields.insert("parameter".into(), json!(w.parameter.name()));
+        fields.insert("point".into(), json!(i));
+        fields.insert("points".into(), json!(points.len()));
+        fields.insert("leg".into(), json!(p.leg.name()));
+        fields.insert("value".into(), json!(p.value));
+        fields.insert(
+            "progress".into(),
+            json!((i + 1) as f64 / points.len() as f64),
+        );
+        if let Some((c, base)) = &tune {
+            fields.insert(
+                "free_amplitude".into(),
+                json!(base * crate::model::free_response_per_base(c, p.value)),
+            );
+        }
+        if let Some(phase) = m.phase_at(1) {
+            fields.insert("h1_phase_to_drive".into(), json!(phase_to_drive(phase)));
+        }
+        fields.insert("demods".into(), Value::Array(list));
+        send(state, t_last, t_synth_last, fields);
+        measured.push(m);
+    }
+    state.sweep_frames.active.store(false, Ordering::Relaxed);
+
+    // Restore the swept node (and turn the sweep off) whatever happened; retry while the
+    // chain is busy with an earlier change.
+    let mut restored = Err(String::new());
+    for _ in 0..20 {
+        let values = restore.clone();
+        match super::session::change(state, move |control| {
+            control.set_many(&values)?;
+            Ok((None, ()))
+        })
+        .await
+        {
+            Ok(()) => {
+                restored = Ok(());
+                break;
+            }
+            Err(ProtocolError {
+                code: ErrorCode::Busy,
+                ..
+            }) => tokio::time::sleep(Duration::from_millis(50)).await,
+            Err(e) => {
+                restored = Err(e.message);
+                break;
+            }
+        }
+    }
+    if let Err(why) = &restored {
+        tracing::warn!(sweep = id, %why, "the swept node could not be restored");
+        // Turn the sweep off at least, so it does not start over.
+        let _ = super::session::change(state, |control| {
+            control.set("/sweeper/enable", &json!(false))?;
+            Ok((None, ()))
+        })
+        .await;
+    }
+
+    let mut fields = Map::new();
+    fields.insert("sweep".into(), json!(id));
+    fields.insert("parameter".into(), json!(w.parameter.name()));
+    fields.insert("done".into(), json!(true));
+    let (name, reason) = match &outcome {
+        Outcome::Done => ("done", Value::Null),
+        Outcome::Aborted => ("aborted", json!("/sweeper/enable was set false")),
+        Outcome::Failed(why) => ("failed", json!(why)),
+    };
+    fields.insert("outcome".into(), json!(name));
+    fields.insert("reason".into(), reason);
+    fields.insert("measured".into(), json!(measured.len()));
+    fields.insert("points".into(), json!(points.len()));
+    fields.insert("restored".into(), json!(restored.is_ok()));
+    fields.insert(
+        "frames_dropped".into(),
+        json!(state.sweep_frames.dropped.load(Ordering::Relaxed)),
+    );
+    if w.parameter == SweepParameter::DriveFrequency {
+        fields.insert("tune".into(), tune_summary(&measured));
+    }
+    if w.parameter == SweepParameter::SurfaceDistance {
+        fields.insert("approach".into(), approach_summary(&measured));
+    }
+    send(state, t_last, t_synth_last, fields);
+    tracing::info!(
+        sweep = id,
+        outcome = name,
+        points = measured.len(),
+        "sweep ended"
+    );
+    Ok(())
+}
+
+/// The phase (rad, in (−π, π]) of harmonic 1 against the excitation, as an instrument's
+/// tune shows it: the demodulators measure against cos θ while the base moves as sin θ, so
+/// it is the demodulator's phase + π/2 (−π/2 at resonance, 0 well below it).
+fn phase_to_drive(phase: f64) -> f64 {
+    let p = (phase + std::f64::consts::FRAC_PI_2).rem_euclid(std::f64::consts::TAU);
+    if p > std::f64::consts::PI {
+        p - std::f64::consts::TAU
+    } else {
+        p
+    }
+}
+
+/// A tune's fit of harmonic 1: f0 (Hz), Q, the detector's base amplitude (m) and the
+/// phase against the drive (rad) measured nearest f0; `null` if it does not fit.
+fn tune_summary(measured: &[Measured]) -> Value {
+    let (f, r): (Vec<f64>, Vec<f64>) = measured
+        .iter()
+        .filter_map(|m| Some((m.value, m.r_at(1)?)))
+        .unzip();
+    let Some(fit) = sweep::fit_tune(&f, &r) else {
+        return Value::Null;
+    };
+    let phase = measured
+        .iter()
+        .filter(|m| m.r_at(1).is_some())
+        .min_by(|a, b| {
+            (a.value - fit.f0)
+                .abs()
+                .total_cmp(&(b.value - fit.f0).abs())
+        })
+        .and_then(|m| m.phase_at(1));
+    json!({"f0": fit.f0, "q": fit.q, "amplitude": fit.amplitude,
+           "phase_to_drive_at_f0": phase.map(phase_to_drive)})
+}
+
+/// An approach curve's contact onset per leg (the first distance, in the order measured,
+/// where harmonic 1 falls 2 % below its free amplitude), jumps (consecutive points 10 %
+/// apart) and hysteresis between the legs.
+fn approach_summary(measured: &[Measured]) -> Value {
+    let leg = |l: Leg| -> Vec<(f64, f64)> {
+        measured
+            .iter()
+            .filter(|m| m.leg == l)
+            .filter_map(|m| Some((m.value, m.r_at(1)?)))
+            .collect()
+    };
+    let (up, down) = (leg(Leg::Up), leg(Leg::Down));
+    // The free amplitude is read where the tip is farthest from the surface: each leg is
+    // looked at from its largest distance down.
+    let onset = |points: &[(f64, f64)]| -> Option<f64> {
+        let mut p = points.to_vec();
+        p.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let (v, r): (Vec<f64>, Vec<f64>) = p.into_iter().unzip();
+        sweep::contact_onset(&v, &r, 3, 0.02)
+    };
+    let jumps = |l: Leg, points: &[(f64, f64)]| -> Vec<Value> {
+        let (v, r): (Vec<f64>, Vec<f64>) = points.iter().copied().unzip();
+        sweep::jumps(&v, &r, 0.1)
+            .into_iter()
+            .map(|j| {
+                json!({"leg": l.name(), "from": j.from, "to": j.to,
+                       "r_before": j.r_before, "r_after": j.r_after})
+            })
+            .collect()
+    };
+    let mut all_jumps = jumps(Leg::Up, &up);
+    all_jumps.extend(jumps(Leg::Down, &down));
+    json!({
+        "contact_up": onset(&up),
+        "contact_down": onset(&down),
+        "jumps": all_jumps,
+        "hysteresis": sweep::hysteresis(&up, &down).map(|(rel, at)| json!({"max": rel, "at": at})),
+    })
+}

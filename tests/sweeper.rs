@@ -1,0 +1,270 @@
+//! The sweeper over a real WebSocket: a free tune recovers f1 and Q, an approach curve
+//! follows the tapping solution, every parameter kind steps and is restored, an abort
+//! stops it, bad ranges are refused naming the node.
+
+use serde_json::{Value, json};
+
+mod common;
+use common::*;
+
+/// Free-running at 2 MS/s with 1 kHz demodulators: sweeps take well under a second.
+fn fast() -> ftafm::config::Settings {
+    let mut s = light();
+    s.synth.realtime = false;
+    for d in &mut s.demods {
+        d.rate = 1000.0;
+    }
+    s
+}
+
+/// Starts the sweep `values` describe and returns its point messages and the final one.
+async fn sweep(ws: &mut Ws, values: Value) -> (Vec<Value>, Value) {
+    let r = call(ws, json!({"op": "subscribe", "stream": "sweep"})).await;
+    assert_eq!(r["ok"], true, "{r}");
+    let mut values = values;
+    values["/sweeper/enable"] = json!(true);
+    let r = call(ws, json!({"op": "set", "values": values})).await;
+    assert_eq!(r["ok"], true, "{r}");
+    let mut points = Vec::new();
+    loop {
+        let m = next_of(ws, "sweep").await;
+        if m["done"] == true {
+            return (points, m);
+        }
+        points.push(m);
+    }
+}
+
+fn h1(point: &Value) -> (f64, f64) {
+    let d = point["demods"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|d| d["harmonic"] == 1)
+        .unwrap();
+    (d["r"].as_f64().unwrap(), d["phase"].as_f64().unwrap())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_free_tune_finds_f1_and_q_and_restores_the_drive() {
+    let d = Daemon::start(fast()).await;
+    let mut ws = connect(d.addr).await;
+    let (points, done) = sweep(
+        &mut ws,
+        json!({"/surface/distance": 200e-9, "/sweeper/parameter": "/drive/frequency",
+               "/sweeper/start": 99e3, "/sweeper/stop": 101e3, "/sweeper/points": 121}),
+    )
+    .await;
+    assert_eq!(done["outcome"], "done", "{done}");
+    assert_eq!(points.len(), 121);
+    let tune = &done["tune"];
+    let (f0, q) = (tune["f0"].as_f64().unwrap(), tune["q"].as_f64().unwrap());
+    println!("tune: {tune}");
+    for p in points.iter().step_by(20) {
+        println!("{} {:?} {}", p["value"], h1(p), p["free_amplitude"]);
+    }
+    assert!((f0 / 100e3 - 1.0).abs() < 5e-4, "f0 = {f0}");
+    assert!((q / 100.0 - 1.0).abs() < 0.03, "Q = {q}");
+    // The phase against the drive crosses −90° at resonance.
+    let phase = tune["phase_to_drive_at_f0"].as_f64().unwrap();
+    assert!(
+        (phase + std::f64::consts::FRAC_PI_2).abs() < 0.05,
+        "phase {phase} rad at f0"
+    );
+    let below = points[0]["h1_phase_to_drive"].as_f64().unwrap();
+    let above = points[120]["h1_phase_to_drive"].as_f64().unwrap();
+    assert!(
+        below > -0.5 && below < 0.0 && above < -2.6,
+        "{below} … {above}"
+    );
+    // Restored: the drive follows f1 again at the free amplitude it had.
+    for (path, value) in [
+        ("/drive/frequency", json!(100e3)),
+        ("/drive/follow_f1", json!(true)),
+        ("/drive/free_amplitude", json!(30e-9)),
+        ("/sweeper/enable", json!(false)),
+    ] {
+        let r = call(&mut ws, json!({"op": "get", "path": path})).await;
+        assert_eq!(r["value"], value, "{path}");
+    }
+    d.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_approach_and_retract_curve_shows_where_contact_starts() {
+    let d = Daemon::start(fast()).await;
+    let mut ws = connect(d.addr).await;
+    let (points, done) = sweep(
+        &mut ws,
+        json!({"/sweeper/parameter": "/surface/distance", "/sweeper/start": 40e-9,
+               "/sweeper/stop": 8e-9, "/sweeper/points": 33, "/sweeper/direction": "both"}),
+    )
+    .await;
+    assert_eq!(done["outcome"], "done", "{done}");
+    assert_eq!(points.len(), 66);
+    assert_eq!(points[0]["leg"], "up");
+    assert_eq!(points[65]["leg"], "down");
+    let approach = &done["approach"];
+    println!("{approach}");
+    // The free tip (30 nm) first touches where the distance falls below its amplitude.
+    for leg in ["contact_up", "contact_down"] {
+        let onset = approach[leg].as_f64().unwrap();
+        assert!((27e-9..=31e-9).contains(&onset), "{leg} at {onset}");
+    }
+    // Far out H1 is the free amplitude (times the light lever's 0.918); in contact the
+    // tapping amplitude follows the set point, A ≈ A_set.
+    let free = h1(&points[0]).0;
+    assert!(
+        (free / (0.9177 * 30e-9) - 1.0).abs() < 0.02,
+        "free H1 {free}"
+    );
+    for p in &points {
+        let dist = p["value"].as_f64().unwrap();
+        let (r, _) = h1(p);
+        if dist < 25e-9 {
+            let ratio = r / free / (dist / 30e-9);
+            assert!((ratio - 1.0).abs() < 0.08, "H1 {r} at {dist}: {ratio}");
+        }
+    }
+    // One branch in this model: approach and retract agree, without jumps.
+    assert_eq!(approach["jumps"], json!([]), "{approach}");
+    let hysteresis = approach["hysteresis"]["max"].as_f64().unwrap();
+    assert!(hysteresis < 0.02, "{approach}");
+    let r = call(&mut ws, json!({"op": "get", "path": "/surface/distance"})).await;
+    assert_eq!(r["value"], 20e-9, "the distance is restored");
+    d.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_parameter_kind_steps_and_is_restored() {
+    let d = Daemon::start(fast()).await;
+    let mut ws = connect(d.addr).await;
+    for (path, start, stop, scale, original) in [
+        (
+            "/drive/free_amplitude",
+            25e-9,
+            35e-9,
+            "linear",
+            json!(30e-9),
+        ),
+        ("/sample/youngs_modulus", 1e9, 100e9, "log", json!(129e9)),
+    ] {
+        let (points, done) = sweep(
+            &mut ws,
+            json!({"/sweeper/parameter": path, "/sweeper/start": start, "/sweeper/stop": stop,
+                   "/sweeper/points": 5, "/sweeper/scale": scale, "/sweeper/direction": "up"}),
+        )
+        .await;
+        assert_eq!(done["outcome"], "done", "{done}");
+        let values: Vec<f64> = points
+            .iter()
+            .map(|p| p["value"].as_f64().unwrap())
+            .collect();
+        assert_eq!(values.len(), 5);
+        assert_eq!((values[0], values[4]), (start, stop));
+        if scale == "log" {
+            assert!(
+                (values[2] / (start * stop).sqrt() - 1.0).abs() < 1e-12,
+                "{values:?}"
+            );
+        }
+        let r = call(&mut ws, json!({"op": "get", "path": path})).await;
+        assert_eq!(r["value"], original, "{path} restored");
+    }
+    // A larger free amplitude taps harder: H1 grows with it, the modulus sweep softens H17.
+    d.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_sweep_is_aborted_by_turning_it_off_and_still_restores() {
+    let mut settings = fast();
+    settings.synth.realtime = true; // slow enough to abort half-way
+    let d = Daemon::start(settings).await;
+    let mut ws = connect(d.addr).await;
+    call(&mut ws, json!({"op": "subscribe", "stream": "sweep"})).await;
+    let r = call(
+        &mut ws,
+        json!({"op": "set", "values": {"/sweeper/parameter": "/surface/distance",
+               "/sweeper/start": 30e-9, "/sweeper/stop": 10e-9, "/sweeper/points": 2000,
+               "/sweeper/enable": true}}),
+    )
+    .await;
+    assert_eq!(r["ok"], true, "{r}");
+    let first = next_of(&mut ws, "sweep").await;
+    assert_eq!(first["point"], 0);
+    let r = call(
+        &mut ws,
+        json!({"op": "set", "path": "/sweeper/enable", "value": false}),
+    )
+    .await;
+    assert_eq!(r["ok"], true, "{r}");
+    let done = loop {
+        let m = next_of(&mut ws, "sweep").await;
+        if m["done"] == true {
+            break m;
+        }
+    };
+    assert_eq!(done["outcome"], "aborted", "{done}");
+    assert!(done["measured"].as_u64().unwrap() < 2000);
+    let r = call(&mut ws, json!({"op": "get", "path": "/surface/distance"})).await;
+    assert_eq!(r["value"], 20e-9, "restored after the abort");
+    d.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_sweeps_are_refused_naming_the_node() {
+    let d = Daemon::start(fast()).await;
+    let mut ws = connect(d.addr).await;
+    for (values, names) in [
+        (
+            json!({"/sweeper/parameter": "/surface/distance", "/sweeper/start": -1e-9,
+                   "/sweeper/stop": 10e-9}),
+            "/sweeper/start",
+        ),
+        (
+            json!({"/sweeper/parameter": "/drive/frequency", "/sweeper/start": 99e3,
+                   "/sweeper/stop": 2e6}),
+            "/sweeper/stop",
+        ),
+        (
+            json!({"/sweeper/parameter": "/sample/youngs_modulus", "/sweeper/start": 1e9,
+                   "/sweeper/stop": 1e9}),
+            "/sweeper/stop",
+        ),
+        (
+            json!({"/sweeper/parameter": "/drive/free_amplitude", "/sweeper/start": 0.0,
+                   "/sweeper/stop": 1e-8, "/sweeper/scale": "log"}),
+            "/sweeper/",
+        ),
+        // A tune far off resonance would need a free amplitude beyond the node's range at f1.
+        (
+            json!({"/drive/follow_f1": false, "/drive/frequency": 60e3,
+                   "/drive/free_amplitude": 5e-7, "/sweeper/parameter": "/drive/frequency",
+                   "/sweeper/start": 60e3, "/sweeper/stop": 120e3}),
+            "/sweeper/stop",
+        ),
+    ] {
+        let mut values = values;
+        values["/sweeper/enable"] = json!(true);
+        let r = call(&mut ws, json!({"op": "set", "values": values})).await;
+        assert_eq!(code(&r), "invalid_value", "{r}");
+        let message = r["error"]["message"].as_str().unwrap();
+        assert!(message.contains(names), "{message}");
+        let enabled = call(&mut ws, json!({"op": "get", "path": "/sweeper/enable"})).await;
+        assert_eq!(enabled["value"], false);
+    }
+    let r = call(
+        &mut ws,
+        json!({"op": "set", "path": "/sweeper/parameter", "value": "/cantilever/k"}),
+    )
+    .await;
+    assert_eq!(code(&r), "invalid_value");
+    assert!(
+        r["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("/surface/distance"),
+        "{r}"
+    );
+    d.shutdown().await;
+}
