@@ -16,10 +16,11 @@ import { StatusPanel } from "./status.js";
 import { ControlsPanel } from "./controls.js";
 import { ForcePanel } from "./force.js";
 import { ImagePanel } from "./image.js";
+import { SweeperPanel } from "./sweeper.js";
 import { si } from "./units.js";
 
-const STREAMS = ["demods", "spectrum", "scope", "status", "force", "image"];
-const FORMATS = { demods: "binary", spectrum: "binary", scope: "binary", status: "json", force: "binary", image: "json" };
+const STREAMS = ["demods", "spectrum", "scope", "status", "force", "image", "sweep"];
+const FORMATS = { demods: "binary", spectrum: "binary", scope: "binary", status: "json", force: "binary", image: "json", sweep: "json" };
 // subscribed by their panels, only while on screen
 const ON_DEMAND = new Set(["force", "image"]);
 const zero = () => Object.fromEntries(STREAMS.map((s) => [s, 0]));
@@ -27,7 +28,7 @@ const zero = () => Object.fromEntries(STREAMS.map((s) => [s, 0]));
 const stats = {
   messages: zero(), // data messages received per stream, since the page loaded
   gaps: zero(), // messages lost (seq gaps) per stream
-  draws: { harmonics: 0, contrast: 0, scope: 0, spectrum: 0, force: 0, image: 0 },
+  draws: { harmonics: 0, contrast: 0, scope: 0, spectrum: 0, force: 0, image: 0, sweep: 0 },
   connects: 0,
   state: "connecting",
   fps: 0, // redraws per second of the time plot (the page's animation rate)
@@ -63,9 +64,11 @@ const status = new StatusPanel(app);
 const controls = new ControlsPanel(app);
 const force = new ForcePanel(app);
 const image = new ImagePanel(app);
-const panels = [spectrum, harmonics, contrast, scope, status, force, image];
+const sweeper = new SweeperPanel(app);
+const panels = [spectrum, harmonics, contrast, scope, status, force, image, sweeper];
 app.force = force; // the scope marks the tap at the latest estimate's pulse phase
-const byStream = { spectrum, scope, status, force, image };
+const byStream = { spectrum, scope, status, force, image, sweep: sweeper };
+app.sweeper = sweeper;
 
 function updateParams() {
   const v = (p) => app.nodes.get(p)?.value;
@@ -113,6 +116,7 @@ async function onOpen(conn) {
     const subs = Promise.all(STREAMS.filter((s) => !ON_DEMAND.has(s)).map((stream) => conn.request("subscribe", { stream, format: FORMATS[stream] })));
     force.onOpen(conn);
     image.onOpen(conn);
+    sweeper.onOpen(conn);
     subs.catch(() => {}); // reported by the await below
     app.hello = await conn.request("hello");
     if (app.hello.protocol !== 1) console.warn(`ftafm: the daemon speaks protocol ${app.hello.protocol}; this page was written for 1`);
@@ -191,7 +195,7 @@ app.conn.start();
 window.ftafm = {
   stats,
   app,
-  panels: { spectrum, harmonics, contrast, scope, status, controls, force, image },
+  panels: { spectrum, harmonics, contrast, scope, status, controls, force, image, sweeper },
   /** 0.2 s mean amplitude (m) at harmonic k, or null. */
   amplitude(k) {
     const i = app.history.indexOf(k);
@@ -205,4 +209,6 @@ window.ftafm = {
   force: () => force.values(),
   /** The scan image: channel, frame, line, colour range, the region's statistics. */
   image: () => image.values(),
+  /** The sweep shown: its points, final message, whether one runs, and the CSV export. */
+  sweep: () => ({ points: sweeper.points, final: sweeper.final, running: sweeper.running, csv: sweeper.csv() }),
 };

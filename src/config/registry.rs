@@ -154,8 +154,8 @@ mod tests {
         assert_eq!(top[0], "cantilever");
         assert_eq!(top.last().unwrap(), "demods");
         assert_eq!(
-            top[top.len() - 4..],
-            ["scan", "feedback", "inclusions", "demods"]
+            top[top.len() - 5..],
+            ["scan", "feedback", "sweeper", "inclusions", "demods"]
         );
         assert_eq!(key_list(table_keys("/inclusions").unwrap()), "0 … 7");
         assert_eq!(

@@ -94,6 +94,11 @@ pub(crate) const ASSETS: &[Asset] = &[
         content_type: JS,
         body: include_str!("../../web/image.js"),
     },
+    Asset {
+        path: "/sweeper.js",
+        content_type: JS,
+        body: include_str!("../../web/sweeper.js"),
+    },
 ];
 
 /// The asset at `path`, if any.

@@ -1,0 +1,103 @@
+// Browser test of the dashboard's sweeper panel: a real headless Chromium (Debian's
+// /usr/bin/chromium, driven by playwright-core) against a real daemon (target/release/ftafm
+// on a free port, the tip far from the surface for a free tune, stopped at the end).
+//
+//   cargo build --release && (cd tests/e2e && npm ci) && node --test tests/e2e/sweeper.test.mjs
+
+import { after, before, test } from "node:test";
+import assert from "node:assert/strict";
+import { mkdtempSync, readFileSync, rmSync, writeFileSync } from "node:fs";
+import { tmpdir } from "node:os";
+import path from "node:path";
+import { chromium } from "playwright-core";
+import { daemons, startDaemon, stopDaemon } from "./daemon.mjs";
+
+const CHROMIUM = process.env.CHROMIUM ?? "/usr/bin/chromium";
+const ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+  "--disable-background-networking", "--disable-component-update", "--disable-sync"];
+// Waits are generous: on a loaded machine the daemon runs below real time.
+const WAIT = 60000;
+const TEST = { timeout: 120000 };
+const OVERLAY = `# e2e: a free tune
+[surface]
+distance = 200e-9
+`;
+
+let daemon, context, page, work;
+const pageErrors = [];
+
+async function until(fn, arg, what, timeout = WAIT) {
+  try {
+    return await page.waitForFunction(fn, arg, { timeout, polling: 100 });
+  } catch (e) {
+    const state = await page.evaluate(() => JSON.stringify({ stats: { ...window.ftafm?.stats, latency: undefined },
+      sweep: { ...window.ftafm?.sweep(), csv: undefined, points: window.ftafm?.sweep().points.length } })).catch(() => "?");
+    throw new Error(`timed out after ${timeout} ms waiting for ${what}; page state: ${state}`);
+  }
+}
+
+before(async () => {
+  work = mkdtempSync(path.join(tmpdir(), "ftafm-e2e-sweep-"));
+  const overlay = path.join(work, "free.toml");
+  writeFileSync(overlay, OVERLAY);
+  daemon = await startDaemon("127.0.0.1:0", ["--config", overlay]);
+  context = await chromium.launchPersistentContext(path.join(work, "profile"), {
+    executablePath: CHROMIUM, headless: true, args: ARGS, viewport: { width: 1600, height: 1000 }, acceptDownloads: true,
+  });
+  page = context.pages()[0] ?? (await context.newPage());
+  page.on("pageerror", (e) => pageErrors.push(String(e)));
+  await page.goto(daemon.url);
+  await page.waitForSelector('#conn[data-state="open"]', { timeout: WAIT });
+});
+
+after(async () => {
+  await context?.close().catch(() => {});
+  for (const d of [...daemons]) await stopDaemon({ proc: d });
+  if (work) rmSync(work, { recursive: true, force: true });
+});
+
+test("a tune run from the panel shows the resonance, its fit, and exports as CSV", TEST, async (t) => {
+  await page.locator("#p-sweep").scrollIntoViewIfNeeded();
+  await until(() => document.getElementById("sw-start").value !== "", null, "the sweeper set-up read from the daemon");
+  assert.equal(await page.inputValue("#sw-parameter"), "/drive/frequency");
+  await page.fill("#sw-start", "99500");
+  await page.fill("#sw-stop", "100500");
+  await page.fill("#sw-points", "41");
+  await page.click("#sw-run");
+  await until(() => window.ftafm.sweep().final?.outcome === "done", null, "the tune to finish");
+  const sweep = await page.evaluate(() => window.ftafm.sweep());
+  assert.equal(sweep.points.length, 41);
+  assert.equal(sweep.running, false);
+  const f0 = sweep.final.tune.f0;
+  t.diagnostic(`f0 = ${f0} Hz, Q = ${sweep.final.tune.q}`);
+  assert.ok(Math.abs(f0 / 100e3 - 1) < 5e-4, `f0 ${f0}`);
+  const result = await page.textContent("#sw-result");
+  assert.match(result, /^f0 = 100\.0\d* kHz, Q = (9\d|10\d)\.\d, phase at f0 −?-?9\d\.\d°$/);
+  assert.match(await page.textContent("#sw-progress"), /^done: 41 of 41 points, node restored$/);
+  assert.equal(await page.evaluate(() => window.ftafm.stats.draws.sweep > 0), true, "the plots were drawn");
+  // the export is the points as CSV
+  const [download] = await Promise.all([page.waitForEvent("download"), page.click("#sw-csv")]);
+  const csv = readFileSync(await download.path(), "utf8").trim().split("\n");
+  assert.match(download.suggestedFilename(), /^ftafm-sweep-\d+\.csv$/);
+  assert.equal(csv.length, 2 + 41);
+  assert.match(csv[1], /^value,leg,h1_phase_to_drive_rad,r_demod0_h1_m,phase_demod0_h1_rad,/);
+  assert.equal(Number(csv[2].split(",")[0]), 99500);
+  assert.equal(csv[2].split(",")[1], "up");
+});
+
+test("an approach run from the panel can be aborted; a bad range is shown, not run", TEST, async () => {
+  await page.selectOption("#sw-parameter", "/surface/distance");
+  assert.equal(await page.inputValue("#sw-direction"), "both", "an approach suggests both legs");
+  await page.fill("#sw-points", "3000");
+  await page.click("#sw-run");
+  await until(() => window.ftafm.sweep().points.length >= 3, null, "approach points");
+  assert.equal(await page.isDisabled("#sw-abort"), false);
+  await page.click("#sw-abort");
+  await until(() => window.ftafm.sweep().final?.outcome === "aborted", null, "the abort");
+  assert.match(await page.textContent("#sw-progress"), /^aborted: \d+ of 6000 points, node restored$/);
+  await page.fill("#sw-start", "-1e-9");
+  await page.click("#sw-run");
+  await until(() => document.getElementById("sw-result").textContent.includes("/sweeper/start"), null, "the refusal");
+  assert.equal(await page.evaluate(() => window.ftafm.sweep().running), false);
+  assert.deepEqual(pageErrors, []);
+});
