@@ -189,3 +189,20 @@ def test_the_instrument_fixture_restores_the_settings(ftafm_daemon: Daemon) -> N
         next(gen)
     with ftafm.Instrument(ftafm_daemon.url) as check:
         assert check.get("/surface/distance") == original
+
+
+def test_poll_gives_scan_lines_as_images(tmp_path) -> None:
+    overlay = tmp_path / "scan.toml"
+    overlay.write_text(
+        "[scan]\nenable = true\npixels = 16\nline_rate = 20.0\n\n[noise]\nenable = false\n"
+    )
+    with Daemon(["--config", str(overlay)]) as d, ftafm.Instrument(d.url) as inst:
+        im = inst.poll("image", 0.5)
+        assert isinstance(im, ftafm.ImageData) and len(im) >= 5
+        assert im.gaps == 0
+        assert im.channels["height"].shape == (len(im), 16)
+        assert im.channels["h17"].shape == (len(im), 16)
+        assert im.units["height"] == "m" and im.units["phase"] == "rad"
+        assert np.all(np.diff(im.seq) == 1)
+        assert set(np.unique(im.line)) <= set(range(16))
+        assert np.all(np.isfinite(im.channels["amplitude"]))

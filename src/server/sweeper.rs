@@ -234,6 +234,7 @@ async fn run_sweep(
     );
 
     while frames.try_recv().is_ok() {}
+    let dropped_before = state.sweep_frames.dropped.load(Ordering::Relaxed);
     state.sweep_frames.active.store(true, Ordering::Relaxed);
     let mut shutdown = state.shutdown.clone();
     let mut measured: Vec<Measured> = Vec::with_capacity(points.len());
@@ -393,7 +394,7 @@ async fn run_sweep(
     fields.insert("restored".into(), json!(restored.is_ok()));
     fields.insert(
         "frames_dropped".into(),
-        json!(state.sweep_frames.dropped.load(Ordering::Relaxed)),
+        json!(state.sweep_frames.dropped.load(Ordering::Relaxed) - dropped_before),
     );
     if w.parameter == SweepParameter::DriveFrequency {
         fields.insert("tune".into(), tune_summary(&measured));
