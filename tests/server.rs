@@ -145,7 +145,7 @@ async fn bad_input_gets_the_right_error_and_the_connection_goes_on() {
             "invalid_value",
         ),
         (
-            r#"{"id": 7, "op": "set", "path": "/synth/engine", "value": "coupled"}"#,
+            r#"{"id": 7, "op": "set", "path": "/synth/engine", "value": "quantum"}"#,
             "invalid_value",
         ),
         (

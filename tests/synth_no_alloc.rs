@@ -1,10 +1,11 @@
 //! The synthesiser's hot loop allocates nothing: a counting global allocator around
-//! `process` on warmed-up state, for every noise configuration and across plan changes.
+//! `process` on warmed-up state, for every noise configuration and both engines, and across
+//! plan changes, a switch of engine included.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use ftafm::config::default_settings;
+use ftafm::config::{Engine, default_settings};
 use ftafm::synth::{SynthPlan, SynthState};
 
 struct Counting;
@@ -46,10 +47,13 @@ fn process_and_retarget_allocate_nothing() {
             vec![100.0, 417.0, 340.0, 200.0, 26.0],
             vec![100.0; 12],
         ] {
-            let mut s = default_settings();
-            s.noise.enable = noise;
-            s.cantilever.q = modes;
-            configurations.push(s);
+            for engine in [Engine::Paper, Engine::Coupled] {
+                let mut s = default_settings();
+                s.noise.enable = noise;
+                s.cantilever.q = modes.clone();
+                s.synth.engine = engine;
+                configurations.push(s);
+            }
         }
     }
     for settings in &configurations {
@@ -65,9 +69,10 @@ fn process_and_retarget_allocate_nothing() {
         assert_eq!(
             n,
             0,
-            "process allocated {n} times ({} modes, noise {})",
+            "process allocated {n} times ({} modes, noise {}, {:?} engine)",
             plan.mode_count(),
-            settings.noise.enable
+            settings.noise.enable,
+            settings.synth.engine
         );
         // A plan change is applied on the real-time thread too (the plan itself is built
         // elsewhere): the state hand-over must not allocate either.
@@ -79,5 +84,17 @@ fn process_and_retarget_allocate_nothing() {
             next.process(&mut state, &mut block);
         });
         assert_eq!(n, 0, "retarget allocated {n} times");
+        // And a switch of engine while running.
+        let mut other = settings.clone();
+        other.synth.engine = match settings.synth.engine {
+            Engine::Paper => Engine::Coupled,
+            Engine::Coupled => Engine::Paper,
+        };
+        let switched = SynthPlan::new(&other).unwrap();
+        let n = allocations_in(|| {
+            state.retarget(&next, &switched);
+            switched.process(&mut state, &mut block);
+        });
+        assert_eq!(n, 0, "an engine switch allocated {n} times");
     }
 }

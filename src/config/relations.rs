@@ -1,8 +1,8 @@
 //! Whole-settings validation: every node inside its own range, the limits that tie nodes
 //! together (the Nyquist frequency, one sample period, the number of modes, the inversion's
 //! harmonics and the demodulators that measure them, the scan's pixel dwell time and pixel
-//! rate), and the values a
-//! node knows but the instrument cannot run yet (the `"coupled"` engine). These run after a
+//! rate), and the combinations the instrument cannot run yet (a scan on the `"coupled"`
+//! engine). These run after a
 //! whole config file or a whole `set`, never per key, so the order of keys never matters.
 //! Every message about a relation names every node it involves.
 
@@ -15,9 +15,8 @@ use super::quantity::{number, quantity};
 use super::registry::registry;
 use super::settings::{DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, Settings};
 
-/// The engines implemented so far. The others are known names (so a file that asks for one is
-/// told it is not available, rather than that it does not exist), but are refused.
-const AVAILABLE_ENGINES: [Engine; 1] = [Engine::Paper];
+/// The engines the scan runs on so far.
+const SCAN_ENGINES: [Engine; 1] = [Engine::Paper];
 
 impl Settings {
     /// Checks everything `set` and the config loader guarantee: exactly
@@ -317,22 +316,21 @@ fn list_of_numbers(list: &[f64]) -> String {
     format!("[{}{more}]", shown.join(", "))
 }
 
-/// Only the engines implemented so far may be chosen.
+/// The scan runs on the engines in [`SCAN_ENGINES`] only, so far.
 fn check_engine(s: &Settings) -> Result<(), NodeError> {
     let engine = s.synth.engine;
-    if AVAILABLE_ENGINES.contains(&engine) {
+    if !s.scan.enable || SCAN_ENGINES.contains(&engine) {
         return Ok(());
     }
-    let allowed: Vec<String> = AVAILABLE_ENGINES
+    let allowed: Vec<String> = SCAN_ENGINES
         .iter()
         .map(|e| format!("{:?}", e.name()))
         .collect();
     Err(invalid(
         "/synth/engine",
         format!(
-            "/synth/engine = {:?} is not available yet (the {} engine is a later piece of \
-             work); allowed: {}",
-            engine.name(),
+            "/synth/engine = {:?} cannot run a scan yet (/scan/enable = true): the scan \
+             runs on {}; set /synth/engine = \"paper\" or /scan/enable = false",
             engine.name(),
             allowed.join(", ")
         ),
@@ -805,16 +803,19 @@ mod tests {
     }
 
     #[test]
-    fn the_coupled_engine_is_refused_by_name() {
+    fn a_scan_is_refused_on_the_coupled_engine_only() {
         let mut s = default_settings();
         s.synth.engine = Engine::Coupled;
+        assert!(s.validate().is_ok());
+        s.scan.enable = true;
         let error = s.validate().unwrap_err();
         assert_eq!(error.path(), "/synth/engine");
-        assert_eq!(
-            error.to_string(),
-            "/synth/engine = \"coupled\" is not available yet (the coupled engine is a later \
-             piece of work); allowed: \"paper\""
+        assert!(
+            error.to_string().contains("/scan/enable = false"),
+            "{error}"
         );
+        s.synth.engine = Engine::Paper;
+        assert!(s.validate().is_ok());
     }
 
     #[test]

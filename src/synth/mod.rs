@@ -3,6 +3,7 @@
 //! detector and ADC noise. [`SynthPlan`] is built off the real-time thread; its
 //! [`process`](SynthPlan::process) fills blocks without allocating, locking or blocking.
 
+pub mod coupled;
 pub mod modal;
 pub mod plan;
 pub mod pulse;
@@ -10,6 +11,7 @@ pub mod raster;
 pub mod scan;
 pub mod synthesizer;
 
+pub use coupled::{CoupledKernel, CoupledTrace, SUBSTEPS};
 pub use plan::{Adc, BOLTZMANN, PlanError, SynthPlan, TapForce};
 pub use pulse::PulseTrain;
 pub use raster::{PixelId, Raster};

@@ -6,6 +6,7 @@ use std::f64::consts::PI;
 
 use rustfft::num_complex::Complex64;
 
+use super::coupled::CoupledKernel;
 use super::modal::ModalKernel;
 use super::pulse::{PulseKernel, PulseTrain};
 use super::scan::{ScanPlan, TapTables};
@@ -98,7 +99,12 @@ pub struct SynthPlan {
     /// Steady drive response of the photodiode: Re[Ŝ e^{iθ}] (m).
     pub(crate) drive_signal: Complex64,
     pub(crate) pulse: Option<PulseKernel>,
-    /// The tap force, if the tip touches the sample.
+    /// The engine (`/synth/engine`).
+    pub engine: Engine,
+    /// The coupled engine's kernel, when it is the engine: the tap force then comes from
+    /// the tip position sample by sample and `pulse` and `tap` are `None`.
+    pub coupled: Option<CoupledKernel>,
+    /// The paper engine's tap force (the 1-DOF solution), if the tip touches the sample.
     pub tap: Option<TapForce>,
     /// Standard deviation of the held thermal input of each mode (m/s²).
     pub(crate) thermal_sigma: Vec<f64>,
@@ -158,8 +164,10 @@ impl SynthPlan {
         settings: &Settings,
         tables: Option<&Arc<TapTables>>,
     ) -> Result<Self, PlanError> {
-        if settings.synth.engine != Engine::Paper {
-            return Err(PlanError::Engine(settings.synth.engine));
+        let engine = settings.synth.engine;
+        if engine == Engine::Coupled && settings.scan.enable {
+            // The relations refuse this combination with a message; a plan is never asked.
+            return Err(PlanError::Engine(engine));
         }
         let cantilever = model::cantilever(settings)?;
         let sample_rate = settings.synth.sample_rate;
@@ -197,10 +205,16 @@ impl SynthPlan {
             .map(|(m, y)| y * (2.0 / 3.0 * m.tip_slope))
             .sum();
 
-        let solution = model::impact_oscillator(settings, &cantilever, settings.sample).solve()?;
-        let tap = solution
-            .in_contact()
-            .then(|| TapForce::from_solution(&solution));
+        let tap = match engine {
+            Engine::Paper => {
+                let solution =
+                    model::impact_oscillator(settings, &cantilever, settings.sample).solve()?;
+                solution
+                    .in_contact()
+                    .then(|| TapForce::from_solution(&solution))
+            }
+            Engine::Coupled => None,
+        };
         let pulse = tap.map(|t| PulseKernel::new(&t.train, h, word, &modes));
 
         let noise = &settings.noise;
@@ -233,6 +247,20 @@ impl SynthPlan {
             }
         });
         let lanes = Lanes::new(&modes, &thermal_sigma);
+        let coupled = (engine == Engine::Coupled).then(|| {
+            let contact = model::impact_oscillator(settings, &cantilever, settings.sample).contact;
+            CoupledKernel::new(
+                &cantilever.modes,
+                h,
+                omega,
+                &drive_response,
+                // The modes' drive is the base acceleration G·sin θ = −ü, so U = G/Ω².
+                gain / (omega * omega),
+                settings.surface.distance,
+                &contact,
+                &thermal_sigma,
+            )
+        });
         let scan = settings
             .scan
             .enable
@@ -260,12 +288,20 @@ impl SynthPlan {
             drive_response,
             drive_signal,
             pulse,
+            engine,
+            coupled,
             tap,
             thermal_sigma,
             detector_sigma,
             adc,
             epoch: 0,
         })
+    }
+
+    /// The photodiode's free (no contact) steady drive response: Re[Ŝ·e^{iθ}] at drive
+    /// phase θ (m).
+    pub fn free_signal(&self) -> Complex64 {
+        self.drive_signal
     }
 
     /// Number of modes synthesised.
@@ -275,8 +311,14 @@ impl SynthPlan {
 
     /// Steady-state modal states at drive phase `theta` (rad) under the tap force alone:
     /// q_n = Σ_k (ikΩ − λ̄n)·Y_{n,k}·e^{ikθ} with Y_{n,k} = gain·c_k·Hn(kΩ)/ωn², summed over
-    /// |k| ≤ 4096 (the terms fall off like 1/k³ past the pulse's bandwidth).
+    /// |k| ≤ 4096 (the terms fall off like 1/k³ past the pulse's bandwidth). With the
+    /// coupled engine: its own periodic orbit at phase 0 ([`CoupledKernel::steady_state`]).
     pub(crate) fn tap_steady_state(&self, theta: f64) -> Vec<Complex64> {
+        if let Some(coupled) = &self.coupled {
+            debug_assert_eq!(theta, 0.0, "the coupled orbit is found at phase 0");
+            let q = coupled.steady_state(&self.cantilever.modes, &self.drive_response, self.h);
+            return q[..self.modes.len()].to_vec();
+        }
         let Some(tap) = self.tap else {
             return vec![Complex64::new(0.0, 0.0); self.modes.len()];
         };

@@ -9,6 +9,7 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 use rand_xoshiro::rand_core::SeedableRng;
 use rustfft::num_complex::Complex64;
 
+use super::coupled::{CoupledKernel, CoupledTrace, SUBSTEPS};
 use super::plan::{SynthPlan, TURN};
 use super::pulse::PulseKernel;
 use crate::dsp::phase_to_radians;
@@ -164,29 +165,37 @@ impl SynthPlan {
     }
 
     /// The loop over `L` mode lanes (a fixed count, so the per-mode arithmetic vectorises;
-    /// lanes past the plan's modes hold zeros and contribute nothing).
-    // Several lane arrays are read and written in lock-step by index; that is the form
-    // the compiler vectorises, and clearer than a five-way zip.
-    #[allow(clippy::needless_range_loop)]
+    /// lanes past the plan's modes hold zeros and contribute nothing). `coupled` is a
+    /// loop-invariant choice, so each engine's loop is as if written alone.
     fn process_lanes<const L: usize>(
         &self,
         pulse: Option<&PulseKernel>,
         state: &mut SynthState,
         out: &mut [f64],
     ) {
+        match &self.coupled {
+            Some(coupled) => self.process_engine::<L>(None, Some(coupled), state, out),
+            None => self.process_engine::<L>(pulse, None, state, out),
+        }
+    }
+
+    // Several lane arrays are read and written in lock-step by index; that is the form
+    // the compiler vectorises, and clearer than a five-way zip.
+    #[allow(clippy::needless_range_loop)]
+    #[inline(always)]
+    fn process_engine<const L: usize>(
+        &self,
+        pulse: Option<&PulseKernel>,
+        coupled: Option<&CoupledKernel>,
+        state: &mut SynthState,
+        out: &mut [f64],
+    ) {
         let k = &self.lanes;
-        let n_modes = self.modes.len();
-        let detector = self.detector_sigma > 0.0;
-        let thermal = self.thermal_sigma.iter().any(|&s| s > 0.0);
         let step = Complex64::from_polar(
             1.0,
             self.frequency_word as f64 / TURN * std::f64::consts::TAU,
         );
-        // Each sample's deviates sit at a fixed stride: the detector's at 0, mode m's at
-        // 1 + m. Slots that are not drawn stay zero, so the loops over all L lanes need no
-        // branches; the order of drawing is the order of use, whatever the block size.
         let stride = L + 1;
-        let drawn: usize = usize::from(detector) + if thermal { n_modes } else { 0 };
         let mut re: [f64; L] = std::array::from_fn(|m| state.re[m]);
         let mut im: [f64; L] = std::array::from_fn(|m| state.im[m]);
         let mut phase = state.phase;
@@ -194,23 +203,7 @@ impl SynthPlan {
         let mut index = state.counters.samples;
         let mut clipped = 0u64;
         for chunk in out.chunks_mut(CHUNK) {
-            let normals = &mut state.normals[..chunk.len() * stride];
-            if drawn > 0 {
-                // A local copy keeps the generator in registers (the compiler cannot prove
-                // the buffer's stores leave a field of `state` alone).
-                let mut rng = state.rng.clone();
-                for z in normals.chunks_exact_mut(stride) {
-                    if detector {
-                        z[0] = StandardNormal.sample(&mut rng);
-                    }
-                    if thermal {
-                        for z in &mut z[1..=n_modes] {
-                            *z = StandardNormal.sample(&mut rng);
-                        }
-                    }
-                }
-                state.rng = rng;
-            }
+            let normals = self.draw_normals::<L>(state, chunk.len());
             for (out, z) in chunk.iter_mut().zip(normals.chunks_exact(stride)) {
                 if index % REANCHOR == 0 {
                     rho = Complex64::from_polar(1.0, phase_to_radians(phase));
@@ -220,41 +213,34 @@ impl SynthPlan {
                     lever += k.lever[m] * im[m];
                 }
                 *out = (self.drive_signal * rho).re + lever;
-
-                // Advance every mode to t_{n+1}: propagate, then add this interval's inputs.
-                for m in 0..L {
-                    let (r, i) = (re[m], im[m]);
-                    re[m] = k.a_re[m] * r - k.a_im[m] * i + k.noise_re[m] * z[1 + m];
-                    im[m] = k.a_re[m] * i + k.a_im[m] * r + k.noise_im[m] * z[1 + m];
-                }
-                if let Some(pulse) = pulse
-                    && let Some(overlap) = pulse.overlap(phase, self.frequency_word)
-                {
-                    pulse.apply(
-                        &overlap,
-                        &self.modes,
-                        &mut re[..n_modes],
-                        &mut im[..n_modes],
-                    );
+                let next = rho * step;
+                if let Some(coupled) = coupled {
+                    // The coupled engine: the tap force from the tip position.
+                    coupled.step(&mut re, &mut im, rho, next, &z[1..]);
+                } else {
+                    // Advance every mode to t_{n+1}: propagate, then add this interval's
+                    // inputs.
+                    for m in 0..L {
+                        let (r, i) = (re[m], im[m]);
+                        re[m] = k.a_re[m] * r - k.a_im[m] * i + k.noise_re[m] * z[1 + m];
+                        im[m] = k.a_re[m] * i + k.a_im[m] * r + k.noise_im[m] * z[1 + m];
+                    }
+                    if let Some(pulse) = pulse
+                        && let Some(overlap) = pulse.overlap(phase, self.frequency_word)
+                    {
+                        pulse.apply(
+                            &overlap,
+                            &self.modes,
+                            &mut re[..self.modes.len()],
+                            &mut im[..self.modes.len()],
+                        );
+                    }
                 }
                 phase = phase.wrapping_add(self.frequency_word);
-                rho *= step;
+                rho = next;
                 index += 1;
             }
-            // The detector and the ADC act on the signal only, not on the modes: a separate
-            // branch-free pass over the chunk.
-            if detector {
-                for (out, z) in chunk.iter_mut().zip(normals.chunks_exact(stride)) {
-                    *out += self.detector_sigma * z[0];
-                }
-            }
-            if let Some(adc) = self.adc {
-                for out in chunk.iter_mut() {
-                    let s = out.clamp(-adc.range, adc.range);
-                    clipped += u64::from(s != *out);
-                    *out = round_to_step(s, adc.lsb, adc.codes_per_metre);
-                }
-            }
+            clipped += self.detect_and_quantise(chunk, &state.normals, stride);
         }
         state.re[..L].copy_from_slice(&re);
         state.im[..L].copy_from_slice(&im);
@@ -262,6 +248,87 @@ impl SynthPlan {
         state.rho = rho;
         state.counters.samples = index;
         state.counters.clipped += clipped;
+    }
+
+    /// Advances `state` by `samples` samples of the coupled engine with the noise left
+    /// out, recording the tip force at every sub-step and the tip position at every
+    /// sample: the engine's own view of the contact, for checks against the offline orbit.
+    /// Not for the real-time thread (it allocates). `None` with the paper engine.
+    pub fn coupled_trace(&self, state: &mut SynthState, samples: usize) -> Option<CoupledTrace> {
+        let coupled = self.coupled.as_ref()?;
+        let step = self.frequency_word;
+        let mut trace = CoupledTrace {
+            force: Vec::with_capacity(samples * SUBSTEPS),
+            tip: Vec::with_capacity(samples),
+            dt: self.h / SUBSTEPS as f64,
+            start_phase: state.phase,
+            free_tip: coupled.free_tip,
+        };
+        let z = [0.0; MAX_MODES];
+        let (mut re, mut im) = (state.re, state.im);
+        for _ in 0..samples {
+            let rho = Complex64::from_polar(1.0, phase_to_radians(state.phase));
+            let next_phase = state.phase.wrapping_add(step);
+            let next = Complex64::from_polar(1.0, phase_to_radians(next_phase));
+            trace.tip.push(coupled.gap(rho, &im) - coupled.distance);
+            coupled.step_recorded(&mut re, &mut im, rho, next, &z, &mut |g| {
+                trace.force.push(g)
+            });
+            state.phase = next_phase;
+            state.counters.samples += 1;
+        }
+        state.re = re;
+        state.im = im;
+        state.rho = Complex64::from_polar(1.0, phase_to_radians(state.phase));
+        Some(trace)
+    }
+
+    /// Draws the standard normals of the next `len` samples into `state.normals`: per
+    /// sample, at a fixed stride of `L + 1`, the detector's at 0 and mode m's at 1 + m.
+    /// Slots that are not drawn stay zero, so the loops over all L lanes need no branches;
+    /// the order of drawing is the order of use, whatever the block size.
+    fn draw_normals<'s, const L: usize>(&self, state: &'s mut SynthState, len: usize) -> &'s [f64] {
+        let stride = L + 1;
+        let n_modes = self.modes.len();
+        let detector = self.detector_sigma > 0.0;
+        let thermal = self.thermal_sigma.iter().any(|&s| s > 0.0);
+        let normals = &mut state.normals[..len * stride];
+        if detector || thermal {
+            // A local copy keeps the generator in registers (the compiler cannot prove
+            // the buffer's stores leave a field of `state` alone).
+            let mut rng = state.rng.clone();
+            for z in normals.chunks_exact_mut(stride) {
+                if detector {
+                    z[0] = StandardNormal.sample(&mut rng);
+                }
+                if thermal {
+                    for z in &mut z[1..=n_modes] {
+                        *z = StandardNormal.sample(&mut rng);
+                    }
+                }
+            }
+            state.rng = rng;
+        }
+        normals
+    }
+
+    /// The detector noise and the ADC, which act on the signal only, not on the modes: a
+    /// separate branch-free pass over the chunk. Returns the samples clipped.
+    fn detect_and_quantise(&self, chunk: &mut [f64], normals: &[f64], stride: usize) -> u64 {
+        if self.detector_sigma > 0.0 {
+            for (out, z) in chunk.iter_mut().zip(normals.chunks_exact(stride)) {
+                *out += self.detector_sigma * z[0];
+            }
+        }
+        let mut clipped = 0;
+        if let Some(adc) = self.adc {
+            for out in chunk.iter_mut() {
+                let s = out.clamp(-adc.range, adc.range);
+                clipped += u64::from(s != *out);
+                *out = round_to_step(s, adc.lsb, adc.codes_per_metre);
+            }
+        }
+        clipped
     }
 }
 

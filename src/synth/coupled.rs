@@ -1,0 +1,356 @@
+//! The coupled engine on the real-time thread (physics.md §6): every mode integrated
+//! together, sample by sample, with the Hertz force taken from the instantaneous tip
+//! position `z = u + w(L)`.
+//!
+//! The modal states are the same as the paper engine's: the deviation `h_n = Y_n − Y⁰_n`
+//! from the free (no contact) steady response, which is known in closed form and added
+//! analytically. `h` obeys the damped modes driven by the tip force `g` (and the thermal
+//! force), so a step is a Strang splitting:
+//! - kick: `ḣ_n += (dt/2)·(φ_n(L)/M_n)·g(z)` (in `q = Ẏ − λ̄Y` a velocity kick adds to Re q);
+//! - drift: the exact modal propagator `e^{λ dt}` plus the held thermal input;
+//! - kick again with the force at the new position (and that force is the next step's
+//!   first kick, so a step costs one force evaluation).
+//!
+//! A sample is one step while the tip is well clear of the surface at both of its ends
+//! (where `g = 0` and the step is exact); otherwise it is redone in [`SUBSTEPS`] sub-steps,
+//! so that the contact, which lasts a few samples, is resolved. The thermal input is held
+//! over the whole sample, and the sub-steps' propagation of it sums to exactly the
+//! one-step value, so the noise does not depend on where the engine sub-steps.
+
+// The lanes are read and written in lock-step by index: the form the compiler vectorises.
+#![allow(clippy::needless_range_loop)]
+
+use std::f64::consts::PI;
+
+use rustfft::num_complex::Complex64;
+
+use super::modal::ModalKernel;
+use crate::physics::beam::{MAX_MODES, Mode};
+use crate::physics::contact::HertzContact;
+
+/// Sub-steps per sample near and in contact. Measured against the offline reference
+/// (`tests/synth_coupled.rs`): see docs/ft-afm.md.
+pub const SUBSTEPS: usize = 12;
+
+/// Propagation of the mode lanes over one step: `q ← e^{λ dt}·q + noise·ξ`.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Drift {
+    pub a_re: [f64; MAX_MODES],
+    pub a_im: [f64; MAX_MODES],
+    /// Held thermal input per standard normal deviate over this step, real and imaginary.
+    pub noise_re: [f64; MAX_MODES],
+    pub noise_im: [f64; MAX_MODES],
+}
+
+impl Drift {
+    /// The drift over `dt` (s) of `modes` whose thermal input over the whole sample of
+    /// `h` (s) has standard deviation `sigma` (m/s²) per mode; a sub-step carries the part
+    /// of it that, propagated over the remaining sub-steps, sums to the whole.
+    fn new(modes: &[Mode], dt: f64, thermal_sigma: &[f64]) -> Self {
+        let mut d = Self::default();
+        for (m, (mode, sigma)) in modes.iter().zip(thermal_sigma).enumerate() {
+            let k = ModalKernel::new(mode, dt);
+            d.a_re[m] = k.propagator.re;
+            d.a_im[m] = k.propagator.im;
+            d.noise_re[m] = k.hold_gain.re * sigma;
+            d.noise_im[m] = k.hold_gain.im * sigma;
+        }
+        d
+    }
+
+    /// Advances the first `L` lanes by one step with deviates `z[m]` per mode.
+    #[inline(always)]
+    fn apply<const L: usize>(&self, re: &mut [f64; L], im: &mut [f64; L], z: &[f64]) {
+        for m in 0..L {
+            let (r, i) = (re[m], im[m]);
+            re[m] = self.a_re[m] * r - self.a_im[m] * i + self.noise_re[m] * z[m];
+            im[m] = self.a_re[m] * i + self.a_im[m] * r + self.noise_im[m] * z[m];
+        }
+    }
+}
+
+/// The coupled engine's contact as it integrated it ([`SynthPlan::coupled_trace`]).
+///
+/// [`SynthPlan::coupled_trace`]: super::SynthPlan::coupled_trace
+#[derive(Clone, Debug)]
+pub struct CoupledTrace {
+    /// Tip force at the end of every sub-step, [`SUBSTEPS`] per sample (N).
+    pub force: Vec<f64>,
+    /// Sub-step length (s).
+    pub dt: f64,
+    /// Tip position z at the start of every sample (m; the surface is at −A_set).
+    pub tip: Vec<f64>,
+    /// Drive phase word of the first sample (2^64 = one period; 0 = cosine peak).
+    pub start_phase: u64,
+    /// The free tip motion: z⁰ = Re[free_tip·e^{iθ}] (m).
+    pub free_tip: Complex64,
+}
+
+/// Everything the coupled engine adds to a plan. Built off the real-time thread.
+#[derive(Clone, Debug)]
+pub struct CoupledKernel {
+    /// Hertz prefactor κ_eff·√R (N/m^{3/2}).
+    pub(crate) stiffness: f64,
+    /// A_set: the surface is at z = −A_set (m).
+    pub(crate) distance: f64,
+    /// The free tip position (base plus free deflection): z⁰ = Re[free_tip·e^{iθ}] (m).
+    pub(crate) free_tip: Complex64,
+    /// Tip metres per unit of Im q: φ_n(L)/ω_d (s).
+    pub(crate) tip: [f64; MAX_MODES],
+    /// Change of Re q per newton-second of tip force: φ_n(L)/M_n (1/kg).
+    pub(crate) kick: [f64; MAX_MODES],
+    /// Whole-sample and sub-step drifts.
+    pub(crate) full: Drift,
+    pub(crate) sub: Drift,
+    /// Half the sample period and half a sub-step (s).
+    pub(crate) half_h: f64,
+    pub(crate) half_dt: f64,
+    /// Drive phasor per sub-step, e^{iΩh/S}.
+    pub(crate) sub_rotation: Complex64,
+    /// A sample whose ends both leave at least this gap to the surface is one step (m):
+    /// a bound on how far the tip can dip below the chord of its path within a sample.
+    pub(crate) margin: f64,
+    /// Base amplitude U (m).
+    pub base_amplitude: f64,
+    /// Drive angular frequency Ω (rad/s) and the contact, for the steady state.
+    omega: f64,
+    contact: HertzContact,
+}
+
+impl CoupledKernel {
+    /// The kernel for `modes` sampled every `h` (s), driven at `omega` (rad/s) with free
+    /// modal responses `drive_response` (Y⁰_n = Re[Ŷ_n e^{iθ}], m) from a base amplitude
+    /// `base_amplitude` (m), the surface at `distance` (m) and the `contact`, with the
+    /// thermal input of each mode held over a sample of standard deviation `thermal_sigma`.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn new(
+        modes: &[Mode],
+        h: f64,
+        omega: f64,
+        drive_response: &[Complex64],
+        base_amplitude: f64,
+        distance: f64,
+        contact: &HertzContact,
+        thermal_sigma: &[f64],
+    ) -> Self {
+        let mut tip = [0.0; MAX_MODES];
+        let mut kick = [0.0; MAX_MODES];
+        // u = U sin θ = Re[−iU e^{iθ}].
+        let mut free_tip = Complex64::new(0.0, -base_amplitude);
+        // Curvature bound of the tip's path: Ω²|z⁰| for the drive, ω_n² per mode for the
+        // modes' own motion at their drive amplitude (the tap response is caught by the
+        // ends of the sample: contact starts at one of them).
+        let mut curvature = omega * omega * base_amplitude;
+        for (m, (mode, y)) in modes.iter().zip(drive_response).enumerate() {
+            let kernel = ModalKernel::new(mode, h);
+            tip[m] = kernel.tip_gain;
+            kick[m] = kernel.force_gain;
+            free_tip += y * mode.tip_value;
+            curvature += omega * omega * (y * mode.tip_value).norm();
+        }
+        let dt = h / SUBSTEPS as f64;
+        Self {
+            stiffness: contact.stiffness_coefficient(),
+            distance,
+            free_tip,
+            tip,
+            kick,
+            full: Drift::new(modes, h, thermal_sigma),
+            sub: Drift::new(modes, dt, thermal_sigma),
+            half_h: 0.5 * h,
+            half_dt: 0.5 * dt,
+            sub_rotation: Complex64::from_polar(1.0, omega * dt),
+            // Twice the chord bound a·h²/8, and never below 1 pm.
+            margin: (curvature * h * h / 4.0).max(1e-12),
+            base_amplitude,
+            omega,
+            contact: *contact,
+        }
+    }
+
+    /// Tip–sample force (N) at a gap `gap` = z + A_set (m) between tip and surface.
+    #[inline(always)]
+    pub(crate) fn force(&self, gap: f64) -> f64 {
+        if gap < 0.0 {
+            let delta = -gap;
+            self.stiffness * delta * delta.sqrt()
+        } else {
+            0.0
+        }
+    }
+
+    /// Gap to the surface (m) at drive phasor `rho` with mode lanes `im`.
+    #[inline(always)]
+    pub(crate) fn gap<const L: usize>(&self, rho: Complex64, im: &[f64; L]) -> f64 {
+        let mut w = 0.0;
+        for m in 0..L {
+            w += self.tip[m] * im[m];
+        }
+        (self.free_tip * rho).re + w + self.distance
+    }
+
+    /// Advances the lanes by one sample from drive phasor `rho` to `next` with the
+    /// thermal deviates `z` (one per mode lane). Returns whether it sub-stepped.
+    #[inline(always)]
+    pub(crate) fn step<const L: usize>(
+        &self,
+        re: &mut [f64; L],
+        im: &mut [f64; L],
+        rho: Complex64,
+        next: Complex64,
+        z: &[f64],
+    ) -> bool {
+        self.step_recorded(re, im, rho, next, z, &mut |_| {})
+    }
+
+    /// [`step`](Self::step), handing `record` the force at the end of every sub-step
+    /// ([`SUBSTEPS`] values per sample, the end-of-sample force repeated where the sample
+    /// is one step). The real-time loop passes a no-op, which compiles away.
+    #[inline(always)]
+    pub(crate) fn step_recorded<const L: usize>(
+        &self,
+        re: &mut [f64; L],
+        im: &mut [f64; L],
+        rho: Complex64,
+        next: Complex64,
+        z: &[f64],
+        record: &mut impl FnMut(f64),
+    ) -> bool {
+        let gap0 = self.gap(rho, im);
+        let g0 = self.force(gap0);
+        let (mut r1, mut i1) = (*re, *im);
+        if g0 != 0.0 {
+            self.kick_lanes(&mut r1, self.half_h * g0);
+        }
+        self.full.apply(&mut r1, &mut i1, z);
+        let gap1 = self.gap(next, &i1);
+        if gap0.min(gap1) >= self.margin {
+            // Clear of the surface at both ends (so no force at the end either).
+            *re = r1;
+            *im = i1;
+            for _ in 0..SUBSTEPS {
+                record(0.0);
+            }
+            return false;
+        }
+        let mut r = rho;
+        let mut g = g0;
+        for _ in 0..SUBSTEPS {
+            if g != 0.0 {
+                self.kick_lanes(re, self.half_dt * g);
+            }
+            self.sub.apply(re, im, z);
+            r *= self.sub_rotation;
+            g = self.force(self.gap(r, im));
+            record(g);
+            if g != 0.0 {
+                self.kick_lanes(re, self.half_dt * g);
+            }
+        }
+        true
+    }
+
+    #[inline(always)]
+    fn kick_lanes<const L: usize>(&self, re: &mut [f64; L], impulse: f64) {
+        for m in 0..L {
+            re[m] += self.kick[m] * impulse;
+        }
+    }
+
+    /// The modal states at drive phase 0 on the engine's own periodic orbit: the engine
+    /// run from the free orbit (h = 0, as an approach from far reaches it) without noise,
+    /// with a step of a whole fraction of the period near `h` so that whole periods end
+    /// at phase 0 again, for enough periods that mode 1's transient has decayed by
+    /// e^{−12}. Off the real-time thread (milliseconds).
+    pub(crate) fn steady_state(
+        &self,
+        modes: &[Mode],
+        drive_response: &[Complex64],
+        h: f64,
+    ) -> [Complex64; MAX_MODES] {
+        let omega = self.omega;
+        let period = 2.0 * PI / omega;
+        let steps = (period / h).round().max(8.0) as usize;
+        let step = period / steps as f64;
+        let silent = vec![0.0; modes.len()];
+        let kernel = Self::new(
+            modes,
+            step,
+            omega,
+            drive_response,
+            self.base_amplitude,
+            self.distance,
+            &self.contact,
+            &silent,
+        );
+        let q1 = modes.first().map_or(1.0, |m| m.q);
+        let periods = ((12.0 * q1 / PI).ceil() as usize).clamp(50, 50_000);
+        let (mut re, mut im) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
+        let z = [0.0; MAX_MODES];
+        for _ in 0..periods {
+            let mut rho = Complex64::new(1.0, 0.0);
+            for j in 0..steps {
+                // Re-anchored every step: the orbit must close on phase 0 exactly.
+                let next = Complex64::from_polar(1.0, omega * step * (j + 1) as f64);
+                kernel.step(&mut re, &mut im, rho, next, &z);
+                rho = next;
+            }
+        }
+        std::array::from_fn(|m| Complex64::new(re[m], im[m]))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::physics::Cantilever;
+    use crate::physics::contact::Elastic;
+
+    /// A kernel for the default lever far from the surface, with thermal input.
+    fn far_kernel(h: f64) -> (CoupledKernel, Vec<Mode>) {
+        let c = Cantilever::new(100e3, 20.0, &[100.0, 417.0, 340.0, 200.0, 26.0], 0).unwrap();
+        let si = Elastic {
+            youngs_modulus: 129e9,
+            poisson: 0.28,
+        };
+        let contact = HertzContact::new(si, si, 10e-9);
+        let response: Vec<Complex64> = c.modes.iter().map(|_| Complex64::new(1e-9, 0.0)).collect();
+        let sigma = vec![1e3; c.modes.len()];
+        let k = CoupledKernel::new(
+            &c.modes,
+            h,
+            2.0 * PI * 100e3,
+            &response,
+            1e-10,
+            1.0,
+            &contact,
+            &sigma,
+        );
+        (k, c.modes)
+    }
+
+    #[test]
+    fn sub_steps_carry_the_same_held_thermal_input_as_one_step() {
+        let (one, _) = far_kernel(1e-7);
+        let mut sub = one.clone();
+        // Force sub-stepping everywhere: without contact it must change nothing but rounding.
+        sub.margin = f64::INFINITY;
+        let (mut a_re, mut a_im) = ([0.0; 8], [0.0; 8]);
+        let (mut b_re, mut b_im) = ([0.0; 8], [0.0; 8]);
+        let rotation = Complex64::from_polar(1.0, 2.0 * PI * 100e3 * 1e-7);
+        let mut rho = Complex64::new(1.0, 0.0);
+        for n in 0..5000 {
+            let z: [f64; 8] = std::array::from_fn(|m| ((n * 7 + m * 13) % 11) as f64 - 5.0);
+            let next = rho * rotation;
+            assert!(!one.step(&mut a_re, &mut a_im, rho, next, &z));
+            assert!(sub.step(&mut b_re, &mut b_im, rho, next, &z));
+            rho = next;
+        }
+        for m in 0..5 {
+            let scale = a_re[m].abs().max(a_im[m].abs());
+            assert!(scale > 0.0);
+            assert!((a_re[m] - b_re[m]).abs() < 1e-9 * scale, "mode {m} re");
+            assert!((a_im[m] - b_im[m]).abs() < 1e-9 * scale, "mode {m} im");
+        }
+    }
+}
