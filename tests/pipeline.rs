@@ -79,6 +79,80 @@ fn lock_in_reads_the_paper_spectrum_in_steady_state() {
 }
 
 #[test]
+fn on_the_coupled_engine_the_lock_in_reads_the_coupled_orbit() {
+    use ftafm::physics::spectrum::photodiode_transfer;
+    use ftafm::physics::{CoupledProblem, HertzContact};
+    use rustfft::num_complex::Complex64;
+    let mut settings = free_running_quiet();
+    settings.synth.engine = ftafm::config::Engine::Coupled;
+    let plan = ftafm::synth::SynthPlan::new(&settings).unwrap();
+    let cantilever = ftafm::model::cantilever(&settings).unwrap();
+    let orbit = CoupledProblem::new(
+        &cantilever,
+        plan.drive_frequency,
+        settings.drive.free_amplitude,
+        settings.surface.distance,
+        HertzContact::new(
+            ftafm::model::elastic(settings.tip),
+            ftafm::model::elastic(settings.sample),
+            settings.cantilever.tip_radius,
+        ),
+    )
+    .solve(32)
+    .unwrap();
+    let omega = 2.0 * std::f64::consts::PI * plan.drive_frequency;
+    // Peak phasors of the photodiode at each harmonic (the free response is at H1 only).
+    let expected = |k: usize| -> Complex64 {
+        let tap =
+            photodiode_transfer(&cantilever, k as f64 * omega) * orbit.force_coefficients[k] * 2.0;
+        if k == 1 {
+            tap + plan.free_signal()
+        } else {
+            tap
+        }
+    };
+    let (pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    let frame = run_until(&mut output, 0.05);
+    let h6 = expected(6).norm();
+    for v in frame.values() {
+        let k = v.harmonic as usize;
+        let got = Complex64::new(v.x, v.y);
+        let want = expected(k);
+        let err = (got - want).norm();
+        // H1 within 0.2 %; H2–H18 within 1 % (next to a light-lever zero, of H6).
+        let (scale, tolerance) = match k {
+            1 => (want.norm(), 0.002),
+            3 | 11 | 12 => (h6, 0.01),
+            2..=18 => (want.norm(), 0.01),
+            _ => {
+                // Above H18 the samples alias without an anti-alias filter (issue 14):
+                // reported, not yet held.
+                println!(
+                    "H{k}: lock-in {:.4e} m, orbit {:.4e} m ({:+.1} %)",
+                    got.norm(),
+                    want.norm(),
+                    (got.norm() / want.norm() - 1.0) * 100.0
+                );
+                continue;
+            }
+        };
+        println!(
+            "H{k}: lock-in {:.4e} m, orbit {:.4e} m (error {:.3} % of the scale)",
+            got.norm(),
+            want.norm(),
+            err / scale * 100.0
+        );
+        assert!(
+            err < tolerance * scale,
+            "H{k}: lock-in {got} vs orbit {want} (error {:.3} %)",
+            err / scale * 100.0
+        );
+    }
+    assert_eq!(pipeline.counters().overrun_samples, 0);
+    pipeline.stop();
+}
+
+#[test]
 fn settings_changes_reach_the_running_chain() {
     let settings = free_running_quiet();
     let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();

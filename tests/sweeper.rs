@@ -268,3 +268,64 @@ async fn bad_sweeps_are_refused_naming_the_node() {
     );
     d.shutdown().await;
 }
+
+/// The photodiode's H1 (peak, m) on the coupled periodic orbit at `distance`, from the
+/// offline solution (physics.md §6): the free response plus the response to the force.
+fn coupled_h1(settings: &ftafm::config::Settings, distance: f64) -> f64 {
+    use ftafm::physics::spectrum::photodiode_transfer;
+    use ftafm::physics::{CoupledProblem, HertzContact};
+    let plan = ftafm::synth::SynthPlan::new(settings).unwrap();
+    let cantilever = ftafm::model::cantilever(settings).unwrap();
+    let orbit = CoupledProblem::new(
+        &cantilever,
+        plan.drive_frequency,
+        settings.drive.free_amplitude,
+        distance,
+        HertzContact::new(
+            ftafm::model::elastic(settings.tip),
+            ftafm::model::elastic(settings.sample),
+            settings.cantilever.tip_radius,
+        ),
+    )
+    .solve(1)
+    .unwrap();
+    let omega = 2.0 * std::f64::consts::PI * plan.drive_frequency;
+    let tap = photodiode_transfer(&cantilever, omega) * orbit.force_coefficients[1] * 2.0;
+    (plan.free_signal() + tap).norm()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn on_the_coupled_engine_the_approach_follows_the_periodic_orbit() {
+    let mut settings = fast();
+    settings.synth.engine = ftafm::config::Engine::Coupled;
+    let d = Daemon::start(settings.clone()).await;
+    let mut ws = connect(d.addr).await;
+    let (points, done) = sweep(
+        &mut ws,
+        json!({"/sweeper/parameter": "/surface/distance", "/sweeper/start": 40e-9,
+               "/sweeper/stop": 8e-9, "/sweeper/points": 17, "/sweeper/direction": "both",
+               "/sweeper/averaging": 20}),
+    )
+    .await;
+    assert_eq!(done["outcome"], "done", "{done}");
+    let approach = &done["approach"];
+    println!("{approach}");
+    let mut worst = 0.0f64;
+    for p in points.iter().filter(|p| p["leg"] == "up") {
+        let dist = p["value"].as_f64().unwrap();
+        let (r, _) = h1(p);
+        let want = coupled_h1(&settings, dist);
+        let err = r / want - 1.0;
+        println!(
+            "A_set {:.1} nm: H1 {r:.4e} m, orbit {want:.4e} m ({:+.3} %)",
+            dist * 1e9,
+            err * 100.0
+        );
+        worst = worst.max(err.abs());
+        assert!(err.abs() < 0.01, "H1 {r:e} at {dist:e} m, orbit {want:e} m");
+    }
+    println!("worst H1 deviation on approach: {:.3} %", worst * 100.0);
+    let hysteresis = approach["hysteresis"]["max"].as_f64().unwrap();
+    assert!(hysteresis < 0.02, "{approach}");
+    d.shutdown().await;
+}
