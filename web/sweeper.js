@@ -205,14 +205,17 @@ export class SweeperPanel {
     this.app.stats.draws.sweep = (this.app.stats.draws.sweep ?? 0) + 1;
   }
 
-  /** The points as CSV: value, leg, then r and phase of every demodulator measured. */
+  /** The points as CSV: value, leg, the mean deflection and force estimates (empty where a
+   * point has none), then r and phase of every demodulator measured. */
   csv() {
     const cols = [];
     for (const p of this.points) for (const d of p.demods) if (!cols.some((c) => c.index === d.index)) cols.push({ index: d.index, harmonic: d.harmonic });
     cols.sort((a, b) => a.index - b.index);
-    const head = ["value", "leg", "h1_phase_to_drive_rad", ...cols.flatMap((c) => [`r_demod${c.index}_h${c.harmonic}_m`, `phase_demod${c.index}_h${c.harmonic}_rad`])];
+    const force = ["max_force_N", "max_force_sigma_N", "contact_time_ratio", "contact_time_ratio_sigma", "youngs_modulus_Pa", "youngs_modulus_sigma_Pa"];
+    const forceKey = (h) => h.replace(/_(N|Pa)$/, "");
+    const head = ["value", "leg", "h1_phase_to_drive_rad", "mean_deflection_m", ...force, ...cols.flatMap((c) => [`r_demod${c.index}_h${c.harmonic}_m`, `phase_demod${c.index}_h${c.harmonic}_rad`])];
     const rows = this.points.map((p) => {
-      const cells = [p.value, p.leg, p.h1_phase_to_drive ?? ""];
+      const cells = [p.value, p.leg, p.h1_phase_to_drive ?? "", p.mean_deflection ?? "", ...force.map((h) => p.force?.[forceKey(h)] ?? "")];
       for (const c of cols) {
         const d = p.demods.find((d) => d.index === c.index);
         cells.push(d?.r ?? "", d?.phase ?? "");

@@ -30,6 +30,15 @@ def test_a_tune_and_an_approach_curve(ftafm_instrument: ftafm.Instrument) -> Non
     assert 27e-9 <= approach["contact_up"] <= 31e-9
     r = curve.r_of(1)[:13]
     assert r[-1] < 0.5 * r[0], "tapping at 12 nm"
+    # The force estimates of each point (the default config runs the inversion).
+    touching = curve.value < 26e-9
+    assert np.all(np.isfinite(curve.max_force[touching]))
+    assert np.all((curve.max_force[touching] > 30e-9) & (curve.max_force[touching] < 120e-9))
+    assert np.all(curve.max_force_sigma[touching] > 0)
+    free = curve.value > 32e-9
+    assert np.all(np.isnan(curve.max_force[free]))
+    assert all(isinstance(curve.force_error[i], str) for i in np.flatnonzero(free))
+    assert np.all(np.isnan(curve.mean_deflection)), "no demodulator at harmonic 0 by default"
     assert inst.get("/surface/distance") == 20e-9
 
 

@@ -89,6 +89,7 @@ pub async fn run_with(
         latest_demods: Mutex::new(None),
         changes: tokio::sync::watch::channel(0).0,
         sweep_frames: super::sweeper::FrameTap::new(),
+        sweep_force: super::sweeper::Tap::new(),
     });
     let hub = tokio::spawn(hub::run(state.clone(), output, estimates, image_lines));
     let sweeper = tokio::spawn(super::sweeper::run(state.clone()));

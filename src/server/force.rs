@@ -22,8 +22,21 @@ const QUEUE: usize = 256;
 #[allow(clippy::large_enum_variant)]
 pub(crate) enum Input {
     Frame(DemodFrame),
-    /// A new estimator (from the one builder thread, so in the order requested).
-    Replace(Option<Box<ForceEstimator>>),
+    /// A new estimator (from the one builder thread, so in the order requested), the
+    /// generation of the request it was built for, and why there is none if there is none.
+    Replace(Option<Box<ForceEstimator>>, u64, String),
+}
+
+/// What the worker makes of the frames, tagged with the generation of the estimator that
+/// made it ([`ForceLink::rebuild`] numbers the requests), so a sweep can tell an estimate
+/// for its point's settings from one still made for the previous point's.
+#[derive(Clone, Debug)]
+pub(crate) enum ForceOutcome {
+    Estimate(u64, ForceEstimate),
+    /// An estimate failed (e.g. no contact) at the frame of simulated time t (s).
+    Failed(u64, f64, String),
+    /// There is no estimator for these settings (the inversion is off, or it failed).
+    Unavailable(u64, String),
 }
 
 /// Counts of the worker's work.
@@ -43,9 +56,11 @@ pub(crate) struct ForceCounters {
 pub(crate) struct ForceLink {
     input: SyncSender<Input>,
     pub counters: Arc<ForceCounters>,
-    /// The newest settings to build an estimator for; a flood of changes costs one build
-    /// at a time (the rest are counted in its `coalesced`).
-    pub pending: Arc<Latest<Settings>>,
+    /// The newest settings to build an estimator for, with their generation; a flood of
+    /// changes costs one build at a time (the rest are counted in its `coalesced`).
+    pub pending: Arc<Latest<(Settings, u64)>>,
+    /// Generation of the newest request.
+    generation: AtomicU64,
 }
 
 impl Drop for ForceLink {
@@ -63,8 +78,8 @@ const BUILDER_NICE: i32 = 10;
 pub(crate) const BUILD_DUTY: f64 = 0.25;
 
 impl ForceLink {
-    /// Starts the worker thread; estimates come out of the returned receiver.
-    pub fn start() -> (Self, Receiver<ForceEstimate>) {
+    /// Starts the worker thread; its outcomes come out of the returned receiver.
+    pub fn start() -> (Self, Receiver<ForceOutcome>) {
         let (input, rx) = sync_channel::<Input>(QUEUE);
         let (out, estimates) = channel();
         let counters = Arc::new(ForceCounters::default());
@@ -73,9 +88,16 @@ impl ForceLink {
             .name("inversion".into())
             .spawn(move || {
                 let mut estimator: Option<Box<ForceEstimator>> = None;
+                let mut generation = 0;
                 while let Ok(msg) = rx.recv() {
-                    match msg {
-                        Input::Replace(next) => estimator = next,
+                    let outcome = match msg {
+                        Input::Replace(next, g, why) => {
+                            estimator = next;
+                            generation = g;
+                            estimator
+                                .is_none()
+                                .then_some(ForceOutcome::Unavailable(g, why))
+                        }
                         Input::Frame(frame) => {
                             let Some(e) = estimator.as_mut() else {
                                 continue;
@@ -83,19 +105,24 @@ impl ForceLink {
                             match e.push(&frame) {
                                 Some(Ok(estimate)) => {
                                     c.estimates.fetch_add(1, Ordering::Relaxed);
-                                    if out.send(estimate).is_err() {
-                                        return;
-                                    }
+                                    Some(ForceOutcome::Estimate(generation, estimate))
                                 }
                                 Some(Err(err)) => {
                                     c.failed.fetch_add(1, Ordering::Relaxed);
+                                    let err = err.to_string();
                                     if let Ok(mut last) = c.last_error.lock() {
-                                        *last = err.to_string();
+                                        last.clone_from(&err);
                                     }
+                                    Some(ForceOutcome::Failed(generation, frame.t, err))
                                 }
-                                None => {}
+                                None => None,
                             }
                         }
+                    };
+                    if let Some(outcome) = outcome
+                        && out.send(outcome).is_err()
+                    {
+                        return;
                     }
                 }
             })
@@ -111,6 +138,7 @@ impl ForceLink {
                 input,
                 counters,
                 pending,
+                generation: AtomicU64::new(0),
             },
             estimates,
         )
@@ -127,30 +155,45 @@ impl ForceLink {
     /// and the lock-in model take ~0.1 s); only the newest of the changes made meanwhile is
     /// built.
     pub fn rebuild(&self, settings: Settings) {
-        self.pending.put(settings);
+        let generation = self.generation.fetch_add(1, Ordering::SeqCst) + 1;
+        self.pending.put((settings, generation));
+    }
+
+    /// Generation of the newest estimator asked for: outcomes of this generation or later
+    /// come from settings at least as new as those of the last [`rebuild`](Self::rebuild).
+    pub fn requested(&self) -> u64 {
+        self.generation.load(Ordering::SeqCst)
     }
 }
 
 /// The builder thread: one estimator at a time for the newest settings, at a low priority
 /// and a bounded duty cycle, until the link is dropped.
-fn build_loop(pending: &Latest<Settings>, counters: &ForceCounters, worker: &SyncSender<Input>) {
+fn build_loop(
+    pending: &Latest<(Settings, u64)>,
+    counters: &ForceCounters,
+    worker: &SyncSender<Input>,
+) {
     lower_priority(BUILDER_NICE);
     loop {
-        let Some(settings) = pending.wait(Duration::from_secs(1)) else {
+        let Some((settings, generation)) = pending.wait(Duration::from_secs(1)) else {
             if pending.is_closed() {
                 return;
             }
             continue;
         };
         let start = Instant::now();
-        let next = match ForceEstimator::new(&settings) {
-            Ok(e) => e.map(Box::new),
+        let (next, why) = match ForceEstimator::new(&settings) {
+            Ok(Some(e)) => (Some(Box::new(e)), String::new()),
+            Ok(None) => (
+                None,
+                "the inversion is off (/inversion/enable = false)".into(),
+            ),
             Err(err) => {
                 tracing::warn!(error = %err, "force estimator unavailable");
                 if let Ok(mut last) = counters.last_error.lock() {
-                    *last = err;
+                    last.clone_from(&err);
                 }
-                None
+                (None, err)
             }
         };
         let took = start.elapsed();
@@ -158,7 +201,7 @@ fn build_loop(pending: &Latest<Settings>, counters: &ForceCounters, worker: &Syn
         counters
             .rebuild_ns
             .fetch_add(took.as_nanos() as u64, Ordering::Relaxed);
-        if worker.send(Input::Replace(next)).is_err() {
+        if worker.send(Input::Replace(next, generation, why)).is_err() {
             return;
         }
         if !pending.is_closed() {

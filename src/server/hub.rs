@@ -150,7 +150,7 @@ impl Wake {
 pub(crate) async fn run(
     state: Arc<AppState>,
     mut output: PipelineOutput,
-    estimates: std::sync::mpsc::Receiver<crate::inversion::ForceEstimate>,
+    estimates: std::sync::mpsc::Receiver<super::force::ForceOutcome>,
     image_lines: std::sync::mpsc::Receiver<crate::imaging::ImageLine>,
 ) {
     let mut tick = tokio::time::interval(TICK);
@@ -168,7 +168,7 @@ pub(crate) async fn run(
             _ = wake.wait() => {}
             _ = shutdown.changed() => return,
         }
-        let force_wanted = state.subscribed(StreamKind::Force);
+        let force_wanted = state.subscribed(StreamKind::Force) || state.sweep_force.is_active();
         let mut newest = None;
         while let Some(frame) = output.demods.try_pop() {
             newest = Some(frame);
@@ -207,7 +207,11 @@ pub(crate) async fn run(
                 |seq| protocol::image_binary(seq, &line),
             );
         }
-        while let Ok(estimate) = estimates.try_recv() {
+        while let Ok(outcome) = estimates.try_recv() {
+            state.sweep_force.offer(&outcome);
+            let super::force::ForceOutcome::Estimate(_, estimate) = outcome else {
+                continue;
+            };
             distribute(
                 &state,
                 StreamKind::Force,

@@ -442,6 +442,8 @@ pub(crate) struct AppState {
     pub changes: tokio::sync::watch::Sender<u64>,
     /// Demodulator frames for a running sweep (the hub forwards them while one runs).
     pub sweep_frames: super::sweeper::FrameTap,
+    /// The force worker's outcomes handed to a running sweep.
+    pub sweep_force: super::sweeper::Tap<super::force::ForceOutcome>,
     pub image: super::image::ImageLink,
     /// The machine's stalls, measured beside the server (None if its thread would not
     /// start; the daemon runs without it).

@@ -7,11 +7,12 @@
 use std::sync::Arc;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use serde_json::{Map, Value, json};
 use tokio::sync::mpsc;
 
+use super::force::ForceOutcome;
 use super::protocol::{self, ErrorCode, ProtocolError, StreamKind};
 use super::state::AppState;
 use crate::config::{
@@ -24,20 +25,26 @@ use crate::sweep::{self, Leg};
 const FRAME_QUEUE: usize = 4096;
 /// Longest wait for a demodulator frame (wall time) before a sweep gives up.
 const FRAME_WAIT: Duration = Duration::from_secs(10);
+/// Longest wait (wall time) at a point for the force estimator of its settings; past it the
+/// point reports that it has no force estimate.
+const FORCE_WAIT: Duration = Duration::from_secs(10);
 /// Inaccuracy the automatic settling time allows for (relative).
 const SETTLE_TO: f64 = 1e-3;
 
-/// Demodulator frames handed from the hub to a running sweep, and the count of those it
-/// could not take.
-pub(crate) struct FrameTap {
+/// What the hub hands a running sweep (demodulator frames, force outcomes), and the count
+/// of those it could not take.
+pub(crate) struct Tap<T> {
     active: AtomicBool,
-    tx: mpsc::Sender<DemodFrame>,
-    rx: Mutex<Option<mpsc::Receiver<DemodFrame>>>,
-    /// Frames a sweep missed because its queue was full (counted, never silent).
+    tx: mpsc::Sender<T>,
+    rx: Mutex<Option<mpsc::Receiver<T>>>,
+    /// Items a sweep missed because its queue was full (counted, never silent).
     pub dropped: AtomicU64,
 }
 
-impl FrameTap {
+/// The demodulator frames' tap.
+pub(crate) type FrameTap = Tap<DemodFrame>;
+
+impl<T: Clone> Tap<T> {
     pub fn new() -> Self {
         let (tx, rx) = mpsc::channel(FRAME_QUEUE);
         Self {
@@ -48,11 +55,16 @@ impl FrameTap {
         }
     }
 
-    /// Hub side: a frame, kept while a sweep runs.
-    pub fn offer(&self, frame: &DemodFrame) {
-        if self.active.load(Ordering::Relaxed) && self.tx.try_send(*frame).is_err() {
+    /// Hub side: an item, kept while a sweep runs.
+    pub fn offer(&self, item: &T) {
+        if self.active.load(Ordering::Relaxed) && self.tx.try_send(item.clone()).is_err() {
             self.dropped.fetch_add(1, Ordering::Relaxed);
         }
+    }
+
+    /// Whether a sweep is taking items.
+    pub fn is_active(&self) -> bool {
+        self.active.load(Ordering::Relaxed)
     }
 }
 
@@ -64,12 +76,15 @@ pub(crate) async fn run(state: Arc<AppState>) {
     let Some(mut frames) = state.sweep_frames.rx.lock().ok().and_then(|mut r| r.take()) else {
         return;
     };
+    let Some(mut forces) = state.sweep_force.rx.lock().ok().and_then(|mut r| r.take()) else {
+        return;
+    };
     let mut changes = state.changes.subscribe();
     let mut shutdown = state.shutdown.clone();
     loop {
         let settings = state.control.lock().ok().map(|c| c.settings.clone());
         if let Some(settings) = settings.filter(|s| s.sweeper.enable) {
-            if run_sweep(&state, settings, &mut frames, &mut changes)
+            if run_sweep(&state, settings, &mut frames, &mut forces, &mut changes)
                 .await
                 .is_err()
             {
@@ -118,11 +133,81 @@ impl Measured {
             .map(|(_, x, y)| x.hypot(*y))
     }
 
+    /// The mean deflection (m): x of the first demodulator at harmonic 0, if one runs.
+    fn mean_deflection(&self) -> Option<f64> {
+        self.demods
+            .iter()
+            .find(|(h, x, _)| *h == 0 && x.is_finite())
+            .map(|(_, x, _)| *x)
+    }
+
     fn phase_at(&self, harmonic: u32) -> Option<f64> {
         self.demods
             .iter()
             .find(|(h, x, _)| *h == harmonic && x.is_finite())
             .map(|(_, x, y)| y.atan2(*x))
+    }
+}
+
+/// The force estimates of one point: their sums, or why there are none.
+#[derive(Default)]
+struct ForcePoint {
+    n: u32,
+    max_force: f64,
+    contact_time_ratio: f64,
+    youngs_modulus: f64,
+    /// Sums of the estimates' variances.
+    variances: [f64; 3],
+    error: Option<String>,
+}
+
+impl ForcePoint {
+    /// Takes `o` if an estimator of `generation` or later made it from frames at or after
+    /// `from` (s); returns whether the point has its answer (an estimate, or why none).
+    fn take(&mut self, o: &ForceOutcome, generation: u64, from: f64) -> bool {
+        match o {
+            ForceOutcome::Estimate(g, e) if *g >= generation && e.t >= from => {
+                self.n += 1;
+                self.max_force += e.max_force;
+                self.contact_time_ratio += e.contact_time_ratio;
+                self.youngs_modulus += e.youngs_modulus;
+                for (v, sigma) in self.variances.iter_mut().zip([
+                    e.max_force_sigma,
+                    e.contact_time_ratio_sigma,
+                    e.youngs_modulus_sigma,
+                ]) {
+                    *v += sigma * sigma;
+                }
+                true
+            }
+            ForceOutcome::Failed(g, t, why) if *g >= generation && *t >= from => {
+                self.error.get_or_insert_with(|| why.clone());
+                true
+            }
+            ForceOutcome::Unavailable(g, why) if *g >= generation => {
+                self.error.get_or_insert_with(|| why.clone());
+                true
+            }
+            _ => false,
+        }
+    }
+
+    fn json(&self) -> Value {
+        if self.n == 0 {
+            return json!({"estimates": 0, "error": self.error});
+        }
+        let n = f64::from(self.n);
+        // Standard deviation of the mean of n independent estimates.
+        let sigma = |i: usize| self.variances[i].sqrt() / n;
+        json!({
+            "estimates": self.n,
+            "max_force": self.max_force / n,
+            "max_force_sigma": sigma(0),
+            "contact_time_ratio": self.contact_time_ratio / n,
+            "contact_time_ratio_sigma": sigma(1),
+            "youngs_modulus": self.youngs_modulus / n,
+            "youngs_modulus_sigma": sigma(2),
+        })
     }
 }
 
@@ -199,6 +284,7 @@ async fn run_sweep(
     state: &Arc<AppState>,
     settings: Settings,
     frames: &mut mpsc::Receiver<DemodFrame>,
+    forces: &mut mpsc::Receiver<ForceOutcome>,
     changes: &mut tokio::sync::watch::Receiver<u64>,
 ) -> Result<(), ()> {
     let w = settings.sweeper.clone();
@@ -233,9 +319,23 @@ async fn run_sweep(
         "sweep started"
     );
 
+    // The force estimates of each point (a tune is free of the surface: no force there).
+    let force_off = if !settings.inversion.enable {
+        Some("the inversion is off (/inversion/enable = false)")
+    } else if w.parameter == SweepParameter::DriveFrequency {
+        Some("not measured in a frequency sweep")
+    } else {
+        None
+    };
     while frames.try_recv().is_ok() {}
-    let dropped_before = state.sweep_frames.dropped.load(Ordering::Relaxed);
+    while forces.try_recv().is_ok() {}
+    let dropped_before = state.sweep_frames.dropped.load(Ordering::Relaxed)
+        + state.sweep_force.dropped.load(Ordering::Relaxed);
     state.sweep_frames.active.store(true, Ordering::Relaxed);
+    state
+        .sweep_force
+        .active
+        .store(force_off.is_none(), Ordering::Relaxed);
     let mut shutdown = state.shutdown.clone();
     let mut measured: Vec<Measured> = Vec::with_capacity(points.len());
     let (mut t_last, mut t_synth_last) = (0.0, 0u64);
@@ -261,21 +361,40 @@ async fn run_sweep(
             }
         };
         let from = t_set + settle;
+        // Force outcomes of an estimator built for this point's settings (or later).
+        let generation = state.force.requested();
+        let mut force = ForcePoint::default();
+        let mut force_done = force_off.is_some();
+        let mut force_deadline = None;
         let mut sums = [(0u32, 0.0f64, 0.0f64, 0u32); DEMODULATOR_COUNT];
         let mut taken = 0;
-        while taken < w.averaging {
+        while taken < w.averaging || !force_done {
             tokio::select! {
                 f = frames.recv() => {
                     let Some(f) = f else { return Err(()) };
                     if f.t < from {
                         continue;
                     }
-                    for v in f.values() {
-                        let s = &mut sums[usize::from(v.index)];
-                        *s = (v.harmonic, s.1 + v.x, s.2 + v.y, s.3 + 1);
+                    if taken < w.averaging {
+                        for v in f.values() {
+                            let s = &mut sums[usize::from(v.index)];
+                            *s = (v.harmonic, s.1 + v.x, s.2 + v.y, s.3 + 1);
+                        }
+                        taken += 1;
+                        (t_last, t_synth_last) = (f.t, f.t_synth_ns);
+                    } else if !force_done {
+                        let deadline = *force_deadline.get_or_insert_with(|| Instant::now() + FORCE_WAIT);
+                        if Instant::now() > deadline {
+                            force.error = Some(format!(
+                                "no force estimate within {} s", FORCE_WAIT.as_secs()
+                            ));
+                            force_done = true;
+                        }
                     }
-                    taken += 1;
-                    (t_last, t_synth_last) = (f.t, f.t_synth_ns);
+                }
+                o = forces.recv(), if force_off.is_none() => {
+                    let Some(o) = o else { return Err(()) };
+                    force_done |= force.take(&o, generation, from);
                 }
                 r = changes.changed() => {
                     if r.is_err() {
@@ -337,11 +456,18 @@ async fn run_sweep(
         if let Some(phase) = m.phase_at(1) {
             fields.insert("h1_phase_to_drive".into(), json!(phase_to_drive(phase)));
         }
+        if let Some(mean) = m.mean_deflection() {
+            fields.insert("mean_deflection".into(), json!(mean));
+        }
+        if force_off.is_none() {
+            fields.insert("force".into(), force.json());
+        }
         fields.insert("demods".into(), Value::Array(list));
         send(state, t_last, t_synth_last, fields);
         measured.push(m);
     }
     state.sweep_frames.active.store(false, Ordering::Relaxed);
+    state.sweep_force.active.store(false, Ordering::Relaxed);
 
     // Restore the swept node (and turn the sweep off) whatever happened; retry while the
     // chain is busy with an earlier change.
@@ -394,8 +520,15 @@ async fn run_sweep(
     fields.insert("restored".into(), json!(restored.is_ok()));
     fields.insert(
         "frames_dropped".into(),
-        json!(state.sweep_frames.dropped.load(Ordering::Relaxed) - dropped_before),
+        json!(
+            state.sweep_frames.dropped.load(Ordering::Relaxed)
+                + state.sweep_force.dropped.load(Ordering::Relaxed)
+                - dropped_before
+        ),
     );
+    if let Some(why) = force_off {
+        fields.insert("force".into(), json!(format!("off: {why}")));
+    }
     if w.parameter == SweepParameter::DriveFrequency {
         fields.insert("tune".into(), tune_summary(&measured));
     }

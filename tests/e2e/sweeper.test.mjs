@@ -80,7 +80,7 @@ test("a tune run from the panel shows the resonance, its fit, and exports as CSV
   const csv = readFileSync(await download.path(), "utf8").trim().split("\n");
   assert.match(download.suggestedFilename(), /^ftafm-sweep-\d+\.csv$/);
   assert.equal(csv.length, 2 + 41);
-  assert.match(csv[1], /^value,leg,h1_phase_to_drive_rad,r_demod0_h1_m,phase_demod0_h1_rad,/);
+  assert.match(csv[1], /^value,leg,h1_phase_to_drive_rad,mean_deflection_m,max_force_N,max_force_sigma_N,contact_time_ratio,contact_time_ratio_sigma,youngs_modulus_Pa,youngs_modulus_sigma_Pa,r_demod0_h1_m,phase_demod0_h1_rad,/);
   assert.equal(Number(csv[2].split(",")[0]), 99500);
   assert.equal(csv[2].split(",")[1], "up");
 });

@@ -275,12 +275,25 @@ class ImageData(StreamData):
         return out
 
 
+FORCE_KEYS = (
+    "max_force",
+    "max_force_sigma",
+    "contact_time_ratio",
+    "contact_time_ratio_sigma",
+    "youngs_modulus",
+    "youngs_modulus_sigma",
+)
+
+
 @dataclass
 class SweepResult:
     """A sweep's points as arrays (``Instrument.sweep``): ``value`` (the parameter's unit)
     and ``leg`` (``"up"``/``"down"``) per point, every demodulator's averaged ``x``, ``y``,
     ``r`` (m), ``phase`` (rad) and ``harmonic`` as points × 32 (NaN / −1 where it gave
-    nothing), ``free_amplitude`` (m) per point of a tune, and ``final``, the sweep's final
+    nothing), ``free_amplitude`` (m) per point of a tune, ``mean_deflection`` (m, from a
+    demodulator at harmonic 0 if one runs), the force estimates per point (``max_force``
+    (N), ``contact_time_ratio`` (1), ``youngs_modulus`` (Pa), each with its ``_sigma``, NaN
+    where the point has none, ``force_error`` saying why) and ``final``, the sweep's final
     message (``outcome``, and ``tune`` or ``approach``)."""
 
     parameter: str
@@ -292,6 +305,14 @@ class SweepResult:
     r: np.ndarray
     phase: np.ndarray
     free_amplitude: np.ndarray
+    mean_deflection: np.ndarray
+    max_force: np.ndarray
+    max_force_sigma: np.ndarray
+    contact_time_ratio: np.ndarray
+    contact_time_ratio_sigma: np.ndarray
+    youngs_modulus: np.ndarray
+    youngs_modulus_sigma: np.ndarray
+    force_error: list[str | None]
     final: dict[str, Any]
 
     def __len__(self) -> int:
@@ -302,6 +323,10 @@ class SweepResult:
         n = len(points)
         arrays = {k: np.full((n, DEMODULATORS), np.nan) for k in ("x", "y", "r", "phase")}
         harmonic = np.full((n, DEMODULATORS), -1, dtype=np.int64)
+        force = {
+            key: _floats([(m.get("force") or {}).get(key) for m in points])
+            for key in FORCE_KEYS
+        }
         for i, m in enumerate(points):
             for d in m["demods"]:
                 j = d["index"]
@@ -319,6 +344,14 @@ class SweepResult:
             r=arrays["r"],
             phase=arrays["phase"],
             free_amplitude=_floats([m.get("free_amplitude") for m in points]),
+            mean_deflection=_floats([m.get("mean_deflection") for m in points]),
+            max_force=force["max_force"],
+            max_force_sigma=force["max_force_sigma"],
+            contact_time_ratio=force["contact_time_ratio"],
+            contact_time_ratio_sigma=force["contact_time_ratio_sigma"],
+            youngs_modulus=force["youngs_modulus"],
+            youngs_modulus_sigma=force["youngs_modulus_sigma"],
+            force_error=[(m.get("force") or {}).get("error") for m in points],
             final=dict(final),
         )
 
