@@ -24,7 +24,6 @@
 use serde::Serialize;
 
 use crate::config::{InversionMethod, Settings};
-use crate::dsp::PREDECIMATION;
 use crate::model;
 use crate::physics::inversion::{
     CutCosineFit, CutCosinePrior, CutCosineStart, HarmonicSample, InversionOptions, LockInModel,
@@ -32,6 +31,7 @@ use crate::physics::inversion::{
     fit_cut_cosine, lockin_sigma, reconstruct_force_with, two_harmonic_prior,
 };
 use crate::pipeline::DemodFrame;
+use crate::timebase::PREDECIMATION;
 use rustfft::num_complex::Complex64;
 
 /// Range of the modulus table (Pa) and its nodes.

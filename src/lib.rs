@@ -1,8 +1,9 @@
 //! ftafm: a real-time virtual instrument for Fourier-transform atomic force microscopy.
 //!
 //! Layers (each depends only on those before it): [`physics`] (pure maths of the paper),
-//! [`config`] (typed settings), [`dsp`] and [`synth`] (real-time blocks), [`pipeline`], the
-//! daemon ([`server`]), and the commands ([`cli`]).
+//! [`config`] (typed settings), [`timebase`] (the phase words both real-time stages share),
+//! [`dsp`] and [`synth`] (real-time blocks, meeting only through the ring), [`pipeline`],
+//! the daemon ([`server`]), and the commands ([`cli`]).
 
 pub mod cli;
 pub mod config;
@@ -15,3 +16,4 @@ pub mod pipeline;
 pub mod server;
 pub mod sweep;
 pub mod synth;
+pub mod timebase;

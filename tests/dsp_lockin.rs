@@ -3,8 +3,9 @@
 
 use std::f64::consts::{PI, TAU};
 
+use ftafm::dsp::PREDECIMATION_ORDER;
 use ftafm::dsp::{Demodulator, LockInBank, LockInSample, MAX_DEMODULATORS, Predecimator};
-use ftafm::dsp::{PREDECIMATION, PREDECIMATION_ORDER};
+use ftafm::timebase::PREDECIMATION;
 
 const FS: f64 = 10e6;
 

@@ -433,7 +433,8 @@ fn scope_traces_are_the_synthesised_samples_with_their_drive_phase() {
                 "trace at {first}, sample {j}"
             );
         }
-        let phase = ftafm::dsp::phase_to_radians(plan.frequency_word.wrapping_mul(first as u64));
+        let phase =
+            ftafm::timebase::phase_to_radians(plan.frequency_word.wrapping_mul(first as u64));
         assert!(
             (t.start_phase - phase).abs() < 1e-12,
             "start phase {} vs {phase}",

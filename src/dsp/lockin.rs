@@ -21,15 +21,13 @@
 //! construction.
 
 use super::lowpass::MAX_ORDER;
-use super::phase::{PhaseAccumulator, harmonic_phase, phase_to_radians};
 use super::predecimator::Predecimator;
 use super::simd::F64s;
 use super::{DspError, LowPass};
+use crate::timebase::{PREDECIMATION, PhaseAccumulator, harmonic_phase, phase_to_radians};
 
 /// Number of demodulators a bank holds at most.
 pub const MAX_DEMODULATORS: usize = 32;
-/// Decimation factor D of the shared pre-decimator (input samples per decimated sample).
-pub const PREDECIMATION: usize = 16;
 /// Order N of the CIC pre-decimator (cascaded boxcars).
 pub const PREDECIMATION_ORDER: usize = 4;
 

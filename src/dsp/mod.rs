@@ -1,7 +1,8 @@
 //! Real-time signal processing blocks: lock-in demodulators and the sliding spectrum.
 //! Blocks take preallocated state and never allocate, lock, log or block in `process`.
 //!
-//! - [`PhaseAccumulator`]: the drive phase as an integer word (no drift, ever).
+//! The drive phase ([`crate::timebase::PhaseAccumulator`]) and the pre-decimation factor
+//! come from [`crate::timebase`], which the synthesiser shares.
 //! - [`LockInBank`]: up to 32 [`Demodulator`]s at harmonics of the drive, sharing one
 //!   pre-decimator ([`Predecimator`]) and each followed by its own [`LowPass`].
 //! - [`SlidingSpectrum`]: windowed ([`Window`]), amplitude-calibrated, hop-based real FFT.
@@ -11,17 +12,13 @@
 
 mod lockin;
 mod lowpass;
-mod phase;
 mod predecimator;
 mod simd;
 mod spectrum;
 mod window;
 
-pub use lockin::{
-    Demodulator, LockInBank, LockInSample, MAX_DEMODULATORS, PREDECIMATION, PREDECIMATION_ORDER,
-};
+pub use lockin::{Demodulator, LockInBank, LockInSample, MAX_DEMODULATORS, PREDECIMATION_ORDER};
 pub use lowpass::{LowPass, LowPassState, MAX_ORDER};
-pub use phase::{PhaseAccumulator, frequency_word, harmonic_phase, phase_to_radians};
 pub use predecimator::Predecimator;
 pub use realfft::num_complex::Complex;
 pub use spectrum::{SlidingSpectrum, SpectrumConfig, SpectrumFrame};
@@ -33,9 +30,9 @@ pub enum DspError {
     /// Sample rate not finite and positive (Hz).
     #[error("sample rate must be finite and > 0 Hz, got {0}")]
     SampleRate(f64),
-    /// Frequency not finite (Hz).
-    #[error("frequency must be finite, got {0} Hz")]
-    Frequency(f64),
+    /// A frequency word could not be formed (sample rate or frequency not finite).
+    #[error(transparent)]
+    Word(#[from] crate::timebase::WordError),
     /// Low-pass order outside 1–8.
     #[error("low-pass order must be 1–{MAX_ORDER}, got {0}")]
     Order(u32),

@@ -10,10 +10,10 @@ use std::collections::{BTreeMap, VecDeque};
 pub use export::ImageChannel;
 
 use crate::config::Settings;
-use crate::dsp::PREDECIMATION;
 use crate::inversion::ForceEstimator;
 use crate::pipeline::PixelHarmonics;
 use crate::synth::{PixelTopography, Raster};
+use crate::timebase::PREDECIMATION;
 
 /// One finished trace line, as the `image` stream sends it.
 #[derive(Clone, Debug)]

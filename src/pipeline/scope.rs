@@ -2,7 +2,7 @@
 //! (every `/scope/decimation`-th), with the drive phase at the first one so a client can
 //! subtract harmonics (the paper's Fig. 4).
 
-use crate::dsp::phase_to_radians;
+use crate::timebase::phase_to_radians;
 
 use super::block::BlockHeader;
 use super::frames::ScopeBuffer;

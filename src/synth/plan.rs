@@ -11,11 +11,11 @@ use super::modal::ModalKernel;
 use super::pulse::{PulseKernel, PulseTrain};
 use super::scan::{ScanPlan, TapTables};
 use crate::config::{Engine, Settings};
-use crate::dsp::{DspError, frequency_word};
 use crate::model;
 use crate::physics::beam::{BeamError, MAX_MODES};
 use crate::physics::impact::ImpactError;
 use crate::physics::{Cantilever, ImpactSolution};
+use crate::timebase::{WordError, frequency_word};
 use std::sync::Arc;
 
 /// Boltzmann's constant (J/K).
@@ -35,7 +35,7 @@ pub enum PlanError {
     Impact(#[from] ImpactError),
     /// The drive frequency cannot be represented.
     #[error(transparent)]
-    Drive(#[from] DspError),
+    Drive(#[from] WordError),
     /// The engine is not implemented.
     #[error("engine {0:?} is not available")]
     Engine(Engine),

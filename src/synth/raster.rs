@@ -7,7 +7,7 @@
 //! constant speed; the slow axis steps one pixel per line; line 0 is at the top (largest y).
 
 use crate::config::ScanSettings;
-use crate::dsp::PREDECIMATION;
+use crate::timebase::PREDECIMATION;
 
 /// Longest pixel the raster makes, in samples: 2^40, 30 hours at 10 MS/s (the slowest
 /// scan the settings allow lasts far less per pixel).

@@ -19,10 +19,10 @@ use super::plan::{PlanError, SynthPlan, TURN};
 use super::pulse::{PulseKernel, PulseTrain};
 use super::raster::{PixelId, Raster};
 use crate::config::{FeedbackSettings, Material, ScanSettings, Settings};
-use crate::dsp::phase_to_radians;
 use crate::model;
 use crate::physics::spectrum::{cut_cosine_train, photodiode_transfer};
 use crate::physics::{Cantilever, Elastic, SampleMap};
+use crate::timebase::phase_to_radians;
 
 /// Distance grid of the tap tables: this fraction of the free amplitude per step (0.5 nm
 /// at 30 nm).

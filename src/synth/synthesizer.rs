@@ -12,8 +12,8 @@ use rustfft::num_complex::Complex64;
 use super::coupled::{CoupledKernel, CoupledTrace, SUBSTEPS};
 use super::plan::{SynthPlan, TURN};
 use super::pulse::PulseKernel;
-use crate::dsp::phase_to_radians;
 use crate::physics::beam::MAX_MODES;
+use crate::timebase::phase_to_radians;
 
 /// The drive phasor e^{iθ} is advanced by multiplication and re-anchored from the exact
 /// integer phase at every multiple of this many samples (of the absolute sample index, so

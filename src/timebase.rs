@@ -1,4 +1,7 @@
-//! Integer phase accumulator: the drive phase of the instrument.
+//! The instrument's timebase, below both real-time stages: the drive phase as an integer
+//! accumulator, the frequency words of the drive and its harmonics, and the lock-in's
+//! pre-decimation that fixes the grid of demodulator (and scan pixel) times. The
+//! synthesiser and the DSP both import it and otherwise meet only through the ring.
 //!
 //! The phase lives in a `u64` word where 2^64 is one full cycle. Advancing by the frequency
 //! word is exact modular integer arithmetic, so the phase after n samples is exactly
@@ -7,7 +10,20 @@
 
 use std::f64::consts::PI;
 
-use super::DspError;
+/// Decimation factor D of the lock-in's shared pre-decimator (input samples per decimated
+/// sample): demodulator outputs, and so scan pixels, fall on multiples of it.
+pub const PREDECIMATION: usize = 16;
+
+/// Why a frequency word could not be formed.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum WordError {
+    /// Sample rate not finite and positive (Hz).
+    #[error("sample rate must be finite and > 0 Hz, got {0}")]
+    SampleRate(f64),
+    /// Frequency not finite (Hz).
+    #[error("frequency must be finite, got {0} Hz")]
+    Frequency(f64),
+}
 
 /// 2^64 as an `f64` (exact).
 const TWO_POW_64: f64 = 18_446_744_073_709_551_616.0;
@@ -27,7 +43,7 @@ pub struct PhaseAccumulator {
 impl PhaseAccumulator {
     /// An accumulator at phase 0 advancing at `frequency` (Hz) for samples at `sample_rate`
     /// (Hz). The realised frequency is f_s·word/2^64 (see [`frequency_word`]).
-    pub fn new(frequency: f64, sample_rate: f64) -> Result<Self, DspError> {
+    pub fn new(frequency: f64, sample_rate: f64) -> Result<Self, WordError> {
         Ok(Self {
             phase: 0,
             step: frequency_word(frequency, sample_rate)?,
@@ -78,7 +94,7 @@ impl PhaseAccumulator {
 
     /// Change the frequency (Hz) keeping the phase of the current sample: the phase is
     /// continuous across the change, only its slope changes.
-    pub fn set_frequency(&mut self, frequency: f64, sample_rate: f64) -> Result<(), DspError> {
+    pub fn set_frequency(&mut self, frequency: f64, sample_rate: f64) -> Result<(), WordError> {
         self.step = frequency_word(frequency, sample_rate)?;
         Ok(())
     }
@@ -91,12 +107,12 @@ impl PhaseAccumulator {
 /// f/f_s < 2^-11), so the realised frequency is within a relative 2^-53 of the request,
 /// or f_s/2^65 absolute for the lowest frequencies: 10⁻¹¹ Hz at 100 kHz, 10⁻¹⁰ rad of
 /// phase after 10⁸ samples at 10 MS/s.
-pub fn frequency_word(frequency: f64, sample_rate: f64) -> Result<u64, DspError> {
+pub fn frequency_word(frequency: f64, sample_rate: f64) -> Result<u64, WordError> {
     if !(sample_rate.is_finite() && sample_rate > 0.0) {
-        return Err(DspError::SampleRate(sample_rate));
+        return Err(WordError::SampleRate(sample_rate));
     }
     if !frequency.is_finite() {
-        return Err(DspError::Frequency(frequency));
+        return Err(WordError::Frequency(frequency));
     }
     // Reducing to one cycle first keeps the scaled value inside u64 range; rem_euclid of
     // an f64 by 1 is exact.

@@ -1,0 +1,50 @@
+//! The layering of `src/` (architecture.md): each layer uses only those below it, and the
+//! two real-time stages, `synth` and `dsp`, meet only through the ring; what both need (the
+//! phase words, the pre-decimation grid) lives in `timebase`, below them.
+
+use std::fs;
+use std::path::Path;
+
+/// Every `crate::<module>` that the Rust files under `dir` name.
+fn crate_paths(dir: &Path) -> Vec<(String, String)> {
+    let mut found = Vec::new();
+    for entry in fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            found.extend(crate_paths(&path));
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            let text = fs::read_to_string(&path).unwrap();
+            for (i, _) in text.match_indices("crate::") {
+                let module: String = text[i + 7..]
+                    .chars()
+                    .take_while(|c| c.is_alphanumeric() || *c == '_')
+                    .collect();
+                found.push((path.display().to_string(), module));
+            }
+        }
+    }
+    found
+}
+
+fn assert_uses_only(layer: &str, allowed: &[&str]) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("src").join(layer);
+    let offending: Vec<_> = crate_paths(&dir)
+        .into_iter()
+        .filter(|(_, m)| m != layer && !allowed.contains(&m.as_str()))
+        .collect();
+    assert!(
+        offending.is_empty(),
+        "src/{layer} may use only {allowed:?}, but: {offending:?}"
+    );
+}
+
+#[test]
+fn the_synthesiser_and_the_dsp_meet_only_through_the_ring() {
+    assert_uses_only("synth", &["physics", "config", "model", "timebase"]);
+    assert_uses_only("dsp", &["timebase"]);
+}
+
+#[test]
+fn the_physics_depends_on_nothing_above_it() {
+    assert_uses_only("physics", &[]);
+}
