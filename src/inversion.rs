@@ -9,8 +9,9 @@
 //!   motion of every mode through the light lever, detector, ADC) and the demodulator's
 //!   equivalent noise bandwidth, including the correlation of the averaged frames
 //!   ([`crate::physics::inversion::NoiseModel`], [`LowPassNoise`]); noise off gives σ = 0;
-//! - what each demodulator reads is modelled with the harmonics that alias onto it (the
-//!   photodiode is sampled without an anti-alias filter; [`LockInModel`]);
+//! - what each demodulator reads is modelled through the ADC's anti-alias filter with the
+//!   harmonics that alias onto it (all of them with `/synth/anti_alias = false`;
+//!   [`LockInModel::with_front_end`]);
 //! - **two-harmonic** (the paper's method): τ and F of the cut cosine from the amplitudes of
 //!   `/inversion/harmonic_a` and `_b`, less their aliases;
 //! - **full**: τ, F and the pulse phase of the cut cosine fitted to *every* demodulated
@@ -148,8 +149,14 @@ impl ForceEstimator {
             .filter(|&i| settings.demod_active(i))
             .map(|i| settings.demods[i].harmonic as usize)
             .collect();
-        let lockin = LockInModel::new(&cantilever, settings.drive.frequency, Some(fs), &harmonics)
-            .map_err(|e| e.to_string())?;
+        let mut lockin =
+            LockInModel::new(&cantilever, settings.drive.frequency, Some(fs), &harmonics)
+                .map_err(|e| e.to_string())?;
+        if settings.synth.anti_alias {
+            // The lock-in reads the harmonics through the ADC's anti-alias filter.
+            let taps = crate::synth::adc::grid_taps();
+            lockin = lockin.with_front_end(|f| crate::synth::adc::gain(&taps, f));
+        }
         let n = &settings.noise;
         let noise = if n.enable {
             NoiseModel {

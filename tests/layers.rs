@@ -27,7 +27,9 @@ fn crate_paths(dir: &Path) -> Vec<(String, String)> {
 }
 
 fn assert_uses_only(layer: &str, allowed: &[&str]) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("src").join(layer);
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("src")
+        .join(layer);
     let offending: Vec<_> = crate_paths(&dir)
         .into_iter()
         .filter(|(_, m)| m != layer && !allowed.contains(&m.as_str()))

@@ -38,8 +38,8 @@ fn run(plan: &SynthPlan, state: &mut SynthState, n: usize) -> Vec<f64> {
 
 /// What exact sampling of the continuous Eq. (9) signal gives in the DFT bin of harmonic k
 /// over a window of `window` samples holding `periods` periods: the two-sided coefficient
-/// S_j of every harmonic j whose bin folds onto k's (aliases; no anti-alias filter is
-/// modelled), summed to |j| = 3000.
+/// S_j of every harmonic j whose bin folds onto k's (aliases), each through the ADC's
+/// anti-alias filter at its own frequency, summed to |j| = 3000.
 fn aliased_eq9(plan: &SynthPlan, window: i64, periods: i64, k: i64) -> Complex64 {
     let tap = plan.tap.expect("in contact").train;
     let omega = 2.0 * PI * plan.drive_frequency;
@@ -54,7 +54,8 @@ fn aliased_eq9(plan: &SynthPlan, window: i64, periods: i64, k: i64) -> Complex64
         } else {
             c[(-j) as usize].conj()
         };
-        sum += photodiode_transfer(&plan.cantilever, j as f64 * omega) * cj;
+        let filter = plan.front_end_gain(j as f64 * plan.drive_frequency / plan.sample_rate);
+        sum += photodiode_transfer(&plan.cantilever, j as f64 * omega) * cj * filter;
     }
     sum * 2.0
 }
@@ -62,7 +63,8 @@ fn aliased_eq9(plan: &SynthPlan, window: i64, periods: i64, k: i64) -> Complex64
 fn check_against_paper(settings: &Settings, samples_per_window: usize, periods: i64) {
     let plan = SynthPlan::new(settings).unwrap();
     let mut state = SynthState::steady(&plan, 1);
-    let start = state.phase();
+    // The drive phase at which the first sample was taken (the ADC filter's delay before).
+    let start = plan.output_phase(state.phase());
     let samples = run(&plan, &mut state, samples_per_window);
     let report = paper::compute(settings, 0.9).unwrap();
     let expected = &report.materials[0].spectrum;

@@ -56,7 +56,8 @@ fn harmonic(samples: &[f64], plan: &SynthPlan, start_phase: u64, k: u64) -> Comp
 /// The photodiode's response to the tap force alone: the samples minus the free drive
 /// response, which the offline orbit's spectrum describes.
 fn tap_response(plan: &SynthPlan, state: &mut SynthState, n: usize) -> (u64, Vec<f64>) {
-    let start = state.phase();
+    // The drive phase at which the first sample was taken (the ADC filter's delay before).
+    let start = plan.output_phase(state.phase());
     let mut out = vec![0.0; n];
     plan.process(state, &mut out);
     let free = plan.free_signal();

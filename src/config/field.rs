@@ -181,6 +181,8 @@ pub enum Field {
     SynthSeed,
     /// `/synth/realtime` (bool).
     SynthRealtime,
+    /// `/synth/anti_alias` (bool).
+    SynthAntiAlias,
     /// `/noise/enable` (bool).
     NoiseEnable,
     /// `/noise/temperature` (K).
@@ -534,7 +536,7 @@ impl Typed {
 
 impl Field {
     /// Nodes outside the index-keyed tables (inclusions, demodulators), in tree order.
-    pub(crate) const SCALARS: [Field; 61] = [
+    pub(crate) const SCALARS: [Field; 62] = [
         Field::CantileverF1,
         Field::CantileverK,
         Field::CantileverQ,
@@ -552,6 +554,7 @@ impl Field {
         Field::SynthEngine,
         Field::SynthSeed,
         Field::SynthRealtime,
+        Field::SynthAntiAlias,
         Field::NoiseEnable,
         Field::NoiseTemperature,
         Field::NoiseDetectorDensity,
@@ -645,6 +648,7 @@ impl Field {
             Field::SynthEngine => "/synth/engine",
             Field::SynthSeed => "/synth/seed",
             Field::SynthRealtime => "/synth/realtime",
+            Field::SynthAntiAlias => "/synth/anti_alias",
             Field::NoiseEnable => "/noise/enable",
             Field::NoiseTemperature => "/noise/temperature",
             Field::NoiseDetectorDensity => "/noise/detector_density",
@@ -775,6 +779,7 @@ impl Field {
             | Field::SweeperDirection
             | Field::SweeperEnable
             | Field::SynthRealtime
+            | Field::SynthAntiAlias
             | Field::DriveFollowF1
             | Field::NoiseEnable
             | Field::SpectrumEnable
@@ -829,6 +834,7 @@ impl Field {
                 max: u64::MAX,
             },
             Field::SynthRealtime
+            | Field::SynthAntiAlias
             | Field::DriveFollowF1
             | Field::NoiseEnable
             | Field::SpectrumEnable
@@ -974,13 +980,16 @@ impl Field {
                 "Photodiode sample rate of the synthesiser, in Hz; fixed at start (config file only)."
             }
             Field::SynthEngine => {
-                "Tip-force engine: \"paper\" (cut-cosine pulses from the 1-DOF model, the paper's method); \"coupled\" (contact force from the instantaneous tip position of all modes) is not available yet."
+                "Tip-force engine: \"paper\" (cut-cosine pulses from the 1-DOF model, the paper's method); \"coupled\" (all modes integrated sample by sample with the Hertz force from the instantaneous tip position; no scan on it yet)."
             }
             Field::SynthSeed => {
                 "Seed of every random source (integer); the same seed and settings give the same stream."
             }
             Field::SynthRealtime => {
                 "Pace synthesis to the wall clock (true) or run as fast as possible (false)."
+            }
+            Field::SynthAntiAlias => {
+                "The ADC's anti-alias filter (true): the signal is taken at twice the sample rate and decimated by a halfband FIR, flat to 0.4 x sample_rate, >= 88 dB down from 0.6 x sample_rate, delay 14.5 samples (compensated in the drive phase); false samples the signal directly, with every alias."
             }
             Field::NoiseEnable => "Switches all noise sources on (true) or off (false).",
             Field::NoiseTemperature => {
@@ -1200,6 +1209,7 @@ impl Field {
             Field::SynthEngine => Typed::Text(s.synth.engine.name()),
             Field::SynthSeed => Typed::Integer(s.synth.seed),
             Field::SynthRealtime => Typed::Bool(s.synth.realtime),
+            Field::SynthAntiAlias => Typed::Bool(s.synth.anti_alias),
             Field::NoiseEnable => Typed::Bool(s.noise.enable),
             Field::NoiseTemperature => Typed::Float(s.noise.temperature),
             Field::NoiseDetectorDensity => Typed::Float(s.noise.detector_density),
@@ -1288,6 +1298,7 @@ impl Field {
             (Field::SynthEngine, Typed::Text(name)) => s.synth.engine = Engine::from_name(name)?,
             (Field::SynthSeed, Typed::Integer(n)) => s.synth.seed = n,
             (Field::SynthRealtime, Typed::Bool(b)) => s.synth.realtime = b,
+            (Field::SynthAntiAlias, Typed::Bool(b)) => s.synth.anti_alias = b,
             (Field::NoiseEnable, Typed::Bool(b)) => s.noise.enable = b,
             (Field::NoiseTemperature, Typed::Float(x)) => s.noise.temperature = x,
             (Field::NoiseDetectorDensity, Typed::Float(x)) => s.noise.detector_density = x,

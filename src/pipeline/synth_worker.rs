@@ -88,7 +88,9 @@ impl SynthWorker {
                 self.epochs.took_effect(epoch, header_index);
                 stamped = epoch;
             }
-            let phase = self.state.phase();
+            // The drive phase at which the block's first sample was taken: behind the
+            // synthesis by the ADC filter's delay, so the lock-in sees no shift from it.
+            let phase = self.plan.output_phase(self.state.phase());
             let clipped_before = self.state.counters.clipped;
             let busy = Instant::now();
             if self.plan.scan.is_some() {

@@ -24,7 +24,7 @@ use std::f64::consts::PI;
 
 use rustfft::num_complex::Complex64;
 
-use super::modal::ModalKernel;
+use super::modal::{ModalKernel, lane_sum};
 use crate::physics::beam::{MAX_MODES, Mode};
 use crate::physics::contact::HertzContact;
 
@@ -182,15 +182,17 @@ impl CoupledKernel {
     /// Gap to the surface (m) at drive phasor `rho` with mode lanes `im`.
     #[inline(always)]
     pub(crate) fn gap<const L: usize>(&self, rho: Complex64, im: &[f64; L]) -> f64 {
-        let mut w = 0.0;
+        let mut p = [0.0; L];
         for m in 0..L {
-            w += self.tip[m] * im[m];
+            p[m] = self.tip[m] * im[m];
         }
+        let w = lane_sum(p);
         (self.free_tip * rho).re + w + self.distance
     }
 
     /// Advances the lanes by one sample from drive phasor `rho` to `next` with the
-    /// thermal deviates `z` (one per mode lane). Returns whether it sub-stepped.
+    /// thermal deviates `z` (one per mode lane). Returns whether it sub-stepped; if it did,
+    /// `mid` holds the lanes' Im q at the sample's midpoint (for the ADC's filter).
     #[inline(always)]
     pub(crate) fn step<const L: usize>(
         &self,
@@ -199,13 +201,15 @@ impl CoupledKernel {
         rho: Complex64,
         next: Complex64,
         z: &[f64],
+        mid: &mut [f64; L],
     ) -> bool {
-        self.step_recorded(re, im, rho, next, z, &mut |_| {})
+        self.step_recorded(re, im, rho, next, z, mid, &mut |_| {})
     }
 
     /// [`step`](Self::step), handing `record` the force at the end of every sub-step
     /// ([`SUBSTEPS`] values per sample, the end-of-sample force repeated where the sample
     /// is one step). The real-time loop passes a no-op, which compiles away.
+    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     pub(crate) fn step_recorded<const L: usize>(
         &self,
@@ -214,6 +218,7 @@ impl CoupledKernel {
         rho: Complex64,
         next: Complex64,
         z: &[f64],
+        mid: &mut [f64; L],
         record: &mut impl FnMut(f64),
     ) -> bool {
         let gap0 = self.gap(rho, im);
@@ -235,7 +240,11 @@ impl CoupledKernel {
         }
         let mut r = rho;
         let mut g = g0;
-        for _ in 0..SUBSTEPS {
+        for j in 0..SUBSTEPS {
+            if j == SUBSTEPS / 2 {
+                // Kicks move Re q only, so Im q here is the midpoint's either side of one.
+                *mid = *im;
+            }
             if g != 0.0 {
                 self.kick_lanes(re, self.half_dt * g);
             }
@@ -257,16 +266,17 @@ impl CoupledKernel {
         }
     }
 
-    /// The modal states at drive phase 0 on the engine's own periodic orbit: the engine
-    /// run from the free orbit (h = 0, as an approach from far reaches it) without noise,
-    /// with a step of a whole fraction of the period near `h` so that whole periods end
-    /// at phase 0 again, for enough periods that mode 1's transient has decayed by
-    /// e^{−12}. Off the real-time thread (milliseconds).
+    /// The modal states at drive phase `theta` (rad) on the engine's own periodic orbit: the
+    /// engine run from the free orbit (h = 0, as an approach from far reaches it) without
+    /// noise, with a step of a whole fraction of the period near `h` so that whole periods
+    /// end at `theta` again, for enough periods that mode 1's transient has decayed by
+    /// e^{−15}. Off the real-time thread (milliseconds).
     pub(crate) fn steady_state(
         &self,
         modes: &[Mode],
         drive_response: &[Complex64],
         h: f64,
+        theta: f64,
     ) -> [Complex64; MAX_MODES] {
         let omega = self.omega;
         let period = 2.0 * PI / omega;
@@ -284,15 +294,16 @@ impl CoupledKernel {
             &silent,
         );
         let q1 = modes.first().map_or(1.0, |m| m.q);
-        let periods = ((12.0 * q1 / PI).ceil() as usize).clamp(50, 50_000);
+        let periods = ((15.0 * q1 / PI).ceil() as usize).clamp(50, 50_000);
         let (mut re, mut im) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
+        let mut mid = [0.0; MAX_MODES];
         let z = [0.0; MAX_MODES];
         for _ in 0..periods {
-            let mut rho = Complex64::new(1.0, 0.0);
+            let mut rho = Complex64::from_polar(1.0, theta);
             for j in 0..steps {
-                // Re-anchored every step: the orbit must close on phase 0 exactly.
-                let next = Complex64::from_polar(1.0, omega * step * (j + 1) as f64);
-                kernel.step(&mut re, &mut im, rho, next, &z);
+                // Re-anchored every step: the orbit must close on `theta` exactly.
+                let next = Complex64::from_polar(1.0, theta + omega * step * (j + 1) as f64);
+                kernel.step(&mut re, &mut im, rho, next, &z, &mut mid);
                 rho = next;
             }
         }
@@ -339,11 +350,12 @@ mod tests {
         let (mut b_re, mut b_im) = ([0.0; 8], [0.0; 8]);
         let rotation = Complex64::from_polar(1.0, 2.0 * PI * 100e3 * 1e-7);
         let mut rho = Complex64::new(1.0, 0.0);
+        let mut mid = [0.0; 8];
         for n in 0..5000 {
             let z: [f64; 8] = std::array::from_fn(|m| ((n * 7 + m * 13) % 11) as f64 - 5.0);
             let next = rho * rotation;
-            assert!(!one.step(&mut a_re, &mut a_im, rho, next, &z));
-            assert!(sub.step(&mut b_re, &mut b_im, rho, next, &z));
+            assert!(!one.step(&mut a_re, &mut a_im, rho, next, &z, &mut mid));
+            assert!(sub.step(&mut b_re, &mut b_im, rho, next, &z, &mut mid));
             rho = next;
         }
         for m in 0..5 {

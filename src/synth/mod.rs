@@ -1,8 +1,9 @@
 //! Photodiode synthesis on the real-time thread: every flexural mode as an exactly
 //! discretised oscillator, driven at the base and by the tap force, with thermal,
-//! detector and ADC noise. [`SynthPlan`] is built off the real-time thread; its
+//! detector and ADC noise, and the ADC's anti-alias filter ([`adc`]). [`SynthPlan`] is built off the real-time thread; its
 //! [`process`](SynthPlan::process) fills blocks without allocating, locking or blocking.
 
+pub mod adc;
 pub mod coupled;
 pub mod modal;
 pub mod plan;

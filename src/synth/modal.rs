@@ -72,3 +72,18 @@ impl ModalKernel {
         0.5 * (g.norm_sqr() / (1.0 - a.norm_sqr()) - (g * g / (1.0 - a * a)).re)
     }
 }
+
+/// Σ p[m] over `L` lanes (a power of two), added pairwise: independent additions the
+/// compiler keeps in vector registers, where a running sum would be a serial chain of `L`
+/// dependent additions in every sample of the hot loop.
+#[inline(always)]
+pub(crate) fn lane_sum<const L: usize>(mut p: [f64; L]) -> f64 {
+    let mut width = L;
+    while width > 1 {
+        width /= 2;
+        for m in 0..width {
+            p[m] += p[m + width];
+        }
+    }
+    p[0]
+}

@@ -6,6 +6,7 @@ use std::f64::consts::PI;
 
 use rustfft::num_complex::Complex64;
 
+use super::adc;
 use super::coupled::CoupledKernel;
 use super::modal::ModalKernel;
 use super::pulse::{PulseKernel, PulseTrain};
@@ -112,6 +113,10 @@ pub struct SynthPlan {
     pub detector_sigma: f64,
     /// ADC, if quantisation is on.
     pub adc: Option<Adc>,
+    /// The ADC's anti-alias filter ([`adc`]): its grid taps, or none to sample directly.
+    pub(crate) anti_alias: Option<[f64; adc::GRID_TAPS]>,
+    /// The drive phasor over half a sample, e^{iΩh/2}.
+    pub(crate) half_rotation: Complex64,
     /// Per-mode constants laid out for the hot loop.
     pub(crate) lanes: Lanes,
     /// Seed of the noise generator (`/synth/seed`).
@@ -136,10 +141,15 @@ pub(crate) struct Lanes {
     /// Thermal input per standard normal deviate: σ·∫₀ʰe^{λ(h−s)}ds, real and imaginary.
     pub noise_re: [f64; MAX_MODES],
     pub noise_im: [f64; MAX_MODES],
+    /// To the midpoint of a sample, for the ADC's filter: e^{λh/2}, and the imaginary part
+    /// of the thermal input held over the first half, σ·Im ∫₀^{h/2} e^{λ(h/2−s)}ds.
+    pub half_re: [f64; MAX_MODES],
+    pub half_im: [f64; MAX_MODES],
+    pub half_noise_im: [f64; MAX_MODES],
 }
 
 impl Lanes {
-    fn new(modes: &[ModalKernel], thermal_sigma: &[f64]) -> Self {
+    fn new(modes: &[ModalKernel], thermal_sigma: &[f64], h: f64) -> Self {
         let mut l = Self::default();
         for (m, (k, sigma)) in modes.iter().zip(thermal_sigma).enumerate() {
             l.a_re[m] = k.propagator.re;
@@ -147,6 +157,10 @@ impl Lanes {
             l.lever[m] = k.lever_gain;
             l.noise_re[m] = k.hold_gain.re * sigma;
             l.noise_im[m] = k.hold_gain.im * sigma;
+            let half = (k.lambda * (0.5 * h)).exp();
+            l.half_re[m] = half.re;
+            l.half_im[m] = half.im;
+            l.half_noise_im[m] = ((half - 1.0) / k.lambda).im * sigma;
         }
         l
     }
@@ -246,7 +260,7 @@ impl SynthPlan {
                 codes_per_metre: 1.0 / lsb,
             }
         });
-        let lanes = Lanes::new(&modes, &thermal_sigma);
+        let lanes = Lanes::new(&modes, &thermal_sigma, h);
         let coupled = (engine == Engine::Coupled).then(|| {
             let contact = model::impact_oscillator(settings, &cantilever, settings.sample).contact;
             CoupledKernel::new(
@@ -294,8 +308,28 @@ impl SynthPlan {
             thermal_sigma,
             detector_sigma,
             adc,
+            anti_alias: settings.synth.anti_alias.then(adc::grid_taps),
+            half_rotation: Complex64::from_polar(1.0, 0.5 * word as f64 / TURN * 2.0 * PI),
             epoch: 0,
         })
+    }
+
+    /// Drive phase word at which the sample synthesised at drive phase `phase` was taken:
+    /// `phase` itself, or the ADC filter's delay before it ([`adc::delayed_phase`]).
+    pub fn output_phase(&self, phase: u64) -> u64 {
+        if self.anti_alias.is_some() {
+            adc::delayed_phase(phase, self.frequency_word)
+        } else {
+            phase
+        }
+    }
+
+    /// Gain of the ADC's anti-alias filter at `frequency` f/f_s, its delay removed (1 for
+    /// every frequency without the filter): what the samples hold of a component at f.
+    pub fn front_end_gain(&self, frequency: f64) -> f64 {
+        self.anti_alias
+            .as_ref()
+            .map_or(1.0, |taps| adc::gain(taps, frequency))
     }
 
     /// The photodiode's free (no contact) steady drive response: Re[Ŝ·e^{iθ}] at drive
@@ -312,11 +346,11 @@ impl SynthPlan {
     /// Steady-state modal states at drive phase `theta` (rad) under the tap force alone:
     /// q_n = Σ_k (ikΩ − λ̄n)·Y_{n,k}·e^{ikθ} with Y_{n,k} = gain·c_k·Hn(kΩ)/ωn², summed over
     /// |k| ≤ 4096 (the terms fall off like 1/k³ past the pulse's bandwidth). With the
-    /// coupled engine: its own periodic orbit at phase 0 ([`CoupledKernel::steady_state`]).
+    /// coupled engine: its own periodic orbit ([`CoupledKernel::steady_state`]).
     pub(crate) fn tap_steady_state(&self, theta: f64) -> Vec<Complex64> {
         if let Some(coupled) = &self.coupled {
-            debug_assert_eq!(theta, 0.0, "the coupled orbit is found at phase 0");
-            let q = coupled.steady_state(&self.cantilever.modes, &self.drive_response, self.h);
+            let q =
+                coupled.steady_state(&self.cantilever.modes, &self.drive_response, self.h, theta);
             return q[..self.modes.len()].to_vec();
         }
         let Some(tap) = self.tap else {

@@ -38,6 +38,12 @@ pub struct PulseKernel {
     h: f64,
     /// Per mode: 1/(−λ + iν) and 1/(−λ − iν).
     inverse_rates: Vec<(Complex64, Complex64)>,
+    /// Per mode: e^{λh/2}, the propagator to the sample's midpoint.
+    half_propagators: Vec<Complex64>,
+    /// e^{iνh} and e^{iνh/2}: the pulse's phasor across a whole and a half sample, so a
+    /// sample inside the pulse needs one sine and cosine, not two.
+    rotation: Complex64,
+    half_rotation: Complex64,
 }
 
 /// Where the pulse lies within one sample interval [t_n, t_n + h], in seconds from t_n.
@@ -71,6 +77,9 @@ impl PulseKernel {
             nu: 0.0,
             h,
             inverse_rates: Vec::with_capacity(MAX_MODES),
+            half_propagators: Vec::with_capacity(MAX_MODES),
+            rotation: Complex64::new(1.0, 0.0),
+            half_rotation: Complex64::new(1.0, 0.0),
         }
     }
 
@@ -94,11 +103,15 @@ impl PulseKernel {
         self.nu = if tau > 0.0 { PI / (tau * period) } else { 0.0 };
         self.h = h;
         self.max_force = if tau > 0.0 { train.max_force } else { 0.0 };
+        self.rotation = Complex64::from_polar(1.0, self.nu * h);
+        self.half_rotation = Complex64::from_polar(1.0, 0.5 * self.nu * h);
         self.inverse_rates.clear();
+        self.half_propagators.clear();
         let i_nu = Complex64::new(0.0, self.nu);
         for m in modes {
             self.inverse_rates
                 .push(((-m.lambda + i_nu).inv(), (-m.lambda - i_nu).inv()));
+            self.half_propagators.push((m.lambda * (0.5 * h)).exp());
         }
     }
 
@@ -135,14 +148,67 @@ impl PulseKernel {
         })
     }
 
+    /// Adds to `re`, `im` the exact response at the sample's midpoint h/2 to the part of
+    /// the pulse in `overlap` ∩ [0, h/2]: F·gain·∫ e^{λ(h/2−s)}·cos(ν(s − centre)) ds. The
+    /// synthesiser reads the midpoint for the ADC's filter with it.
+    #[inline]
+    pub fn apply_to_midpoint(
+        &self,
+        overlap: &Overlap,
+        modes: &[ModalKernel],
+        re: &mut [f64],
+        im: &mut [f64],
+    ) {
+        let end = 0.5 * self.h;
+        let a = overlap.a;
+        let b = overlap.b.min(end);
+        if b <= a {
+            return;
+        }
+        let ca = Complex64::from_polar(1.0, self.nu * (a - overlap.centre));
+        let cb = if a <= 0.0 && b >= end {
+            ca * self.half_rotation
+        } else {
+            Complex64::from_polar(1.0, self.nu * (b - overlap.centre))
+        };
+        for ((((m, re), im), (inv_plus, inv_minus)), half) in modes
+            .iter()
+            .zip(re.iter_mut())
+            .zip(im.iter_mut())
+            .zip(&self.inverse_rates)
+            .zip(&self.half_propagators)
+        {
+            // The constants 1 and e^{λh/2} at the half's ends (inside a pulse), else computed.
+            let e_b = if b >= end {
+                Complex64::new(1.0, 0.0)
+            } else {
+                (m.lambda * (end - b)).exp()
+            };
+            let e_a = if a <= 0.0 {
+                *half
+            } else {
+                (m.lambda * (end - a)).exp()
+            };
+            let plus = (e_b * cb - e_a * ca) * inv_plus;
+            let minus = (e_b * cb.conj() - e_a * ca.conj()) * inv_minus;
+            let dq = (plus + minus) * (0.5 * self.max_force * m.force_gain);
+            *re += dq.re;
+            *im += dq.im;
+        }
+    }
+
     /// Adds to the modal states (`re`, `im`: real and imaginary parts of q, one per mode)
     /// the exact response to the pulse over `overlap`:
     /// F·gain·∫_a^b e^{λ(h−s)}·cos(ν(s − centre)) ds for each mode.
     #[inline]
     pub fn apply(&self, overlap: &Overlap, modes: &[ModalKernel], re: &mut [f64], im: &mut [f64]) {
         let Overlap { a, b, centre } = *overlap;
-        let cb = Complex64::from_polar(1.0, self.nu * (b - centre));
         let ca = Complex64::from_polar(1.0, self.nu * (a - centre));
+        let cb = if a <= 0.0 && b >= self.h {
+            ca * self.rotation
+        } else {
+            Complex64::from_polar(1.0, self.nu * (b - centre))
+        };
         for (((m, re), im), (inv_plus, inv_minus)) in modes
             .iter()
             .zip(re.iter_mut())

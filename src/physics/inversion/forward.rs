@@ -183,6 +183,26 @@ impl LockInModel {
         })
     }
 
+    /// The model seen through a front end of real gain `gain(f/f_s)` (its delay removed)
+    /// before the sampler, e.g. the ADC's anti-alias filter: each demodulated harmonic's
+    /// transfer and each alias's is scaled by the gain at its own frequency (f/f_s of the
+    /// harmonic, before folding). Without a sample rate it changes nothing.
+    /// [`transfer_any`](Self::transfer_any) stays the light lever's alone.
+    #[must_use]
+    pub fn with_front_end(mut self, gain: impl Fn(f64) -> f64) -> Self {
+        let Some(fs) = self.sample_rate else {
+            return self;
+        };
+        let ratio = self.drive_frequency / fs;
+        for r in &mut self.readings {
+            r.transfer *= gain(r.harmonic as f64 * ratio);
+            for a in &mut r.aliases {
+                a.transfer *= gain(a.harmonic as f64 * ratio);
+            }
+        }
+        self
+    }
+
     /// The cantilever.
     pub fn cantilever(&self) -> &Cantilever {
         &self.cantilever

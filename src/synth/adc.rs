@@ -1,0 +1,224 @@
+//! The ADC's anti-alias filter: the photodiode signal is taken at twice the sample rate and
+//! decimated by a linear-phase halfband FIR, as an oversampling (sigma-delta) converter's
+//! digital filter does, so that what lies above the Nyquist frequency does not fold onto
+//! the harmonics.
+//!
+//! The model, at output rate f_s (docs/signal-chain.md states it for users):
+//! - the signal is taken at t_n and at the midpoints t_n + h/2 (exact: the modal states
+//!   are propagated there, with the same held thermal input and the exact tap force);
+//! - a halfband FIR of [`TAPS`] taps at 2·f_s (Kaiser window, β = [`KAISER_BETA`]) keeps
+//!   0 … 0.4·f_s within ±4e-5 in amplitude and stops 0.6·f_s … 1.4·f_s by ≥ 88 dB
+//!   (measured in this module's tests: 3.4e-5 both); 0.5·f_s is attenuated by 6 dB;
+//! - it is linear-phase with a delay of [`DELAY_HALF_SAMPLES`]/2 output samples: output
+//!   sample n is the filtered signal at t_n − D, D = 14.5/f_s (1.45 µs at 10 MS/s). The
+//!   synthesiser stamps each block with the drive phase at t_n − D, so the lock-in, the
+//!   scope's drive phase and everything downstream see no phase shift from it;
+//! - detector noise and quantisation act after it, at f_s.
+//!
+//! What still aliases: content above 1.6·f_s, which folds into the passband already at
+//! 2·f_s; the tap force's harmonics there are ≥ 60 dB below those they land on (the
+//! lock-in test in tests/synth.rs measures what is left).
+
+/// Half-length K of the halfband: [`TAPS`] = 4K + 3.
+const K: usize = 14;
+/// Taps of the halfband FIR at twice the sample rate (odd taps but the centre are zero).
+pub const TAPS: usize = 4 * K + 3;
+/// Non-zero taps on the grid samples t_n (the centre tap, 1/2, is on a midpoint).
+pub const GRID_TAPS: usize = 2 * K + 2;
+/// Grid samples of history the filter keeps.
+pub const GRID_HISTORY: usize = GRID_TAPS - 1;
+/// Midpoint samples of history: the centre tap reads the midpoint K + 1 samples back.
+pub const MID_HISTORY: usize = K + 1;
+/// The filter's delay in half output samples, 2K + 1: D = 14.5 samples.
+pub const DELAY_HALF_SAMPLES: u64 = 2 * K as u64 + 1;
+/// Kaiser window parameter: β = 0.1102·(A − 8.7) for a design attenuation A = 90 dB.
+pub const KAISER_BETA: f64 = 0.1102 * (90.0 - 8.7);
+
+/// Drive phase word `D` before `phase`, for a drive of `frequency_word` words per sample:
+/// the phase at which an output sample was taken (exact modulo 2^64).
+pub fn delayed_phase(phase: u64, frequency_word: u64) -> u64 {
+    let delay = (u128::from(frequency_word) * u128::from(DELAY_HALF_SAMPLES)) >> 1;
+    phase.wrapping_sub(delay as u64)
+}
+
+/// The grid taps c_{2i}, i = 0 … 2K + 1, of the halfband; the centre tap is 1/2.
+pub fn grid_taps() -> [f64; GRID_TAPS] {
+    let centre = (2 * K + 1) as f64;
+    let half = centre;
+    let mut taps = [0.0; GRID_TAPS];
+    for (i, tap) in taps.iter_mut().enumerate() {
+        let x = 2.0 * i as f64 - centre; // odd, so the sinc is not at its centre
+        let sinc = (std::f64::consts::FRAC_PI_2 * x).sin() / (std::f64::consts::PI * x);
+        let r = x / half;
+        *tap =
+            sinc * bessel_i0(KAISER_BETA * (1.0 - r * r).max(0.0).sqrt()) / bessel_i0(KAISER_BETA);
+    }
+    // DC gain exactly 1: the grid taps carry one half, the centre tap the other.
+    let sum: f64 = taps.iter().sum();
+    taps.iter_mut().for_each(|t| *t *= 0.5 / sum);
+    taps
+}
+
+/// The modified Bessel function I₀ by its power series (converges for every argument
+/// used here, β ≤ 10, to machine precision in < 40 terms).
+fn bessel_i0(x: f64) -> f64 {
+    let mut term = 1.0;
+    let mut sum = 1.0;
+    let q = 0.25 * x * x;
+    for k in 1..60 {
+        term *= q / (k * k) as f64;
+        sum += term;
+        if term < 1e-17 * sum {
+            break;
+        }
+    }
+    sum
+}
+
+/// Complex gain of the filter at `frequency` f/f_s (cycles per output sample), its delay
+/// removed: real, 1 at DC, 1/2 at f_s/2.
+pub fn gain(taps: &[f64; GRID_TAPS], frequency: f64) -> f64 {
+    // Grid tap i sits at 2i − (2K + 1) half samples from the centre.
+    let mut g = 0.5;
+    for (i, c) in taps.iter().enumerate() {
+        let offset = (2 * i) as f64 - (2 * K + 1) as f64;
+        g += c * (std::f64::consts::PI * frequency * offset).cos();
+    }
+    g
+}
+
+/// The filter's state: the grid and midpoint samples of the current chunk behind their
+/// histories. Allocated once, off the real-time thread.
+#[derive(Clone, Debug)]
+pub struct AdcFilter {
+    /// [`GRID_HISTORY`] past grid samples, then the chunk's.
+    pub(crate) grid: Vec<f64>,
+    /// [`MID_HISTORY`] past midpoints, then the chunk's.
+    pub(crate) mid: Vec<f64>,
+    /// Whether the CPU has AVX2 and FMA.
+    fma: bool,
+}
+
+impl AdcFilter {
+    /// A filter for chunks of up to `chunk` samples, its history filled by `past(j)`,
+    /// the signal j half samples before the first output (j = 1, 2, …).
+    pub fn new(chunk: usize, past: impl Fn(usize) -> f64) -> Self {
+        let mut grid = vec![0.0; GRID_HISTORY + chunk];
+        let mut mid = vec![0.0; MID_HISTORY + chunk];
+        for (i, g) in grid[..GRID_HISTORY].iter_mut().enumerate() {
+            *g = past(2 * (GRID_HISTORY - i));
+        }
+        for (i, m) in mid[..MID_HISTORY].iter_mut().enumerate() {
+            *m = past(2 * (MID_HISTORY - i) - 1);
+        }
+        Self {
+            grid,
+            mid,
+            fma: fma_available(),
+        }
+    }
+
+    /// Filters the `n` grid and midpoint samples written behind the histories into `out`
+    /// (`out.len()` = n), then keeps the newest as history. Allocation-free. With AVX2 and
+    /// FMA (detected once, at construction) the taps are fused multiply-adds, four lanes
+    /// wide; the last bits then differ from the portable path's.
+    #[inline]
+    pub(crate) fn decimate(&mut self, taps: &[f64; GRID_TAPS], out: &mut [f64]) {
+        #[cfg(target_arch = "x86_64")]
+        if self.fma {
+            // SAFETY: `fma` is true only where the CPU has AVX2 and FMA.
+            unsafe { self.decimate_avx2_fma(taps, out) };
+            return;
+        }
+        self.decimate_with::<false>(taps, out);
+    }
+
+    /// [`decimate`](Self::decimate) compiled for AVX2 and FMA. The CPU must have both.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn decimate_avx2_fma(&mut self, taps: &[f64; GRID_TAPS], out: &mut [f64]) {
+        self.decimate_with::<true>(taps, out);
+    }
+
+    #[inline(always)]
+    fn decimate_with<const FUSED: bool>(&mut self, taps: &[f64; GRID_TAPS], out: &mut [f64]) {
+        let n = out.len();
+        // Output i reads grid samples i … i + 2K + 1 of the buffer (oldest first) and the
+        // midpoint i of the buffer, K + 1 samples back. Tap by tap over all outputs: the
+        // outputs are independent, so this loop vectorises (a dot product per output would
+        // be a serial chain of additions).
+        for (y, m) in out.iter_mut().zip(&self.mid[..n]) {
+            *y = 0.5 * m;
+        }
+        for (t, &c) in taps.iter().rev().enumerate() {
+            for (y, x) in out.iter_mut().zip(&self.grid[t..t + n]) {
+                *y = if FUSED { c.mul_add(*x, *y) } else { *y + c * x };
+            }
+        }
+        self.grid.copy_within(n..n + GRID_HISTORY, 0);
+        self.mid.copy_within(n..n + MID_HISTORY, 0);
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+fn fma_available() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn fma_available() -> bool {
+    false
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_passband_is_flat_to_0_4_fs_and_the_stopband_is_88_db_down() {
+        let taps = grid_taps();
+        let mut worst_pass: f64 = 0.0;
+        let mut worst_stop: f64 = 0.0;
+        for j in 0..=4000 {
+            let f = j as f64 / 4000.0; // 0 … f_s: the FIR at 2 f_s repeats beyond
+            let g = gain(&taps, f);
+            if f <= 0.4 {
+                worst_pass = worst_pass.max((g - 1.0).abs());
+            }
+            if f >= 0.6 {
+                worst_stop = worst_stop.max(g.abs());
+            }
+        }
+        assert!(worst_pass < 4e-5, "passband ripple {worst_pass:e}");
+        assert!(worst_stop < 4e-5, "stopband {worst_stop:e}");
+        assert!((gain(&taps, 0.5) - 0.5).abs() < 1e-12);
+        assert!((gain(&taps, 0.0) - 1.0).abs() < 1e-15);
+    }
+
+    #[test]
+    fn a_sinusoid_comes_out_delayed_by_14_5_samples_and_unchanged_in_amplitude() {
+        let taps = grid_taps();
+        let f = 0.3137; // cycles per output sample
+        let x = |half: f64| (std::f64::consts::PI * f * half + 0.4).cos();
+        let mut adc = AdcFilter::new(64, |j| x(-(j as f64)));
+        let mut out = vec![0.0; 64];
+        for n in 0..64 {
+            adc.grid[GRID_HISTORY + n] = x(2.0 * n as f64);
+            adc.mid[MID_HISTORY + n] = x(2.0 * n as f64 + 1.0);
+        }
+        adc.decimate(&taps, &mut out);
+        for (n, y) in out.iter().enumerate() {
+            let want = x(2.0 * n as f64 - DELAY_HALF_SAMPLES as f64);
+            assert!((y - want).abs() < 4e-5, "sample {n}: {y} vs {want}");
+        }
+    }
+
+    #[test]
+    fn the_delayed_phase_is_exact() {
+        assert_eq!(delayed_phase(0, 2), 0u64.wrapping_sub(29));
+        assert_eq!(
+            delayed_phase(1 << 40, 1 << 60),
+            (1u64 << 40).wrapping_sub(29 << 59)
+        );
+    }
+}
