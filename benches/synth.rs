@@ -1,5 +1,6 @@
 //! Photodiode synthesis throughput (goal: ≥ 50 MS/s on one core, 5 modes, noise on), for
-//! both engines at the default (Table 1) operating point.
+//! both engines at the default (Table 1) operating point, with the ADC's anti-alias filter
+//! (the default) and sampling directly (`_direct`).
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ftafm::config::{Engine, default_settings};
@@ -9,15 +10,23 @@ fn synth(c: &mut Criterion) {
     let mut group = c.benchmark_group("synth");
     const BLOCK: usize = 4096;
     group.throughput(Throughput::Elements(BLOCK as u64));
-    for (name, noise, engine) in [
-        ("5_modes_noise_on", true, Engine::Paper),
-        ("5_modes_noise_off", false, Engine::Paper),
-        ("coupled_5_modes_noise_on", true, Engine::Coupled),
-        ("coupled_5_modes_noise_off", false, Engine::Coupled),
+    for (name, noise, engine, anti_alias) in [
+        ("5_modes_noise_on", true, Engine::Paper, true),
+        ("5_modes_noise_off", false, Engine::Paper, true),
+        ("coupled_5_modes_noise_on", true, Engine::Coupled, true),
+        ("coupled_5_modes_noise_off", false, Engine::Coupled, true),
+        ("5_modes_noise_on_direct", true, Engine::Paper, false),
+        (
+            "coupled_5_modes_noise_on_direct",
+            true,
+            Engine::Coupled,
+            false,
+        ),
     ] {
         let mut settings = default_settings();
         settings.noise.enable = noise;
         settings.synth.engine = engine;
+        settings.synth.anti_alias = anti_alias;
         let plan = SynthPlan::new(&settings).expect("default plan");
         let mut state = SynthState::steady(&plan, 1);
         let mut block = vec![0.0; BLOCK];

@@ -308,21 +308,48 @@ fn every_op_parses() {
             parse_ok(&text).op,
             Op::Subscribe {
                 stream,
-                format: Format::Json
+                format: Format::Json,
+                every: 1
             }
         );
         for format in [Format::Json, Format::Binary] {
             let text = format!(r#"{{"op":"subscribe","stream":"{stream}","format":"{format}"}}"#);
-            assert_eq!(parse_ok(&text).op, Op::Subscribe { stream, format });
+            assert_eq!(
+                parse_ok(&text).op,
+                Op::Subscribe {
+                    stream,
+                    format,
+                    every: 1
+                }
+            );
         }
         let text = format!(r#"{{"op":"subscribe","stream":"{stream}","format":null}}"#);
         assert_eq!(
             parse_ok(&text).op,
             Op::Subscribe {
                 stream,
-                format: Format::Json
+                format: Format::Json,
+                every: 1
             }
         );
+        let text = format!(r#"{{"op":"subscribe","stream":"{stream}","every":20}}"#);
+        assert_eq!(
+            parse_ok(&text).op,
+            Op::Subscribe {
+                stream,
+                format: Format::Json,
+                every: 20
+            }
+        );
+        for bad in ["0", "-1", "1.5", "\"2\"", "1000001", "true"] {
+            let text = format!(r#"{{"op":"subscribe","stream":"{stream}","every":{bad}}}"#);
+            assert_error(
+                &text,
+                ErrorCode::BadRequest,
+                Value::Null,
+                &["field \"every\" must be an integer 1 … 1000000"],
+            );
+        }
         let text = format!(r#"{{"op":"unsubscribe","stream":"{stream}","id":{{"k":2}}}}"#);
         let r = parse_ok(&text);
         assert_eq!(r.op, Op::Unsubscribe { stream });

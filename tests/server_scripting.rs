@@ -219,3 +219,61 @@ async fn settings_go_out_as_a_config_file_and_come_back() {
     assert_eq!(code(&missing), "bad_request");
     d.shutdown().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_subscription_can_take_every_nth_message_and_still_sees_its_losses_as_gaps() {
+    // A page that draws at 50 Hz takes every 20th frame of the 1 kHz demodulator stream:
+    // the seqs it gets are the multiples of 20, consecutive ones 20 apart, so a loss would
+    // still show as a gap (of a multiple of 20).
+    let d = Daemon::start(light()).await;
+    let mut ws = connect(d.addr).await;
+    let reply = call(
+        &mut ws,
+        json!({"id": 1, "op": "subscribe", "stream": "demods", "every": 20}),
+    )
+    .await;
+    assert_eq!(reply["ok"], true, "{reply}");
+    assert_eq!(reply["every"], 20, "{reply}");
+    let mut last: Option<u64> = None;
+    for _ in 0..10 {
+        let seq = next_of(&mut ws, "demods").await["seq"].as_u64().unwrap();
+        assert_eq!(seq % 20, 0, "seq {seq}");
+        if let Some(last) = last {
+            assert_eq!(seq - last, 20, "{last} → {seq}");
+        }
+        last = Some(seq);
+    }
+    // Subscribing again with the default takes every message from then on.
+    call(
+        &mut ws,
+        json!({"id": 2, "op": "subscribe", "stream": "demods"}),
+    )
+    .await;
+    let mut seqs = Vec::new();
+    while seqs.len() < 30 {
+        let seq = next_of(&mut ws, "demods").await["seq"].as_u64().unwrap();
+        if seq > last.unwrap() {
+            seqs.push(seq);
+        }
+    }
+    // Frames already queued before the change may still be 20 apart; after them, all.
+    assert!(
+        seqs.windows(2).rev().take(20).all(|w| w[1] == w[0] + 1),
+        "{seqs:?}"
+    );
+    // A bad value changes nothing and names the field and its range.
+    let bad = call(
+        &mut ws,
+        json!({"id": 3, "op": "subscribe", "stream": "demods", "every": 0}),
+    )
+    .await;
+    assert_eq!(bad["ok"], false, "{bad}");
+    assert!(
+        bad["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("\"every\" must be an integer 1 … 1000000"),
+        "{bad}"
+    );
+    d.shutdown().await;
+}

@@ -96,6 +96,7 @@ async function refreshParams() {
 }
 
 let lastSeq = {};
+const every = {}; // per stream: the subscription's `every` (1 when absent)
 const connEl = document.getElementById("conn");
 const connText = document.getElementById("conn-text");
 const facts = document.getElementById("facts");
@@ -135,7 +136,8 @@ function onData(m, recvMs) {
   if (!(s in stats.messages)) return;
   stats.messages[s]++;
   const prev = lastSeq[s];
-  if (prev !== undefined && m.seq > prev + 1) stats.gaps[s] += m.seq - prev - 1;
+  const step = every[s] ?? 1; // a stream taken every n-th message advances by n
+  if (prev !== undefined && m.seq > prev + step) stats.gaps[s] += (m.seq - prev - step) / step;
   lastSeq[s] = m.seq;
   if (s === "demods") {
     app.history.push(m.t, m.demods);
@@ -149,8 +151,12 @@ function onData(m, recvMs) {
   }
 }
 
-/** A stream (re)subscribed: its seq starts afresh, so no gap is counted against the old one. */
-app.resetSeq = (stream) => { delete lastSeq[stream]; };
+/** A stream (re)subscribed, taking every `step`-th message: its seq starts afresh, so no gap
+ * is counted against the old one. */
+app.resetSeq = (stream, step = 1) => {
+  delete lastSeq[stream];
+  every[stream] = step;
+};
 
 app.conn = new Connection(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`, { onState, onOpen, onData });
 

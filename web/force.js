@@ -8,6 +8,7 @@ import { si } from "./units.js";
 import { forceWaveform } from "./conn.js";
 
 const TREND_S = 10; // seconds of trend shown
+const FORCE_PAGE_HZ = 50; // force estimates a second the page takes at most
 const STATS_S = 0.5; // running mean ± std window
 const CAP = 16384; // ring capacity: > 10 s at 1 kHz
 const MIN_FRAME_MS = 26; // ~30 fps, as the harmonics plots
@@ -75,8 +76,13 @@ export class ForcePanel {
     this.busy = true;
     try {
       if (want) {
-        this.app.resetSeq?.("force");
-        await conn.request("subscribe", { stream: "force", format: "binary" });
+        // The page draws at most ~50 estimates a second: it takes every n-th of the stream
+        // (`every`), so it keeps up and a seq gap is a real loss.
+        const node = (p) => Number(this.app.nodes.get(p)?.value);
+        const rate = node("/demods/0/rate") / Math.max(1, node("/inversion/averaging") || 1);
+        const every = Number.isFinite(rate) ? Math.max(1, Math.round(rate / FORCE_PAGE_HZ)) : 1;
+        this.app.resetSeq?.("force", every);
+        await conn.request("subscribe", { stream: "force", format: "binary", every });
       } else {
         await conn.request("unsubscribe", { stream: "force" });
       }

@@ -71,6 +71,10 @@ pub(crate) fn distribute(
         let Some(format) = client.format(s) else {
             continue;
         };
+        if !client.takes(s, seq) {
+            // Skipped at the client's request (`every`), not lost: no gap, no drop.
+            continue;
+        }
         let msg = match format {
             Format::Json => text_msg
                 .get_or_insert_with(|| {

@@ -415,13 +415,17 @@ async fn respond(
             })
             .await
         }
-        Op::Subscribe { stream, format } => {
-            client.subscribe(stream, format);
+        Op::Subscribe {
+            stream,
+            format,
+            every,
+        } => {
+            client.subscribe(stream, format, every);
             let next_seq = state.streams[super::state::stream_index(stream)]
                 .produced
                 .load(Ordering::Relaxed);
             Ok(fields(
-                json!({ "stream": stream.name(), "next_seq": next_seq }),
+                json!({ "stream": stream.name(), "next_seq": next_seq, "every": every }),
             ))
         }
         Op::Unsubscribe { stream } => {

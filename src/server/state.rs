@@ -1,7 +1,7 @@
 //! What every part of the server shares: the control plane (settings and pipeline), the
 //! client registry with per-stream statistics, and the shutdown signal.
 
-use std::sync::atomic::{AtomicU8, AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU8, AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -255,6 +255,8 @@ pub(crate) struct ClientHandle {
     pub id: u64,
     /// Per stream: 0 = not subscribed, 1 = JSON, 2 = binary.
     subs: [AtomicU8; STREAMS],
+    /// Per stream: deliver only messages whose seq is a multiple of this (0 or 1: all).
+    every: [AtomicU32; STREAMS],
     /// Data messages for this client (bounded: a slow client loses its own).
     pub data: DataQueue,
     /// Messages dropped for this client.
@@ -270,6 +272,7 @@ impl ClientHandle {
         Self {
             id,
             subs: Default::default(),
+            every: Default::default(),
             data,
             dropped: AtomicU64::new(0),
             written: AtomicU64::new(0),
@@ -326,12 +329,20 @@ impl ClientHandle {
         }
     }
 
-    pub fn subscribe(&self, stream: StreamKind, format: Format) {
+    /// Receive `stream` in `format`, only the messages whose seq is a multiple of `every`.
+    pub fn subscribe(&self, stream: StreamKind, format: Format, every: u32) {
         let v = match format {
             Format::Json => 1,
             Format::Binary => 2,
         };
+        self.every[stream_index(stream)].store(every.max(1), Ordering::Relaxed);
         self.subs[stream_index(stream)].store(v, Ordering::Relaxed);
+    }
+
+    /// Whether this client takes message `seq` of stream `stream` (by its `every`).
+    pub fn takes(&self, stream: usize, seq: u64) -> bool {
+        let every = u64::from(self.every[stream].load(Ordering::Relaxed).max(1));
+        seq % every == 0
     }
 
     pub fn unsubscribe(&self, stream: StreamKind) {

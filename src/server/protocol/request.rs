@@ -44,6 +44,9 @@ pub enum Op {
         stream: StreamKind,
         /// JSON text frames (default) or binary frames.
         format: Format,
+        /// Only every n-th message of the stream: those whose `seq` is a multiple of n
+        /// (1, the default: all of them).
+        every: u32,
     },
     /// The presets (real cantilevers and samples) the instrument can load.
     Presets,
@@ -266,6 +269,7 @@ fn parse_op(fields: &Map<String, Value>) -> Result<Op, ProtocolError> {
         "subscribe" => Ok(Op::Subscribe {
             stream: stream(fields, op)?,
             format: format(fields)?,
+            every: every(fields)?,
         }),
         "unsubscribe" => Ok(Op::Unsubscribe {
             stream: stream(fields, op)?,
@@ -389,6 +393,25 @@ fn format(fields: &Map<String, Value>) -> Result<Format, ProtocolError> {
             .ok_or_else(|| bad(format!("field \"format\" {allowed}, got {}", quote(name)))),
         Some(other) => Err(bad(format!(
             "field \"format\" {allowed}, got {}",
+            describe(other)
+        ))),
+    }
+}
+
+/// Most messages a subscription may skip between two it delivers.
+pub const MAX_EVERY: u32 = 1_000_000;
+
+fn every(fields: &Map<String, Value>) -> Result<u32, ProtocolError> {
+    let allowed = format!("must be an integer 1 … {MAX_EVERY} (1, the default: every message)");
+    match fields.get("every") {
+        None | Some(Value::Null) => Ok(1),
+        Some(Value::Number(n)) => n
+            .as_u64()
+            .filter(|&n| (1..=u64::from(MAX_EVERY)).contains(&n))
+            .map(|n| n as u32)
+            .ok_or_else(|| bad(format!("field \"every\" {allowed}, got {n}"))),
+        Some(other) => Err(bad(format!(
+            "field \"every\" {allowed}, got {}",
             describe(other)
         ))),
     }
