@@ -78,9 +78,10 @@ export class ForcePanel {
       if (want) {
         // The page draws at most ~50 estimates a second: it takes every n-th of the stream
         // (`every`), so it keeps up and a seq gap is a real loss.
-        const node = (p) => Number(this.app.nodes.get(p)?.value);
-        const rate = node("/demods/0/rate") / Math.max(1, node("/inversion/averaging") || 1);
-        const every = Number.isFinite(rate) ? Math.max(1, Math.round(rate / FORCE_PAGE_HZ)) : 1;
+        // Before `list` has answered the rates are unknown: assume the default 1 kHz.
+        const node = (p, fallback) => Number(this.app.nodes.get(p)?.value ?? fallback);
+        const rate = node("/demods/0/rate", 1000) / Math.max(1, node("/inversion/averaging", 1) || 1);
+        const every = Number.isFinite(rate) ? Math.max(1, Math.round(rate / FORCE_PAGE_HZ)) : 20;
         this.app.resetSeq?.("force", every);
         await conn.request("subscribe", { stream: "force", format: "binary", every });
       } else {

@@ -61,11 +61,14 @@ pub(crate) fn distribute(
     };
     let (mut json, mut binary) = (Some(json), Some(binary));
     let max_bytes = state.queue_bytes.load(Ordering::Relaxed);
-    // Scan lines and status are small and rare: they take the lane, never lost behind bulk.
+    // Scan lines, status and sweep points are small and rare: they take the lane, never
+    // lost behind bulk; so do force estimates for a client that paces them (`every`), as the
+    // dashboard does for its trends.
     let lane = matches!(
         stream,
         StreamKind::Status | StreamKind::Image | StreamKind::Sweep
     );
+    let paced_lane = stream == StreamKind::Force;
     let (mut text_msg, mut bin_msg): (Option<Message>, Option<Message>) = (None, None);
     for client in clients.iter() {
         let Some(format) = client.format(s) else {
@@ -89,6 +92,7 @@ pub(crate) fn distribute(
                 })
                 .clone(),
         };
+        let lane = lane || (paced_lane && client.paced(s));
         match client.data.offer(msg, stamps, max_bytes, lane) {
             Ok(()) => {
                 state.streams[s].sent.fetch_add(1, Ordering::Relaxed);

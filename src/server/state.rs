@@ -143,7 +143,9 @@ fn payload_bytes(msg: &Message) -> usize {
     }
 }
 
-/// Messages the lane of a client holds: scan lines (a 1024-line frame) and status.
+/// Messages the lane of a client holds: scan lines (a 1024-line frame), status, sweep points
+/// and force estimates of a paced (`every` > 1) subscription; its bytes have a bound of
+/// their own, the queue's.
 const LANE: usize = 4096;
 
 /// A client's queue of data messages, bounded in messages and in bytes (a slow client loses
@@ -153,6 +155,8 @@ pub(crate) struct DataQueue {
     tx: mpsc::Sender<Outgoing>,
     lane: mpsc::Sender<Outgoing>,
     bytes: Arc<AtomicUsize>,
+    /// The lane's share of `bytes`.
+    lane_bytes: Arc<AtomicUsize>,
 }
 
 /// The writer's end of a [`DataQueue`].
@@ -160,6 +164,7 @@ pub(crate) struct DataReceiver {
     rx: mpsc::Receiver<Outgoing>,
     lane: mpsc::Receiver<Outgoing>,
     bytes: Arc<AtomicUsize>,
+    lane_bytes: Arc<AtomicUsize>,
 }
 
 impl DataReceiver {
@@ -167,7 +172,10 @@ impl DataReceiver {
     pub async fn recv(&mut self) -> Option<Outgoing> {
         let o = tokio::select! {
             biased;
-            Some(o) = self.lane.recv() => o,
+            Some(o) = self.lane.recv() => {
+                self.lane_bytes.fetch_sub(o.size, Ordering::Relaxed);
+                o
+            }
             Some(o) = self.rx.recv() => o,
             else => return None,
         };
@@ -183,16 +191,19 @@ impl DataQueue {
         let (tx, rx) = mpsc::channel(capacity);
         let (lane_tx, lane_rx) = mpsc::channel(LANE);
         let bytes = Arc::new(AtomicUsize::new(0));
+        let lane_bytes = Arc::new(AtomicUsize::new(0));
         (
             Self {
                 tx,
                 lane: lane_tx,
                 bytes: bytes.clone(),
+                lane_bytes: lane_bytes.clone(),
             },
             DataReceiver {
                 rx,
                 lane: lane_rx,
                 bytes,
+                lane_bytes,
             },
         )
     }
@@ -204,8 +215,9 @@ impl DataQueue {
 
     /// Queues `msg` with `stamps` without waiting. A full queue refuses it: all its
     /// messages, or `max_bytes` (unless the queue is empty, so one message larger than the
-    /// bound still goes). Messages for the `lane` (scan lines, status) bypass both bounds up
-    /// to the lane's own [`LANE`] messages, so they never starve behind spectra.
+    /// bound still goes). Messages for the `lane` (scan lines, status, sweep points, paced
+    /// force estimates) bypass the bulk's bounds and have their own: [`LANE`] messages and
+    /// `max_bytes`, so they never starve behind spectra.
     pub fn offer(
         &self,
         msg: Message,
@@ -214,14 +226,24 @@ impl DataQueue {
         lane: bool,
     ) -> Result<(), TrySendError<Message>> {
         let size = payload_bytes(&msg);
-        let queued = self.bytes.load(Ordering::Relaxed);
-        if !lane && queued > 0 && queued.saturating_add(size) > max_bytes {
+        let queued = if lane {
+            self.lane_bytes.load(Ordering::Relaxed)
+        } else {
+            self.bytes.load(Ordering::Relaxed)
+        };
+        if queued > 0 && queued.saturating_add(size) > max_bytes {
             return Err(TrySendError::Full(msg));
         }
         self.bytes.fetch_add(size, Ordering::Relaxed);
+        if lane {
+            self.lane_bytes.fetch_add(size, Ordering::Relaxed);
+        }
         let queue = if lane { &self.lane } else { &self.tx };
         queue.try_send(Outgoing { msg, stamps, size }).map_err(|e| {
             self.bytes.fetch_sub(size, Ordering::Relaxed);
+            if lane {
+                self.lane_bytes.fetch_sub(size, Ordering::Relaxed);
+            }
             match e {
                 TrySendError::Full(o) => TrySendError::Full(o.msg),
                 TrySendError::Closed(o) => TrySendError::Closed(o.msg),
@@ -337,6 +359,11 @@ impl ClientHandle {
         };
         self.every[stream_index(stream)].store(every.max(1), Ordering::Relaxed);
         self.subs[stream_index(stream)].store(v, Ordering::Relaxed);
+    }
+
+    /// Whether this client's subscription to `stream` is paced (`every` > 1).
+    pub fn paced(&self, stream: usize) -> bool {
+        self.every[stream].load(Ordering::Relaxed) > 1
     }
 
     /// Whether this client takes message `seq` of stream `stream` (by its `every`).
@@ -507,5 +534,38 @@ impl AppState {
             .iter()
             .map(|s| s.dropped.load(Ordering::Relaxed))
             .sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn message(bytes: usize) -> Message {
+        Message::Binary(vec![0u8; bytes].into())
+    }
+
+    #[tokio::test]
+    async fn the_lane_has_a_byte_bound_of_its_own_and_goes_first() {
+        let (queue, mut rx) = DataQueue::new(64);
+        let stamps = Stamps::default();
+        // Bulk up to its bound…
+        assert!(queue.offer(message(1000), stamps, 2500, false).is_ok());
+        assert!(queue.offer(message(1000), stamps, 2500, false).is_ok());
+        assert!(queue.offer(message(1000), stamps, 2500, false).is_err());
+        // …does not shut out the lane, which has a bound of its own.
+        assert!(queue.offer(message(700), stamps, 2500, true).is_ok());
+        assert!(queue.offer(message(700), stamps, 2500, true).is_ok());
+        assert!(queue.offer(message(700), stamps, 2500, true).is_ok());
+        assert!(queue.offer(message(700), stamps, 2500, true).is_err());
+        assert_eq!(queue.queued_bytes(), 2000 + 2100);
+        // The lane goes first, and its bytes leave both counts.
+        assert_eq!(rx.recv().await.unwrap().size, 700);
+        assert!(queue.offer(message(700), stamps, 2500, true).is_ok());
+        for _ in 0..3 {
+            assert_eq!(rx.recv().await.unwrap().size, 700);
+        }
+        assert_eq!(rx.recv().await.unwrap().size, 1000);
+        assert_eq!(queue.queued_bytes(), 1000);
     }
 }

@@ -55,6 +55,9 @@ try {
   await page.waitForTimeout(500);
   await page.screenshot({ path: path.join(docs, "dashboard-scan.png") });
   console.log("wrote docs/dashboard.png and docs/dashboard-scan.png");
+  // What the page lost (seq gaps) per stream: the force trend's breaks are the panel's time
+  // off screen (it subscribes only while visible), not losses, when force shows 0 here.
+  console.log("messages lost by the page:", JSON.stringify(await page.evaluate(() => window.ftafm.stats.gaps)));
 } finally {
   await browser.close();
   await stopDaemon(daemon);
