@@ -118,6 +118,24 @@ impl AdcFilter {
         }
     }
 
+    /// Keeps the newest of `signal` (grid samples, taken without the filter) as history,
+    /// with the midpoints between them interpolated, so that turning the filter on while
+    /// running starts from the signal, not from a stale history.
+    pub(crate) fn remember(&mut self, signal: &[f64]) {
+        let n = signal.len().min(GRID_HISTORY);
+        self.grid.copy_within(n..GRID_HISTORY, 0);
+        self.grid[GRID_HISTORY - n..GRID_HISTORY].copy_from_slice(&signal[signal.len() - n..]);
+        for i in 0..MID_HISTORY {
+            let g = GRID_HISTORY - MID_HISTORY + i;
+            self.mid[i] = if g + 1 < GRID_HISTORY {
+                0.5 * (self.grid[g] + self.grid[g + 1])
+            } else {
+                // The newest midpoint's right neighbour is not synthesised yet: extrapolate.
+                1.5 * self.grid[g] - 0.5 * self.grid[g - 1]
+            };
+        }
+    }
+
     /// Filters the `n` grid and midpoint samples written behind the histories into `out`
     /// (`out.len()` = n), then keeps the newest as history. Allocation-free. With AVX2 and
     /// FMA (detected once, at construction) the taps are fused multiply-adds, four lanes
@@ -210,6 +228,27 @@ mod tests {
         for (n, y) in out.iter().enumerate() {
             let want = x(2.0 * n as f64 - DELAY_HALF_SAMPLES as f64);
             assert!((y - want).abs() < 4e-5, "sample {n}: {y} vs {want}");
+        }
+    }
+
+    #[test]
+    fn a_filter_turned_on_starts_from_the_remembered_signal() {
+        let taps = grid_taps();
+        let f = 0.01; // a slow sinusoid, cycles per output sample
+        let x = |half: f64| (std::f64::consts::PI * f * half).sin();
+        let mut adc = AdcFilter::new(64, |_| 0.0);
+        let before: Vec<f64> = (0..100).map(|n| x(2.0 * (n as f64 - 100.0))).collect();
+        adc.remember(&before[..10]);
+        adc.remember(&before[10..]);
+        let mut out = vec![0.0; 64];
+        for n in 0..64 {
+            adc.grid[GRID_HISTORY + n] = x(2.0 * n as f64);
+            adc.mid[MID_HISTORY + n] = x(2.0 * n as f64 + 1.0);
+        }
+        adc.decimate(&taps, &mut out);
+        for (n, y) in out.iter().enumerate() {
+            let want = x(2.0 * n as f64 - DELAY_HALF_SAMPLES as f64);
+            assert!((y - want).abs() < 1e-3, "sample {n}: {y} vs {want}");
         }
     }
 

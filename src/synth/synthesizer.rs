@@ -350,6 +350,8 @@ impl SynthPlan {
             }
             if MID && let Some(taps) = &self.anti_alias {
                 state.adc.decimate(taps, chunk);
+            } else {
+                state.adc.remember(chunk);
             }
             clipped += self.detect_and_quantise(chunk, &state.normals, stride);
         }
