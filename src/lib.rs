@@ -1,12 +1,14 @@
 //! ftafm: a real-time virtual instrument for Fourier-transform atomic force microscopy.
 //!
 //! Layers (each depends only on those before it): [`physics`] (pure maths of the paper),
-//! [`config`] (typed settings), [`timebase`] (the phase words both real-time stages share),
+//! [`config`] (typed settings), [`timebase`] and [`cpu`] (the phase words and the CPU's
+//! features both real-time stages share),
 //! [`dsp`] and [`synth`] (real-time blocks, meeting only through the ring), [`pipeline`],
 //! the daemon ([`server`]), and the commands ([`cli`]).
 
 pub mod cli;
 pub mod config;
+pub mod cpu;
 pub mod dsp;
 pub mod imaging;
 pub mod inversion;

@@ -342,7 +342,7 @@ impl LockInBank {
             compensation: PREDECIMATOR.droop_compensation(),
             plan,
             state,
-            fma: fma_available(),
+            fma: crate::cpu::fma_available(),
         })
     }
 
@@ -772,16 +772,6 @@ impl Plan {
             self.blocks[block].step_im[i] = -s;
         }
     }
-}
-
-#[cfg(target_arch = "x86_64")]
-fn fma_available() -> bool {
-    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-}
-
-#[cfg(not(target_arch = "x86_64"))]
-fn fma_available() -> bool {
-    false
 }
 
 #[cfg(test)]

@@ -114,7 +114,7 @@ impl AdcFilter {
         Self {
             grid,
             mid,
-            fma: fma_available(),
+            fma: crate::cpu::fma_available(),
         }
     }
 
@@ -176,16 +176,6 @@ impl AdcFilter {
         self.grid.copy_within(n..n + GRID_HISTORY, 0);
         self.mid.copy_within(n..n + MID_HISTORY, 0);
     }
-}
-
-#[cfg(target_arch = "x86_64")]
-fn fma_available() -> bool {
-    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-}
-
-#[cfg(not(target_arch = "x86_64"))]
-fn fma_available() -> bool {
-    false
 }
 
 #[cfg(test)]

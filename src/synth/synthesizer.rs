@@ -113,7 +113,7 @@ impl SynthState {
             rng,
             normals: vec![0.0; CHUNK * (MAX_MODES + 1)],
             adc,
-            avx2: avx2_available(),
+            avx2: crate::cpu::avx2_available(),
             counters: SynthCounters::default(),
         }
     }
@@ -423,7 +423,7 @@ impl SynthPlan {
             rng: Xoshiro256PlusPlus::seed_from_u64(0),
             normals: vec![0.0; CHUNK * (MAX_MODES + 1)],
             adc: AdcFilter::new(CHUNK, |_| 0.0),
-            avx2: avx2_available(),
+            avx2: crate::cpu::avx2_available(),
             counters: SynthCounters::default(),
         };
         for (m, kernel) in self.modes.iter().enumerate() {
@@ -491,16 +491,6 @@ impl SynthPlan {
 fn round_to_step(x: f64, step: f64, inverse: f64) -> f64 {
     const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5·2^52
     ((x * inverse + MAGIC) - MAGIC) * step
-}
-
-#[cfg(target_arch = "x86_64")]
-fn avx2_available() -> bool {
-    std::arch::is_x86_feature_detected!("avx2")
-}
-
-#[cfg(not(target_arch = "x86_64"))]
-fn avx2_available() -> bool {
-    false
 }
 
 #[cfg(test)]
