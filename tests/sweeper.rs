@@ -27,7 +27,8 @@ async fn sweep(ws: &mut Ws, values: Value) -> (Vec<Value>, Value) {
     assert_eq!(r["ok"], true, "{r}");
     let mut points = Vec::new();
     loop {
-        let m = next_of(ws, "sweep").await;
+        // A point may wait for its force estimator (built at nice 10): a hang guard only.
+        let m = next_within(ws, "sweep", std::time::Duration::from_secs(120)).await;
         if m["done"] == true {
             return (points, m);
         }

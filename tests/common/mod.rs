@@ -105,9 +105,17 @@ pub async fn reply(ws: &mut Ws) -> Value {
     }
 }
 
-/// Next data message of `stream` (JSON).
+/// Next data message of `stream` (JSON), within 10 s: a guard against a hang, not a
+/// measure of speed.
 pub async fn next_of(ws: &mut Ws, stream: &str) -> Value {
-    let deadline = Instant::now() + Duration::from_secs(10);
+    next_within(ws, stream, Duration::from_secs(10)).await
+}
+
+/// Next data message of `stream` (JSON) within `limit`: for messages that wait on work
+/// off the real-time threads (a sweep point waits for its force estimator, built at low
+/// priority), which a loaded machine may slow down many times over.
+pub async fn next_within(ws: &mut Ws, stream: &str, limit: Duration) -> Value {
+    let deadline = Instant::now() + limit;
     loop {
         let msg = tokio::time::timeout_at(deadline.into(), ws.next())
             .await
