@@ -26,8 +26,10 @@ const FRAME_QUEUE: usize = 4096;
 /// Longest wait for a demodulator frame (wall time) before a sweep gives up.
 const FRAME_WAIT: Duration = Duration::from_secs(10);
 /// Longest wait (wall time) at a point for the force estimator of its settings; past it the
-/// point reports that it has no force estimate.
-const FORCE_WAIT: Duration = Duration::from_secs(10);
+/// point reports that it has no force estimate. The estimator is built at nice 10 on at most
+/// a quarter of a core, so a machine busy with other work can slow a build from 0.2 s to
+/// over 10 s (seen under `stress-ng --cpu 2`); a minute means something is wrong.
+const FORCE_WAIT: Duration = Duration::from_secs(60);
 /// Inaccuracy the automatic settling time allows for (relative).
 const SETTLE_TO: f64 = 1e-3;
 
