@@ -5,6 +5,9 @@
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Output, Stdio};
 
+mod common;
+use common::TempToml;
+
 fn ftafm(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_ftafm"))
         .args(args)
@@ -14,27 +17,6 @@ fn ftafm(args: &[&str]) -> Output {
 
 fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
-}
-
-/// A config file that lives as long as the test.
-struct TempToml(std::path::PathBuf);
-
-impl TempToml {
-    fn new(name: &str, contents: &str) -> Self {
-        let path = std::env::temp_dir().join(format!("ftafm-{}-{name}.toml", std::process::id()));
-        std::fs::write(&path, contents).unwrap();
-        Self(path)
-    }
-
-    fn path(&self) -> &str {
-        self.0.to_str().unwrap()
-    }
-}
-
-impl Drop for TempToml {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.0);
-    }
 }
 
 /// Whether `text` names a year of publication (1900–2099), as a citation does.

@@ -20,6 +20,7 @@ pub struct ServeArgs {
 pub fn command(config: &ConfigArg, bind: &str) -> Result<ExitCode, ExitCode> {
     let addrs = bind_addresses(bind)?;
     let settings = load(config)?;
+    crate::server::memory::map_large_blocks();
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),

@@ -187,8 +187,13 @@ impl<P> PlanLink<P> {
     /// stay within the capacity, so the thread's return push always has room and never
     /// has to free anything itself. One slot is kept for the plan the thread may hold.
     fn has_room(&mut self) -> bool {
-        while self.from_thread.try_pop().is_some() {}
+        drop(self.take_returned());
         self.to_thread.occupied_len() + self.from_thread.occupied_len() < PLAN_SLOTS - 1
+    }
+
+    /// The plans the thread has given back since the last call.
+    fn take_returned(&mut self) -> Vec<Box<P>> {
+        self.from_thread.pop_iter().collect()
     }
 
     /// Queues `plan`; call only after [`has_room`](Self::has_room) said yes.
@@ -242,7 +247,34 @@ pub struct Pipeline {
     epoch: u64,
 }
 
+/// Plans the real-time threads have given back, to be freed by whoever holds them. A large
+/// plan (a 2^20-point spectrum's buffers: ≈ 40 MB) would otherwise wait in the return queue
+/// until the next change of settings.
+#[derive(Default)]
+// The boxes come off the return rings as they are: kept boxed, nothing is moved.
+#[allow(clippy::vec_box)]
+pub struct RetiredPlans {
+    synth: Vec<Box<SynthPlan>>,
+    dsp: Vec<Box<DspPlan>>,
+}
+
+impl RetiredPlans {
+    /// Whether there is nothing to free.
+    pub fn is_empty(&self) -> bool {
+        self.synth.is_empty() && self.dsp.is_empty()
+    }
+}
+
 impl Pipeline {
+    /// Takes the plans the threads have given back, so the caller frees them where freeing
+    /// costs nothing that matters (off the real-time threads, and outside any lock).
+    pub fn take_retired(&mut self) -> RetiredPlans {
+        RetiredPlans {
+            synth: self.synth_link.take_returned(),
+            dsp: self.dsp_link.take_returned(),
+        }
+    }
+
     /// Builds the plans for `settings` and starts both threads.
     pub fn start(settings: &Settings) -> Result<(Self, PipelineOutput), PipelineError> {
         let synth_plan = Box::new(SynthPlan::new(settings)?);

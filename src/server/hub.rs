@@ -13,6 +13,7 @@ use ringbuf::traits::Consumer;
 use tokio::sync::mpsc::error::TrySendError;
 
 use super::latency::Latency;
+use super::memory::release_freed_memory;
 use super::protocol::{self, Format, StreamKind};
 use super::state::{AppState, Stamps, stream_index};
 use super::status::StatusReport;
@@ -25,15 +26,6 @@ use crate::pipeline::{CountersSnapshot, FrameSignal, PipelineOutput, SAMPLE_RING
 const TICK: Duration = Duration::from_millis(1);
 /// Every how many status periods freed memory is handed back to the system (10 s).
 const TRIM_EVERY: u64 = 20;
-
-/// Hands memory the allocator holds free back to the system (glibc keeps it otherwise).
-fn release_freed_memory() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: malloc_trim only returns free memory of the allocator's arenas to the system.
-    unsafe {
-        libc::malloc_trim(0);
-    }
-}
 
 /// How often a `status` message goes out.
 const STATUS_PERIOD: Duration = Duration::from_millis(500);
@@ -250,12 +242,17 @@ pub(crate) async fn run(
         }
         let elapsed = last_status.elapsed();
         if elapsed >= STATUS_PERIOD {
-            let (counters, realtime, mut warnings, adc_range) = match state.control.lock() {
-                Ok(c) => (
+            let (counters, realtime, mut warnings, adc_range, retired) = match state.control.lock()
+            {
+                Ok(mut c) => (
                     c.counters(),
                     c.settings.synth.realtime,
                     c.settings.warnings(),
                     c.settings.noise.adc_range,
+                    c.pipeline
+                        .as_mut()
+                        .map(|p| p.take_retired())
+                        .unwrap_or_default(),
                 ),
                 Err(_) => continue,
             };
@@ -303,11 +300,14 @@ pub(crate) async fn run(
             last_counters = counters;
             last_status = Instant::now();
             status_count += 1;
-            if status_count % TRIM_EVERY == 0 {
-                // Memory freed after large settings (a 2^20-point spectrum's plan and
-                // messages) goes back to the system, not only to the allocator; off the hub,
-                // which must not stall.
-                tokio::task::spawn_blocking(release_freed_memory);
+            if !retired.is_empty() || status_count % TRIM_EVERY == 0 {
+                // Plans the threads gave back are freed, and memory freed after large
+                // settings (a 2^20-point spectrum's plan and messages) goes back to the
+                // system, not only to the allocator; off the hub, which must not stall.
+                tokio::task::spawn_blocking(move || {
+                    drop(retired);
+                    release_freed_memory();
+                });
             }
         }
     }

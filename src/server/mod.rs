@@ -11,6 +11,7 @@ mod latency;
 mod latest;
 pub mod listen;
 mod measured;
+pub mod memory;
 mod metrics;
 pub mod protocol;
 mod session;

@@ -153,3 +153,24 @@ pub async fn http_get(addr: SocketAddr, path: &str) -> (u16, String) {
 pub fn code(v: &Value) -> &str {
     v["error"]["code"].as_str().unwrap_or("")
 }
+
+/// A config file that lives as long as the test (removed when dropped).
+pub struct TempToml(std::path::PathBuf);
+
+impl TempToml {
+    pub fn new(name: &str, contents: &str) -> Self {
+        let path = std::env::temp_dir().join(format!("ftafm-{}-{name}.toml", std::process::id()));
+        std::fs::write(&path, contents).unwrap();
+        Self(path)
+    }
+
+    pub fn path(&self) -> &str {
+        self.0.to_str().unwrap()
+    }
+}
+
+impl Drop for TempToml {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
