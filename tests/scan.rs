@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use ftafm::config::{Settings, default_settings};
+use ftafm::config::{Engine, Settings, default_settings};
 use ftafm::model;
 use ftafm::synth::{PixelTopography, ScanRuntime, SynthPlan, SynthState};
 
@@ -47,9 +47,9 @@ fn tap_tables_cover_the_operating_range_and_match_direct_solves() {
     let started = Instant::now();
     let plan = SynthPlan::new(&settings).unwrap();
     let built = started.elapsed();
-    let scan = plan.scan.as_ref().unwrap();
-    assert_eq!(scan.tables.regions.len(), 2, "base + the default disc");
-    assert_eq!(scan.tables.failed, 0, "every grid point solves");
+    let tables = plan.scan.as_ref().unwrap().tables.as_ref().unwrap();
+    assert_eq!(tables.regions.len(), 2, "base + the default disc");
+    assert_eq!(tables.failed, 0, "every grid point solves");
     eprintln!("plan with tap tables built in {built:?}");
     let cantilever = model::cantilever(&settings).unwrap();
     // Off the grid nodes, interpolation agrees with a direct solve to 0.2 %.
@@ -67,7 +67,7 @@ fn tap_tables_cover_the_operating_range_and_match_direct_solves() {
             let direct = model::impact_oscillator(&s, &cantilever, material)
                 .solve()
                 .unwrap();
-            let t = scan.tables.regions[region].at(d);
+            let t = tables.regions[region].at(d);
             let rel = |a: f64, b: f64| (a - b).abs() / b;
             assert!(
                 rel(t.max_force, direct.max_force) < 2e-3,
@@ -83,12 +83,19 @@ fn tap_tables_cover_the_operating_range_and_match_direct_solves() {
         }
     }
     // Beyond the free amplitude the tip does not reach the surface.
-    assert_eq!(scan.tables.regions[0].at(31e-9).max_force, 0.0);
+    assert_eq!(tables.regions[0].at(31e-9).max_force, 0.0);
 }
 
 #[test]
 fn the_feedback_holds_the_setpoint_and_settles_after_a_step_without_ringing() {
+    for engine in Engine::ALL {
+        feedback_step(engine);
+    }
+}
+
+fn feedback_step(engine: Engine) {
     let mut settings = scanning(quiet(default_settings()));
+    settings.synth.engine = engine;
     // A scan area far from the inclusion: the base material only.
     settings.scan.x = 5e-6;
     let plan = SynthPlan::new(&settings).unwrap();
@@ -100,16 +107,21 @@ fn the_feedback_holds_the_setpoint_and_settles_after_a_step_without_ringing() {
     // The auto setpoint is the steady amplitude at /surface/distance: the controller stays
     // there (the synthesised fundamental matches the model it was computed from).
     let (_, d, a) = *trace.last().unwrap();
+    eprintln!(
+        "{engine:?}: amplitude {a:e} vs setpoint {setpoint:e}, distance {:.4} nm",
+        d * 1e9
+    );
     assert!(
         (a - setpoint).abs() / setpoint < 1e-3,
-        "amplitude {a} vs setpoint {setpoint}"
+        "{engine:?}: amplitude {a} vs setpoint {setpoint}"
     );
-    assert!((d - 20e-9).abs() < 0.2e-9, "distance {d}");
+    assert!((d - 20e-9).abs() < 0.2e-9, "{engine:?}: distance {d}");
 
     // Step the setpoint down by 1 nm.
     let mut stepped = settings.clone();
     stepped.feedback.setpoint = setpoint - 1e-9;
-    let next = SynthPlan::with_tables(&stepped, Some(&plan.scan.as_ref().unwrap().tables)).unwrap();
+    let next =
+        SynthPlan::with_tables(&stepped, plan.scan.as_ref().unwrap().tables.as_ref()).unwrap();
     state.retarget(&plan, &next);
     rt.retarget(&plan, &next, state.sample_index());
     let t0 = state.sample_index() as f64 / next.sample_rate;
@@ -134,7 +146,7 @@ fn the_feedback_holds_the_setpoint_and_settles_after_a_step_without_ringing() {
         .map_or(t0, |&(t, _, _)| t)
         - t0;
     eprintln!(
-        "setpoint step -1 nm: distance step {:.3} nm, settled (2 %) after {:.2} ms, overshoot {:.1} %",
+        "{engine:?}: setpoint step -1 nm: distance step {:.3} nm, settled (2 %) after {:.2} ms, overshoot {:.1} %",
         step * 1e9,
         settle * 1e3,
         overshoot * 100.0
@@ -145,7 +157,14 @@ fn the_feedback_holds_the_setpoint_and_settles_after_a_step_without_ringing() {
 
 #[test]
 fn a_raised_inclusion_shows_as_height_and_the_softer_one_not_at_all() {
+    for engine in Engine::ALL {
+        raised_inclusion(engine);
+    }
+}
+
+fn raised_inclusion(engine: Engine) {
     let mut settings = scanning(quiet(default_settings()));
+    settings.synth.engine = engine;
     settings.scan.pixels = 16;
     settings.scan.line_rate = 10.0;
     settings.inclusions[0].height = 2e-9;
@@ -163,7 +182,7 @@ fn a_raised_inclusion_shows_as_height_and_the_softer_one_not_at_all() {
     assert_eq!(line.len(), 16);
     let heights: Vec<f64> = line.iter().map(|p| p.height).collect();
     eprintln!(
-        "line 7 heights (nm): {:?}",
+        "{engine:?}: line 7 heights (nm): {:?}",
         heights
             .iter()
             .map(|h| (h * 1e11).round() / 100.0)
@@ -172,10 +191,14 @@ fn a_raised_inclusion_shows_as_height_and_the_softer_one_not_at_all() {
     // Columns 6–9 lie in the disc (radius 167 nm around the centre, pixels 62.5 nm); 7
     // and 8 are clear of the edges, where the feedback is still catching up.
     for (c, h) in heights.iter().enumerate().take(9).skip(7) {
-        assert!((h - 2e-9).abs() < 0.1e-9, "column {c}: {h}");
+        assert!((h - 2e-9).abs() < 0.1e-9, "{engine:?}: column {c}: {h}");
     }
     for c in [0, 1, 14, 15] {
-        assert!(heights[c].abs() < 0.1e-9, "column {c}: {}", heights[c]);
+        assert!(
+            heights[c].abs() < 0.1e-9,
+            "{engine:?}: column {c}: {}",
+            heights[c]
+        );
     }
 }
 
@@ -265,5 +288,56 @@ fn pixels_lost_to_an_overrun_are_counted() {
         counters.pixels_dropped, missing,
         "pixels missing from 0 … {last} against pixels_dropped (overrun {} blocks)",
         counters.overrun_blocks
+    );
+}
+
+/// A soft disc (3 GPa, no height) under amplitude feedback: the tip indents it deeper, so
+/// the height image shows it as a dip, on either engine, and the two engines agree on its
+/// depth as far as their tap forces agree.
+#[test]
+fn a_soft_inclusion_shows_as_its_extra_indentation() {
+    let mut depths = Vec::new();
+    for engine in Engine::ALL {
+        let mut settings = scanning(quiet(default_settings()));
+        settings.synth.engine = engine;
+        settings.scan.pixels = 16;
+        settings.scan.line_rate = 10.0;
+        settings.inclusions[0].height = 0.0;
+        settings.inclusions[0].youngs_modulus = 3e9;
+        settings.inclusions[0].relative_modulus = 0.0;
+        let plan = SynthPlan::new(&settings).unwrap();
+        let mut state = SynthState::steady(&plan, 1);
+        let mut rt = ScanRuntime::new(&plan);
+        rt.retarget(&plan, &plan, 0);
+        let (_, pixels) = run(&plan, &mut state, &mut rt, 9.0 / 10.0, 4096);
+        let heights: Vec<f64> = pixels
+            .iter()
+            .filter(|p| p.pixel.line == 7 && !p.pixel.retrace)
+            .map(|p| p.height)
+            .collect();
+        eprintln!(
+            "{engine:?}: line 7 heights over a 3 GPa disc (nm): {:?}",
+            heights
+                .iter()
+                .map(|h| (h * 1e12).round() / 1000.0)
+                .collect::<Vec<_>>()
+        );
+        let inside = 0.5 * (heights[7] + heights[8]);
+        let outside = 0.25 * (heights[0] + heights[1] + heights[14] + heights[15]);
+        depths.push(outside - inside);
+    }
+    eprintln!(
+        "dip: paper {:.4} nm, coupled {:.4} nm",
+        depths[0] * 1e9,
+        depths[1] * 1e9
+    );
+    for d in &depths {
+        assert!(*d > 0.1e-9, "the soft disc shows as a dip: {d}");
+    }
+    // Measured 1.359 and 1.348 nm: the fundamental the feedback holds is where the paper's
+    // approximation is closest (issue 14's reference: F within 1 %).
+    assert!(
+        (depths[0] - depths[1]).abs() < 0.03 * depths[1],
+        "the engines disagree on the dip: {depths:?}"
     );
 }

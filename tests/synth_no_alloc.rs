@@ -3,25 +3,33 @@
 //! plan changes, a switch of engine included.
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::cell::Cell;
 
 use ftafm::config::{Engine, default_settings};
-use ftafm::synth::{SynthPlan, SynthState};
+use ftafm::synth::{ScanRuntime, SynthPlan, SynthState};
 
 struct Counting;
 
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+thread_local! {
+    // Per thread, so tests running side by side do not count each other's allocations;
+    // const-initialised, so reading it allocates nothing itself.
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+}
+
+fn count() {
+    ALLOCATIONS.with(|a| a.set(a.get() + 1));
+}
 
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        count();
         unsafe { System.alloc(layout) }
     }
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
         unsafe { System.dealloc(ptr, layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        count();
         unsafe { System.realloc(ptr, layout, new_size) }
     }
 }
@@ -29,11 +37,11 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
-/// Allocations made by `f` (the test runs single-threaded in this binary's only test).
+/// Allocations made by `f` on this thread (where the synthesiser runs).
 fn allocations_in(f: impl FnOnce()) -> usize {
-    let before = ALLOCATIONS.load(Ordering::SeqCst);
+    let before = ALLOCATIONS.with(Cell::get);
     f();
-    ALLOCATIONS.load(Ordering::SeqCst) - before
+    ALLOCATIONS.with(Cell::get) - before
 }
 
 #[test]
@@ -96,5 +104,32 @@ fn process_and_retarget_allocate_nothing() {
             switched.process(&mut state, &mut block);
         });
         assert_eq!(n, 0, "an engine switch allocated {n} times");
+    }
+}
+
+/// A running scan (raster, feedback, the tap force or the coupled surface following the
+/// sample) and its start on the real-time thread allocate nothing, on either engine.
+#[test]
+fn a_scan_allocates_nothing() {
+    for engine in [Engine::Paper, Engine::Coupled] {
+        let mut s = default_settings();
+        s.synth.engine = engine;
+        s.scan.enable = true;
+        s.scan.pixels = 16;
+        s.scan.line_rate = 1000.0;
+        let plan = SynthPlan::new(&s).unwrap();
+        let mut state = SynthState::steady(&plan, 1);
+        let mut rt = ScanRuntime::new(&plan);
+        let mut block = vec![0.0; 4096];
+        let mut pixels = 0usize;
+        let n = allocations_in(|| {
+            rt.retarget(&plan, &plan, 0);
+            // 20 ms: 20 lines over both regions.
+            for _ in 0..50 {
+                plan.process_scan(&mut state, &mut rt, &mut block, &mut |_| pixels += 1);
+            }
+        });
+        assert!(pixels > 100, "{engine:?}: the scan ran ({pixels} pixels)");
+        assert_eq!(n, 0, "{engine:?}: the scan allocated {n} times");
     }
 }

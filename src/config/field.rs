@@ -980,7 +980,7 @@ impl Field {
                 "Photodiode sample rate of the synthesiser, in Hz; fixed at start (config file only)."
             }
             Field::SynthEngine => {
-                "Tip-force engine: \"paper\" (cut-cosine pulses from the 1-DOF model, the paper's method); \"coupled\" (all modes integrated sample by sample with the Hertz force from the instantaneous tip position; no scan on it yet)."
+                "Tip-force engine: \"paper\" (cut-cosine pulses from the 1-DOF model, the paper's method); \"coupled\" (all modes integrated sample by sample with the Hertz force from the instantaneous tip position)."
             }
             Field::SynthSeed => {
                 "Seed of every random source (integer); the same seed and settings give the same stream."

@@ -1,8 +1,7 @@
 //! Whole-settings validation: every node inside its own range, the limits that tie nodes
 //! together (the Nyquist frequency, one sample period, the number of modes, the inversion's
 //! harmonics and the demodulators that measure them, the scan's pixel dwell time and pixel
-//! rate), and the combinations the instrument cannot run yet (a scan on the `"coupled"`
-//! engine). These run after a
+//! rate). These run after a
 //! whole config file or a whole `set`, never per key, so the order of keys never matters.
 //! Every message about a relation names every node it involves.
 
@@ -13,10 +12,7 @@ use super::field::{
 };
 use super::quantity::{number, quantity};
 use super::registry::registry;
-use super::settings::{DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, Settings};
-
-/// The engines the scan runs on so far.
-const SCAN_ENGINES: [Engine; 1] = [Engine::Paper];
+use super::settings::{DEMODULATOR_COUNT, INCLUSION_COUNT, Settings};
 
 impl Settings {
     /// Checks everything `set` and the config loader guarantee: exactly
@@ -52,7 +48,6 @@ impl Settings {
                 })?;
             spec.check(&value)?;
         }
-        check_engine(self)?;
         check_modes(self)?;
         check_drive(self)?;
         check_spectrum(self)?;
@@ -314,27 +309,6 @@ fn list_of_numbers(list: &[f64]) -> String {
         String::new()
     };
     format!("[{}{more}]", shown.join(", "))
-}
-
-/// The scan runs on the engines in [`SCAN_ENGINES`] only, so far.
-fn check_engine(s: &Settings) -> Result<(), NodeError> {
-    let engine = s.synth.engine;
-    if !s.scan.enable || SCAN_ENGINES.contains(&engine) {
-        return Ok(());
-    }
-    let allowed: Vec<String> = SCAN_ENGINES
-        .iter()
-        .map(|e| format!("{:?}", e.name()))
-        .collect();
-    Err(invalid(
-        "/synth/engine",
-        format!(
-            "/synth/engine = {:?} cannot run a scan yet (/scan/enable = true): the scan \
-             runs on {}; set /synth/engine = \"paper\" or /scan/enable = false",
-            engine.name(),
-            allowed.join(", ")
-        ),
-    ))
 }
 
 /// The mode count: `q` entries plus Rayleigh-damped extras, and enough `q` entries to fit
@@ -789,7 +763,7 @@ fn check_scan(s: &Settings) -> Result<(), NodeError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::default_settings;
+    use crate::config::{Engine, default_settings};
 
     #[test]
     fn highest_harmonic_agrees_with_the_check() {
@@ -803,19 +777,13 @@ mod tests {
     }
 
     #[test]
-    fn a_scan_is_refused_on_the_coupled_engine_only() {
+    fn a_scan_runs_on_either_engine() {
         let mut s = default_settings();
-        s.synth.engine = Engine::Coupled;
-        assert!(s.validate().is_ok());
         s.scan.enable = true;
-        let error = s.validate().unwrap_err();
-        assert_eq!(error.path(), "/synth/engine");
-        assert!(
-            error.to_string().contains("/scan/enable = false"),
-            "{error}"
-        );
-        s.synth.engine = Engine::Paper;
-        assert!(s.validate().is_ok());
+        for engine in Engine::ALL {
+            s.synth.engine = engine;
+            assert!(s.validate().is_ok(), "{engine:?}");
+        }
     }
 
     #[test]

@@ -278,7 +278,7 @@ impl Pipeline {
     /// Builds the plans for `settings` and starts both threads.
     pub fn start(settings: &Settings) -> Result<(Self, PipelineOutput), PipelineError> {
         let synth_plan = Box::new(SynthPlan::new(settings)?);
-        let tap_tables = synth_plan.scan.as_ref().map(|s| s.tables.clone());
+        let tap_tables = synth_plan.scan.as_ref().and_then(|s| s.tables.clone());
         let dsp_plan = Box::new(DspPlan::new(settings)?);
         let state = SynthState::steady(&synth_plan, settings.synth.seed);
 
@@ -480,8 +480,8 @@ impl Pipeline {
         }
         if let Some(mut plan) = synth {
             plan.epoch = epoch;
-            if let Some(scan) = &plan.scan {
-                self.tap_tables = Some(scan.tables.clone());
+            if let Some(tables) = plan.scan.as_ref().and_then(|s| s.tables.clone()) {
+                self.tap_tables = Some(tables);
             }
             self.synth_link.send(Box::new(plan));
         }

@@ -278,12 +278,59 @@ impl CoupledKernel {
         h: f64,
         theta: f64,
     ) -> [Complex64; MAX_MODES] {
+        let (re, im) = self.orbit(modes, drive_response, h, theta, 0, &mut |_, _, _| {});
+        std::array::from_fn(|m| Complex64::new(re[m], im[m]))
+    }
+
+    /// One period of the engine's own periodic orbit ([`steady_state`](Self::steady_state)
+    /// from θ = 0), noise-free: the photodiode's amplitude at the drive frequency (m, peak;
+    /// the demodulation of `drive_signal` plus Σ `lever`·Im q over the period's samples, as
+    /// the scan's feedback reads it) and the drive phase of the largest tip force (rad;
+    /// `None` out of contact). Off the real-time thread.
+    pub(crate) fn orbit_reading(
+        &self,
+        modes: &[Mode],
+        drive_response: &[Complex64],
+        h: f64,
+        lever: &[f64; MAX_MODES],
+        drive_signal: Complex64,
+    ) -> (f64, Option<f64>) {
+        let mut sum = Complex64::new(0.0, 0.0);
+        let mut samples = 0usize;
+        let (mut peak, mut peak_theta) = (0.0, None);
+        self.orbit(modes, drive_response, h, 0.0, 1, &mut |theta, im, force| {
+            let rho = Complex64::from_polar(1.0, theta);
+            let signal =
+                (drive_signal * rho).re + lever.iter().zip(im).map(|(l, q)| l * q).sum::<f64>();
+            sum += signal * rho.conj();
+            samples += 1;
+            if force > peak {
+                peak = force;
+                peak_theta = Some(theta);
+            }
+        });
+        (2.0 * sum.norm() / samples.max(1) as f64, peak_theta)
+    }
+
+    /// Runs the noise-free engine from the free orbit to its periodic orbit (see
+    /// [`steady_state`](Self::steady_state)), then `extra` more periods, handing `sample`
+    /// the drive phase, the lanes' Im q and the largest sub-step force of every step of
+    /// those. Returns the lanes at the end.
+    fn orbit(
+        &self,
+        modes: &[Mode],
+        drive_response: &[Complex64],
+        h: f64,
+        theta: f64,
+        extra: usize,
+        sample: &mut impl FnMut(f64, &[f64; MAX_MODES], f64),
+    ) -> ([f64; MAX_MODES], [f64; MAX_MODES]) {
         let omega = self.omega;
         let period = 2.0 * PI / omega;
         let steps = (period / h).round().max(8.0) as usize;
         let step = period / steps as f64;
         let silent = vec![0.0; modes.len()];
-        let kernel = Self::new(
+        let mut kernel = Self::new(
             modes,
             step,
             omega,
@@ -293,21 +340,33 @@ impl CoupledKernel {
             &self.contact,
             &silent,
         );
+        // A scan may have set another surface under the tip.
+        kernel.stiffness = self.stiffness;
         let q1 = modes.first().map_or(1.0, |m| m.q);
         let periods = ((15.0 * q1 / PI).ceil() as usize).clamp(50, 50_000);
         let (mut re, mut im) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
         let mut mid = [0.0; MAX_MODES];
         let z = [0.0; MAX_MODES];
-        for _ in 0..periods {
+        for period in 0..periods + extra {
             let mut rho = Complex64::from_polar(1.0, theta);
             for j in 0..steps {
                 // Re-anchored every step: the orbit must close on `theta` exactly.
-                let next = Complex64::from_polar(1.0, theta + omega * step * (j + 1) as f64);
-                kernel.step(&mut re, &mut im, rho, next, &z, &mut mid);
+                let phase = theta + omega * step * j as f64;
+                let next = Complex64::from_polar(1.0, phase + omega * step);
+                if period >= periods {
+                    let before = im;
+                    let mut largest = 0.0f64;
+                    kernel.step_recorded(&mut re, &mut im, rho, next, &z, &mut mid, &mut |g| {
+                        largest = largest.max(g)
+                    });
+                    sample(phase, &before, largest);
+                } else {
+                    kernel.step(&mut re, &mut im, rho, next, &z, &mut mid);
+                }
                 rho = next;
             }
         }
-        std::array::from_fn(|m| Complex64::new(re[m], im[m]))
+        (re, im)
     }
 }
 

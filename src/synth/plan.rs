@@ -10,7 +10,7 @@ use super::adc;
 use super::coupled::CoupledKernel;
 use super::modal::ModalKernel;
 use super::pulse::{PulseKernel, PulseTrain};
-use super::scan::{ScanPlan, TapTables};
+use super::scan::{ScanBase, ScanPlan, TapTables};
 use crate::config::{Engine, Settings};
 use crate::model;
 use crate::physics::beam::{BeamError, MAX_MODES};
@@ -37,9 +37,6 @@ pub enum PlanError {
     /// The drive frequency cannot be represented.
     #[error(transparent)]
     Drive(#[from] WordError),
-    /// The engine is not implemented.
-    #[error("engine {0:?} is not available")]
-    Engine(Engine),
 }
 
 /// The tap force the synthesiser applies, from the 1-DOF solution (paper engine).
@@ -179,10 +176,6 @@ impl SynthPlan {
         tables: Option<&Arc<TapTables>>,
     ) -> Result<Self, PlanError> {
         let engine = settings.synth.engine;
-        if engine == Engine::Coupled && settings.scan.enable {
-            // The relations refuse this combination with a message; a plan is never asked.
-            return Err(PlanError::Engine(engine));
-        }
         let cantilever = model::cantilever(settings)?;
         let sample_rate = settings.synth.sample_rate;
         let h = 1.0 / sample_rate;
@@ -279,14 +272,27 @@ impl SynthPlan {
             .scan
             .enable
             .then(|| {
-                ScanPlan::new(
-                    settings,
-                    &cantilever,
-                    drive_signal,
-                    drive_frequency,
-                    tap.map(|t| t.train),
-                    tables,
-                )
+                let base = match &coupled {
+                    Some(kernel) => {
+                        let (amplitude, force_phase) = kernel.orbit_reading(
+                            &cantilever.modes,
+                            &drive_response,
+                            h,
+                            &lanes.lever,
+                            drive_signal,
+                        );
+                        ScanBase::Coupled {
+                            amplitude,
+                            force_phase,
+                        }
+                    }
+                    None => ScanBase::Paper {
+                        drive_signal,
+                        drive_frequency,
+                        train: tap.map(|t| t.train),
+                    },
+                };
+                ScanPlan::new(settings, &cantilever, base, tables)
             })
             .transpose()?;
         Ok(Self {

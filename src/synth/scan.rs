@@ -6,15 +6,19 @@
 //! Once per drive period, at the drive phase opposite the pulse (so a pulse is never cut):
 //! the feedback's own demodulator (a one-period boxcar of the photodiode samples, ADC and
 //! noise included, mixed with the drive phase) gives the amplitude; the PI controller updates
-//! the distance; the region under the tip and the distance minus its height pick the cut
-//! cosine (F, τ, phase) from that region's table of 1-DOF solutions, which is built off the
-//! real-time thread over a grid of distances and interpolated linearly.
+//! the distance; then the region under the tip and the distance minus its height set the
+//! tap force. On the paper engine they pick the cut cosine (F, τ, phase) from that region's
+//! table of 1-DOF solutions, built off the real-time thread over a grid of distances and
+//! interpolated linearly. On the coupled engine they set the surface the integrated tip
+//! meets (its position and the region's Hertz stiffness), so topography steps, feedback
+//! transients and inclusion edges are simulated, not interpolated.
 
 use std::f64::consts::{PI, TAU};
 use std::sync::Arc;
 
 use rustfft::num_complex::Complex64;
 
+use super::coupled::CoupledKernel;
 use super::plan::{PlanError, SynthPlan, TURN};
 use super::pulse::{PulseKernel, PulseTrain};
 use super::raster::{PixelId, Raster};
@@ -227,8 +231,12 @@ pub struct ScanPlan {
     pub feedback: FeedbackSettings,
     /// The sample.
     pub map: SampleMap,
-    /// Tap force per region over distance.
-    pub tables: Arc<TapTables>,
+    /// Tap force per region over distance (the paper engine's; `None` on the coupled
+    /// engine).
+    pub tables: Option<Arc<TapTables>>,
+    /// Hertz prefactor κ_eff·√R of the tip on each region (N/m^{3/2}), in
+    /// [`SampleMap::regions`] order: the coupled engine's contact.
+    pub stiffness: Vec<f64>,
     /// Amplitude the feedback holds (m, photodiode, peak): `/feedback/setpoint`, or the
     /// steady amplitude at `/surface/distance` over the base when that is 0.
     pub setpoint: f64,
@@ -241,18 +249,77 @@ pub struct ScanPlan {
 }
 
 impl ScanPlan {
-    /// The plan for `settings`; reuses `cache` when the physics it was built for is the
-    /// same (a change of the raster or the gains then costs nothing), else solves the 1-DOF
-    /// problem over the distance grid for every region (~0.1 s per region per core).
+    /// The plan for `settings`. On the paper engine (`base` = [`ScanBase::Paper`]) it
+    /// reuses `cache` when the physics it was built for is the same (a change of the raster
+    /// or the gains then costs nothing), else solves the 1-DOF problem over the distance
+    /// grid for every region (~0.1 s per region per core); the coupled engine needs no
+    /// tables.
     pub fn new(
         settings: &Settings,
         cantilever: &Cantilever,
-        drive_signal: Complex64,
-        drive_frequency: f64,
-        base_train: Option<PulseTrain>,
+        base: ScanBase,
         cache: Option<&Arc<TapTables>>,
     ) -> Result<Self, PlanError> {
         let map = sample_map(settings);
+        let stiffness = map
+            .regions()
+            .iter()
+            .map(|r| {
+                let material = Material {
+                    youngs_modulus: r.material.youngs_modulus,
+                    poisson: r.material.poisson,
+                };
+                model::impact_oscillator(settings, cantilever, material)
+                    .contact
+                    .stiffness_coefficient()
+            })
+            .collect();
+        let (setpoint, centre, tables) = match base {
+            ScanBase::Paper {
+                drive_signal,
+                drive_frequency,
+                train,
+            } => {
+                let tables = Self::tables(settings, cantilever, &map, cache);
+                let omega = 2.0 * PI * drive_frequency;
+                let tap = train.map_or(Complex64::new(0.0, 0.0), |t| {
+                    let c1 = cut_cosine_train(t.max_force, t.tau, t.centre_phase, 1)[1];
+                    photodiode_transfer(cantilever, omega) * c1 * 2.0
+                });
+                let centre = train.map_or(PI, |t| t.centre_phase);
+                ((drive_signal + tap).norm(), centre, Some(tables))
+            }
+            ScanBase::Coupled {
+                amplitude,
+                force_phase,
+            } => (amplitude, force_phase.unwrap_or(PI), None),
+        };
+        let setpoint = if settings.feedback.setpoint > 0.0 {
+            settings.feedback.setpoint
+        } else {
+            setpoint
+        };
+        let update_phase = ((centre / TAU).rem_euclid(1.0) * TURN) as u64 ^ (1 << 63);
+        Ok(Self {
+            settings: settings.scan.clone(),
+            feedback: settings.feedback.clone(),
+            map,
+            tables,
+            stiffness,
+            setpoint,
+            base_distance: settings.surface.distance,
+            max_distance: 2.0 * settings.drive.free_amplitude.max(settings.surface.distance),
+            update_phase,
+        })
+    }
+
+    /// The paper engine's tap tables for `settings`: `cache` when it fits, else built.
+    fn tables(
+        settings: &Settings,
+        cantilever: &Cantilever,
+        map: &SampleMap,
+        cache: Option<&Arc<TapTables>>,
+    ) -> Arc<TapTables> {
         let key = TableKey {
             cantilever: settings.cantilever.clone(),
             tip: settings.tip,
@@ -264,33 +331,33 @@ impl ScanPlan {
                 .map(|r| (r.material.youngs_modulus, r.material.poisson))
                 .collect(),
         };
-        let tables = match cache {
+        match cache {
             Some(t) if t.key == key => t.clone(),
-            _ => Arc::new(TapTables::build(settings, cantilever, &map, key)),
-        };
-        let omega = 2.0 * PI * drive_frequency;
-        let tap = base_train.map_or(Complex64::new(0.0, 0.0), |t| {
-            let c1 = cut_cosine_train(t.max_force, t.tau, t.centre_phase, 1)[1];
-            photodiode_transfer(cantilever, omega) * c1 * 2.0
-        });
-        let setpoint = if settings.feedback.setpoint > 0.0 {
-            settings.feedback.setpoint
-        } else {
-            (drive_signal + tap).norm()
-        };
-        let centre = base_train.map_or(PI, |t| t.centre_phase);
-        let update_phase = ((centre / TAU).rem_euclid(1.0) * TURN) as u64 ^ (1 << 63);
-        Ok(Self {
-            settings: settings.scan.clone(),
-            feedback: settings.feedback.clone(),
-            map,
-            tables,
-            setpoint,
-            base_distance: settings.surface.distance,
-            max_distance: 2.0 * settings.drive.free_amplitude.max(settings.surface.distance),
-            update_phase,
-        })
+            _ => Arc::new(TapTables::build(settings, cantilever, map, key)),
+        }
     }
+}
+
+/// What a scan starts from: the tip's steady state over the base at `/surface/distance`,
+/// as the engine computes it.
+#[derive(Clone, Copy, Debug)]
+pub enum ScanBase {
+    /// The paper engine: the free photodiode response and the 1-DOF tap force.
+    Paper {
+        /// Steady drive response of the photodiode: Re[Ŝ e^{iθ}] (m).
+        drive_signal: Complex64,
+        /// Drive frequency (Hz).
+        drive_frequency: f64,
+        /// The cut cosine of the 1-DOF solution, if the tip touches the base.
+        train: Option<PulseTrain>,
+    },
+    /// The coupled engine, from its own periodic orbit.
+    Coupled {
+        /// Photodiode amplitude at the drive frequency (m, peak).
+        amplitude: f64,
+        /// Drive phase of the largest tip force (rad), if the tip touches the base.
+        force_phase: Option<f64>,
+    },
 }
 
 /// The feedback's and the topography's record of one pixel, from the synthesiser.
@@ -323,6 +390,9 @@ pub struct ScanRuntime {
     /// Region under the tip.
     pub region: usize,
     pulse: PulseKernel,
+    /// The coupled engine's kernel with the surface under the tip (a copy of the plan's;
+    /// its distance and stiffness follow the scan).
+    coupled: Option<CoupledKernel>,
     acc: Complex64,
     acc_count: u32,
     /// First sample of the period in progress, and of the next.
@@ -348,6 +418,7 @@ impl ScanRuntime {
             amplitude: 0.0,
             region: 0,
             pulse: PulseKernel::idle(plan.h),
+            coupled: None,
             acc: Complex64::new(0.0, 0.0),
             acc_count: 0,
             period_start: 0,
@@ -370,6 +441,8 @@ impl ScanRuntime {
             self.pixel = None;
             return;
         };
+        // A copy: fixed-size lanes, no allocation.
+        self.coupled.clone_from(&new.coupled);
         let was = old.scan.as_ref();
         let restart = self.raster.is_none()
             || was.is_none_or(|w| w.settings != scan.settings || w.map != scan.map);
@@ -433,7 +506,10 @@ impl SynthPlan {
             let n = ((rt.next_update - index) as usize).min(out.len() - done);
             let segment = &mut out[done..done + n];
             let phase = state.phase();
-            self.process_with(Some(&rt.pulse), state, segment);
+            match &rt.coupled {
+                Some(coupled) => self.process_with(None, Some(coupled), state, segment),
+                None => self.process_with(Some(&rt.pulse), None, state, segment),
+            }
             // The feedback's demodulator: Σ s·e^{−iθ} over the period.
             let mut rho = Complex64::from_polar(1.0, -phase_to_radians(phase));
             let mut acc = rt.acc;
@@ -489,9 +565,15 @@ impl SynthPlan {
         let (x, y) = raster.position(index);
         rt.region = scan.map.region_at(x, y);
         let region = &scan.map.regions()[rt.region];
-        let train = scan.tables.regions[rt.region].at(rt.distance - region.height);
-        rt.pulse
-            .retune(&train, self.h, self.frequency_word, &self.modes);
+        let distance = rt.distance - region.height;
+        if let Some(coupled) = &mut rt.coupled {
+            coupled.distance = distance;
+            coupled.stiffness = scan.stiffness[rt.region];
+        } else if let Some(tables) = &scan.tables {
+            let train = tables.regions[rt.region].at(distance);
+            rt.pulse
+                .retune(&train, self.h, self.frequency_word, &self.modes);
+        }
     }
 }
 

@@ -174,23 +174,25 @@ impl SynthPlan {
     /// The tip rests over the base material at `/surface/distance`; a scan runs through
     /// [`process_scan`](Self::process_scan).
     pub fn process(&self, state: &mut SynthState, out: &mut [f64]) {
-        self.process_with(self.pulse.as_ref(), state, out);
+        self.process_with(self.pulse.as_ref(), self.coupled.as_ref(), state, out);
     }
 
-    /// [`process`](Self::process) with the tap force of `pulse` (none: free oscillation).
+    /// [`process`](Self::process) with the tap force of `pulse` on the paper engine, or of
+    /// the contact of `coupled` (which takes precedence); neither: free oscillation.
     pub(crate) fn process_with(
         &self,
         pulse: Option<&PulseKernel>,
+        coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
         out: &mut [f64],
     ) {
         #[cfg(target_arch = "x86_64")]
         if state.avx2 {
             // SAFETY: `avx2` is true only where the CPU has AVX2.
-            unsafe { self.process_avx2(pulse, state, out) };
+            unsafe { self.process_avx2(pulse, coupled, state, out) };
             return;
         }
-        self.process_modes(pulse, state, out);
+        self.process_modes(pulse, coupled, state, out);
     }
 
     /// [`process_with`](Self::process_with) compiled for AVX2: the same operations in the
@@ -201,18 +203,25 @@ impl SynthPlan {
     unsafe fn process_avx2(
         &self,
         pulse: Option<&PulseKernel>,
+        coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
         out: &mut [f64],
     ) {
-        self.process_modes(pulse, state, out);
+        self.process_modes(pulse, coupled, state, out);
     }
 
     #[inline(always)]
-    fn process_modes(&self, pulse: Option<&PulseKernel>, state: &mut SynthState, out: &mut [f64]) {
+    fn process_modes(
+        &self,
+        pulse: Option<&PulseKernel>,
+        coupled: Option<&CoupledKernel>,
+        state: &mut SynthState,
+        out: &mut [f64],
+    ) {
         if self.modes.len() <= 8 {
-            self.process_lanes::<8>(pulse, state, out);
+            self.process_lanes::<8>(pulse, coupled, state, out);
         } else {
-            self.process_lanes::<MAX_MODES>(pulse, state, out);
+            self.process_lanes::<MAX_MODES>(pulse, coupled, state, out);
         }
     }
 
@@ -223,10 +232,11 @@ impl SynthPlan {
     fn process_lanes<const L: usize>(
         &self,
         pulse: Option<&PulseKernel>,
+        coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
         out: &mut [f64],
     ) {
-        match (&self.coupled, self.anti_alias.is_some()) {
+        match (coupled, self.anti_alias.is_some()) {
             (Some(coupled), true) => {
                 self.process_engine::<L, true>(None, Some(coupled), state, out)
             }
@@ -431,7 +441,12 @@ impl SynthPlan {
             temp.set_q(m, periodic[m] + thermal[m] * back);
         }
         let mut scratch = [0.0; GRID_HISTORY];
-        quiet.process_with(quiet.pulse.as_ref(), &mut temp, &mut scratch);
+        quiet.process_with(
+            quiet.pulse.as_ref(),
+            quiet.coupled.as_ref(),
+            &mut temp,
+            &mut scratch,
+        );
         (std::array::from_fn(|m| temp.q(m)), temp.adc)
     }
 
