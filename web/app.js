@@ -35,6 +35,8 @@ const stats = {
   rafFps: 0, // animation frames per second offered by the browser
   latency: new Float64Array(1000), // ms, synthesis → this page, of the last demods messages (a ring)
   latencyCount: 0,
+  framesSkipped: 0, // animation frames not drawn because the page was behind its messages
+  behind: false, // the page handles messages late (> 0.5 s): it draws at most twice a second
   sets: 0,
   rejects: 0,
   references: 0,
@@ -47,7 +49,11 @@ const app = {
   params: { f1: 0, modes: 0, fDrive: 0 },
   history: new DemodHistory(30000),
   conn: null,
-  onSet(path, value) {
+  /** The last change made from this page: { path, value, t } with t the simulated time (s)
+   * from which the signal chain runs with it (the `set` reply's; null if unknown). */
+  lastSet: null,
+  onSet(path, value, t = null) {
+    app.lastSet = { path, value, t };
     const n = app.nodes.get(path);
     if (n) n.value = value;
     updateParams();
@@ -141,7 +147,8 @@ function onData(m, recvMs) {
   lastSeq[s] = m.seq;
   if (s === "demods") {
     app.history.push(m.t, m.demods);
-    stats.latency[stats.latencyCount++ % stats.latency.length] = recvMs - Number(m.t_synth_ns) / 1e6;
+    lateMs = recvMs - Number(m.t_synth_ns) / 1e6;
+    stats.latency[stats.latencyCount++ % stats.latency.length] = lateMs;
   } else {
     try {
       byStream[s].onData(m);
@@ -164,8 +171,21 @@ app.conn = new Connection(`${location.protocol === "https:" ? "wss" : "ws"}://${
 // ?off=ScopePanel,SpectrumPanel skips drawing those panels: for profiling the page.
 const OFF = new Set((new URLSearchParams(location.search).get("off") || "").split(","));
 let fpsT0 = performance.now(), fpsDraws = 0, fpsFrames = 0, factsT = 0;
+// How late the newest demodulator message was handled (ms after its synthesis): on a busy
+// machine drawing can take the page's whole main thread, messages then queue behind it, the
+// browser stops reading the socket and the daemon finally drops the page as stalled. While
+// the page is behind it draws at most twice a second, so reading keeps up.
+let lateMs = 0, lastDraw = -Infinity;
+const BEHIND_MS = 500, SLOW_DRAW_MS = 500;
 function frame(now) {
   fpsFrames++;
+  stats.behind = lateMs > BEHIND_MS;
+  if (stats.behind && now - lastDraw < SLOW_DRAW_MS) {
+    stats.framesSkipped++;
+    requestAnimationFrame(frame);
+    return;
+  }
+  lastDraw = now;
   const before = stats.draws.harmonics;
   for (const p of panels) {
     if (OFF.has(p.constructor.name)) continue;

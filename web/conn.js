@@ -177,17 +177,29 @@ export class Connection {
     this.timer = setTimeout(() => this.start(), delay);
   }
 
-  /** A socket that has said nothing for 5 s (status comes twice a second) is dead: reopen. */
+  /**
+   * A socket that has said nothing for 5 s (status comes twice a second) is dead: reopen;
+   * so is one that has not opened in 10 s. Time the page itself did not run (a tab in the
+   * background, a machine too busy to schedule it) does not count: the socket's messages
+   * wait behind the frozen page, and it would otherwise be closed the moment it resumes.
+   */
   watchdog() {
+    const now = performance.now();
+    const frozen = this.lastTick !== undefined && now - this.lastTick > 2000;
+    this.lastTick = now;
     const ws = this.ws;
     if (!ws) return;
-    const now = performance.now();
+    if (frozen) {
+      this.lastRx = now;
+      this.openedAt = now;
+      return;
+    }
     if (ws.readyState === WebSocket.OPEN && now - this.lastRx > 5000) {
       this.ws = null;
       ws.close();
       this.failPending("the connection went silent");
       this.retry("no data for 5 s");
-    } else if (ws.readyState === WebSocket.CONNECTING && now - this.openedAt > 4000) {
+    } else if (ws.readyState === WebSocket.CONNECTING && now - this.openedAt > 10000) {
       this.ws = null;
       ws.close();
       this.retry("no answer");

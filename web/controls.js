@@ -180,7 +180,7 @@ class Control {
       this.panel.app.nodes.set(this.path, this.node);
       this.errEl.textContent = "";
       this.el.classList.remove("rejected");
-      this.panel.app.onSet(this.path, reply.value);
+      this.panel.app.onSet(this.path, reply.value, reply.t ?? null);
       this.panel.app.stats.sets++;
     } catch (e) {
       this.reject(e.message);

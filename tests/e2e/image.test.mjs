@@ -22,8 +22,8 @@ const ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "
 const PIXELS = 16;
 // Waits are generous: on a loaded machine the daemon runs below real time (a 0.8 s frame can
 // take several seconds); on an idle one every wait ends within about a frame.
-const WAIT = 30000;
-const TEST = { timeout: 90000 };
+const WAIT = 60000;
+const TEST = { timeout: 180000 };
 const OVERLAY = `# e2e: a small, fast, noiseless scan
 [scan]
 enable = true
@@ -87,6 +87,7 @@ before(async () => {
     acceptDownloads: true,
   });
   page = context.pages()[0] ?? (await context.newPage());
+  context.setDefaultTimeout(WAIT); // every action (click, fill, scroll) too: a hang guard
   page.on("console", (m) => { if (m.type() === "error") consoleErrors.push(m.text()); });
   page.on("pageerror", (e) => pageErrors.push(String(e)));
 });
@@ -318,7 +319,7 @@ test("the image stream stops while the panel is off screen", TEST, async () => {
   await until((n) => window.ftafm.stats.messages.image > n + 2, n, "image lines again");
 });
 
-test("a 64-line scan at 8 lines/s reaches the page without losing a line", { timeout: 120000 }, async (t) => {
+test("a 64-line scan at 8 lines/s reaches the page without losing a line", { timeout: 240000 }, async (t) => {
   await page.locator("#p-image").scrollIntoViewIfNeeded();
   await until(() => window.ftafm.image().subscribed, null, "the image subscription");
   await page.evaluate(async () => {
