@@ -24,6 +24,10 @@ from .errors import ConnectionLost, InstrumentError
 #: Where ``ftafm serve`` listens by default.
 DEFAULT_URL = "ws://127.0.0.1:8700/ws"
 
+#: Default longest wait (s) for one sweep point: beyond the daemon's own 60 s wait for its
+#: force estimator, which a busy machine can starve (it is built at a lower priority).
+SWEEP_POINT_TIMEOUT = 120.0
+
 
 @dataclass(frozen=True)
 class Node:
@@ -265,7 +269,7 @@ class Instrument:
         InstrumentError ``timeout`` when none comes for ``timeout`` s (default: the
         client's)."""
         queue = await self._subscribe(stream)
-        wait = self.timeout if timeout is None else timeout
+        wait = max(self.timeout, SWEEP_POINT_TIMEOUT) if timeout is None else timeout
         try:
             while True:
                 try:
@@ -328,7 +332,9 @@ class Instrument:
         ``settling`` (s, 0 automatic) and ``averaging`` (frames) default to the daemon's
         ``/sweeper`` nodes. A frequency sweep holds the base amplitude constant (a tune);
         the swept node is restored afterwards. ``timeout`` (s) bounds the wait for each
-        point.
+        point; by default the larger of the client's timeout and
+        :data:`SWEEP_POINT_TIMEOUT`, since a point may wait up to 60 s for the daemon's
+        force estimator on a busy machine.
         """
         values: dict[str, Any] = {
             "/sweeper/parameter": path,
