@@ -174,18 +174,25 @@ let fpsT0 = performance.now(), fpsDraws = 0, fpsFrames = 0, factsT = 0;
 // How late the newest demodulator message was handled (ms after its synthesis): on a busy
 // machine drawing can take the page's whole main thread, messages then queue behind it, the
 // browser stops reading the socket and the daemon finally drops the page as stalled. While
-// the page is behind it draws at most twice a second, so reading keeps up.
-let lateMs = 0, lastDraw = -Infinity;
+// the page is behind (> 0.5 s) it draws at most twice a second, and at most a fifth of the
+// time: a drawn frame costs the thread from its callback to the next one (the canvases are
+// rasterised after the callback returns), and the page waits four such costs between draws.
+let lateMs = 0, lastDraw = -Infinity, drawCost = 0, drew = false;
 const BEHIND_MS = 500, SLOW_DRAW_MS = 500;
 function frame(now) {
   fpsFrames++;
+  if (drew) {
+    drawCost = now - lastDraw;
+    drew = false;
+  }
   stats.behind = lateMs > BEHIND_MS;
-  if (stats.behind && now - lastDraw < SLOW_DRAW_MS) {
+  if (stats.behind && now - lastDraw < Math.max(SLOW_DRAW_MS, 4 * drawCost)) {
     stats.framesSkipped++;
     requestAnimationFrame(frame);
     return;
   }
   lastDraw = now;
+  drew = true;
   const before = stats.draws.harmonics;
   for (const p of panels) {
     if (OFF.has(p.constructor.name)) continue;
