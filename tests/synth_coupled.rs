@@ -344,7 +344,12 @@ fn spectral_peak(samples: &[f64], sample_rate: f64, band: (f64, f64)) -> f64 {
     // Least squares of 1/PSD = c0 + c1·x + c2·x² over the bins x = i − peak.
     let mut m = [[0.0; 3]; 3];
     let mut v = [0.0; 3];
-    for (i, p) in psd.iter().enumerate().take(peak + reach + 1).skip(peak - reach) {
+    for (i, p) in psd
+        .iter()
+        .enumerate()
+        .take(peak + reach + 1)
+        .skip(peak - reach)
+    {
         let x = i as f64 - peak as f64;
         let basis = [1.0, x, x * x];
         for r in 0..3 {
