@@ -36,7 +36,7 @@ const stats = {
   latency: new Float64Array(1000), // ms, synthesis → this page, of the last demods messages (a ring)
   latencyCount: 0,
   framesSkipped: 0, // animation frames not drawn because the page was behind its messages
-  behind: false, // the page handles messages late (> 0.5 s): it draws at most twice a second
+  behind: false, // the page handles messages 0.5 s later than it did (its backlog): it draws less
   sets: 0,
   rejects: 0,
   references: 0,
@@ -107,6 +107,43 @@ const connEl = document.getElementById("conn");
 const connText = document.getElementById("conn-text");
 const facts = document.getElementById("facts");
 
+/**
+ * How far the page has fallen behind its demodulator messages (ms): how late the newest was
+ * handled after its synthesis, less the least lateness of the last 10 s. The difference
+ * leaves out what is constant (the pipeline's own latency, and the offset between the
+ * daemon's and the browser's clocks when they are different machines) and grows while
+ * messages queue. Stale (no message for 2 s) counts as not behind.
+ */
+const backlog = {
+  minima: [], // per-second least lateness, newest last (10 at most)
+  current: Infinity, // least lateness in the second being collected
+  since: 0, // when that second began (ms, epoch)
+  late: 0, // the newest message's lateness (ms)
+  at: -Infinity, // when it was handled (ms, epoch)
+  add(late, recvMs) {
+    this.late = late;
+    this.at = recvMs;
+    this.current = Math.min(this.current, late);
+    if (recvMs - this.since >= 1000) {
+      this.minima.push(this.current);
+      if (this.minima.length > 10) this.minima.shift();
+      this.current = Infinity;
+      this.since = recvMs;
+    }
+  },
+  reset() {
+    this.minima = [];
+    this.current = Infinity;
+    this.since = 0;
+    this.at = -Infinity;
+  },
+  behind(nowMs, limit) {
+    if (nowMs - this.at > 2000) return false;
+    const floor = Math.min(this.current, ...this.minima);
+    return this.late - floor > limit;
+  },
+};
+
 function onState(state, detail) {
   stats.state = state;
   connEl.dataset.state = state;
@@ -116,6 +153,7 @@ function onState(state, detail) {
 
 async function onOpen(conn) {
   lastSeq = {};
+  backlog.reset();
   stats.connects = conn.connects;
   try {
     // `force` (1 kHz) and `image` only while their panels are on screen: the panels subscribe
@@ -147,8 +185,9 @@ function onData(m, recvMs) {
   lastSeq[s] = m.seq;
   if (s === "demods") {
     app.history.push(m.t, m.demods);
-    lateMs = recvMs - Number(m.t_synth_ns) / 1e6;
-    stats.latency[stats.latencyCount++ % stats.latency.length] = lateMs;
+    const late = recvMs - Number(m.t_synth_ns) / 1e6;
+    stats.latency[stats.latencyCount++ % stats.latency.length] = late;
+    backlog.add(late, recvMs);
   } else {
     try {
       byStream[s].onData(m);
@@ -171,13 +210,13 @@ app.conn = new Connection(`${location.protocol === "https:" ? "wss" : "ws"}://${
 // ?off=ScopePanel,SpectrumPanel skips drawing those panels: for profiling the page.
 const OFF = new Set((new URLSearchParams(location.search).get("off") || "").split(","));
 let fpsT0 = performance.now(), fpsDraws = 0, fpsFrames = 0, factsT = 0;
-// How late the newest demodulator message was handled (ms after its synthesis): on a busy
-// machine drawing can take the page's whole main thread, messages then queue behind it, the
-// browser stops reading the socket and the daemon finally drops the page as stalled. While
-// the page is behind (> 0.5 s) it draws at most twice a second, and at most a fifth of the
-// time: a drawn frame costs the thread from its callback to the next one (the canvases are
-// rasterised after the callback returns), and the page waits four such costs between draws.
-let lateMs = 0, lastDraw = -Infinity, drawCost = 0, drew = false;
+// On a busy machine drawing can take the page's whole main thread: messages then queue
+// behind it, the browser stops reading the socket and the daemon finally drops the page as
+// stalled. While the page is behind its messages (see `backlog`) it draws at most twice a
+// second, and at most a fifth of the time: a drawn frame costs the thread from its callback
+// to the next one (the canvases are rasterised after the callback returns), and the page
+// waits four such costs between draws.
+let lastDraw = -Infinity, drawCost = 0, drew = false;
 const BEHIND_MS = 500, SLOW_DRAW_MS = 500;
 function frame(now) {
   fpsFrames++;
@@ -185,7 +224,7 @@ function frame(now) {
     drawCost = now - lastDraw;
     drew = false;
   }
-  stats.behind = lateMs > BEHIND_MS;
+  stats.behind = backlog.behind(performance.timeOrigin + now, BEHIND_MS);
   if (stats.behind && now - lastDraw < Math.max(SLOW_DRAW_MS, 4 * drawCost)) {
     stats.framesSkipped++;
     requestAnimationFrame(frame);

@@ -71,7 +71,7 @@ export class StatusPanel {
     const gaps = st.gaps.demods + st.gaps.spectrum + st.gaps.scope + st.gaps.status;
     add("lost here", group(gaps), gaps > 0 ? "warn" : "", "seq gaps seen by this page");
     add("display", `${st.fps.toFixed(0)} fps${st.behind ? " (behind: drawing slowed)" : ""}`, st.behind || (st.fps > 0 && st.fps < 15) ? "warn" : "",
-      "frames drawn per second by this page; behind its messages (handled > 0.5 s after synthesis) it draws at most twice a second and at most a fifth of the time, so that reading keeps up");
+      "frames drawn per second by this page; behind its messages (handled 0.5 s later than at best in the last 10 s) it draws at most twice a second and at most a fifth of the time, so that reading keeps up");
     this.el.innerHTML = rows.join("");
   }
 }
