@@ -34,3 +34,21 @@ def test_the_async_client_does_what_the_sync_one_does(ftafm_daemon: Daemon) -> N
                 await inst.request("load_settings", toml=saved)
 
     asyncio.run(main())
+
+
+def test_a_sweep_point_may_take_longer_than_a_request(ftafm_daemon: Daemon) -> None:
+    # Each point settles 4 s of simulated (here: wall-clock) time, beyond the client's 3 s
+    # request timeout: the sweep waits up to SWEEP_POINT_TIMEOUT per point by default.
+    async def main() -> None:
+        async with ftafm.aio.Instrument(ftafm_daemon.url, timeout=3.0) as inst:
+            saved = await inst.settings_toml()
+            try:
+                result = await inst.sweep(
+                    "/surface/distance", 200e-9, 190e-9, 2, settling=4.0
+                )
+                assert result.outcome == "done" and len(result) == 2
+            finally:
+                await inst.request("load_settings", toml=saved)
+
+    assert ftafm.aio.SWEEP_POINT_TIMEOUT > 4.0
+    asyncio.run(main())

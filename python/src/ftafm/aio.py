@@ -269,7 +269,7 @@ class Instrument:
         InstrumentError ``timeout`` when none comes for ``timeout`` s (default: the
         client's)."""
         queue = await self._subscribe(stream)
-        wait = max(self.timeout, SWEEP_POINT_TIMEOUT) if timeout is None else timeout
+        wait = self.timeout if timeout is None else timeout
         try:
             while True:
                 try:
@@ -348,7 +348,7 @@ class Instrument:
                 values[f"/sweeper/{key}"] = value
         await self.set_many(values)
         queue: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue()
-        wait = self.timeout if timeout is None else timeout
+        wait = max(self.timeout, SWEEP_POINT_TIMEOUT) if timeout is None else timeout
         await self._subscribe("sweep", queue)
         rows: list[dict[str, Any]] = []
         try:
