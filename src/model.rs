@@ -2,7 +2,9 @@
 
 use crate::config::{Material, Settings};
 use crate::physics::beam::BeamError;
-use crate::physics::{Cantilever, Elastic, HertzContact, ImpactOscillator};
+use crate::physics::{
+    Adhesion, Cantilever, CoupledProblem, Elastic, HertzContact, ImpactOscillator,
+};
 
 /// The cantilever of `/cantilever/...`.
 pub fn cantilever(settings: &Settings) -> Result<Cantilever, BeamError> {
@@ -84,4 +86,32 @@ pub fn impact_oscillator(
             settings.cantilever.tip_radius,
         ),
     }
+}
+
+/// The DMT adhesion of `[adhesion]`, `None` while it is off.
+pub fn adhesion(settings: &Settings) -> Option<Adhesion> {
+    let a = &settings.adhesion;
+    a.enable.then_some(Adhesion {
+        hamaker: a.hamaker,
+        distance: a.distance,
+    })
+}
+
+/// The coupled tapping problem (physics.md §6) of the settings with `sample` under the tip,
+/// driven at `drive_frequency` (Hz; the synthesiser's realised frequency may differ from the
+/// configured one by its phase word's rounding), with the adhesion of `[adhesion]`.
+pub fn coupled_problem(
+    settings: &Settings,
+    cantilever: &Cantilever,
+    sample: Material,
+    drive_frequency: f64,
+) -> CoupledProblem {
+    CoupledProblem::new(
+        cantilever,
+        drive_frequency,
+        settings.drive.free_amplitude,
+        settings.surface.distance,
+        impact_oscillator(settings, cantilever, sample).contact,
+    )
+    .with_adhesion(adhesion(settings))
 }

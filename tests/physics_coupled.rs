@@ -6,6 +6,7 @@
 use ftafm::config::{Settings, default_settings};
 use ftafm::model;
 use ftafm::physics::{CoupledOrbit, CoupledProblem, HertzContact};
+use rustfft::num_complex::Complex64;
 
 fn problem(settings: &Settings) -> CoupledProblem {
     let cantilever = model::cantilever(settings).unwrap();
@@ -46,8 +47,9 @@ fn check_invariants(settings: &Settings, orbit: &CoupledOrbit) {
         "energy balance {balance:e} of {:e} J",
         orbit.drive_work
     );
-    // A Hertz contact does no work over a closed orbit.
-    let scale = orbit.max_force * orbit.max_indentation;
+    // A Hertz contact (and DMT adhesion) does no work over a closed orbit: against the
+    // scale of the contact's energy, or of the drive's where the tip never touches.
+    let scale = (orbit.max_force * orbit.max_indentation).max(orbit.drive_work);
     assert!(
         orbit.contact_work.abs() <= 1e-4 * scale.max(1e-30),
         "contact work {:e} J against F·δ = {scale:e} J",
@@ -147,4 +149,125 @@ fn hard_tapping_parts_from_the_paper_engine_at_the_high_harmonics() {
         paper.max_force * 1e9
     );
     assert!((orbit.max_force / paper.max_force - 1.0).abs() < 0.1);
+}
+
+/// The settings with DMT adhesion on (silicon on silicon in air, the defaults of
+/// `[adhesion]`).
+fn adhesive(mut s: Settings) -> Settings {
+    s.adhesion.enable = true;
+    s
+}
+
+fn adhesive_orbit(s: &Settings, harmonics: usize) -> CoupledOrbit {
+    let c = model::cantilever(s).unwrap();
+    model::coupled_problem(s, &c, s.sample, s.drive.frequency)
+        .solve(harmonics)
+        .unwrap()
+}
+
+#[test]
+fn with_adhesion_the_tapping_orbit_keeps_its_invariants() {
+    let s = adhesive(default_settings());
+    let orbit = adhesive_orbit(&s, 18);
+    // The DMT force is a function of the tip position alone (continuous at the surface),
+    // so it too does no work over a closed orbit.
+    check_invariants(&s, &orbit);
+    let plain = problem(&default_settings()).solve(18).unwrap();
+    // The pull lowers the period's mean force by about itself times the time out of
+    // contact (it is HR/(6a0²) = 3.9 nN at the surface and falls off within nanometres, so
+    // less than that), and the tip still taps.
+    let pull = 6.4e-20 * 10e-9 / (6.0 * 0.165e-9f64.powi(2));
+    let shift = plain.force_coefficients[0].re - orbit.force_coefficients[0].re;
+    assert!(
+        shift > 0.0 && shift < pull,
+        "mean force {:e} N with adhesion, {:e} N without (pull {pull:e} N)",
+        orbit.force_coefficients[0].re,
+        plain.force_coefficients[0].re
+    );
+    assert!(orbit.max_force > 0.0 && orbit.contact_fraction > 0.0);
+    eprintln!(
+        "adhesion: F {:.4} nN (without {:.4}), τ {:.4} (without {:.4}), θ {:.3}° \
+         (without {:.3}°), mean force {:.4} nN (without {:.4})",
+        orbit.max_force * 1e9,
+        plain.max_force * 1e9,
+        orbit.contact_time_ratio,
+        plain.contact_time_ratio,
+        orbit.phase_shift_deg(),
+        plain.phase_shift_deg(),
+        orbit.force_coefficients[0].re * 1e9,
+        plain.force_coefficients[0].re * 1e9
+    );
+}
+
+/// Out of contact, a small oscillation above the surface feels the van der Waals force as
+/// a static pull and a (negative) spring: the fundamental is the free one divided by
+/// 1 − g′·H(Ω), where g′ = dg/dz = HR/(3(a0 + gap)³) at the static deflection's gap and
+/// H(Ω) = Σ φn(L)²/Kn·Tn(Ω) is the tip's receptance; the mean force is the pull there plus
+/// the curvature's g″a²/4 over the oscillation a. Derived from the modal model and the
+/// force law alone, not from the integrator.
+#[test]
+fn a_small_oscillation_above_the_surface_feels_the_linearised_attraction() {
+    let mut s = adhesive(default_settings());
+    s.drive.free_amplitude = 0.02e-9;
+    s.surface.distance = 2e-9;
+    let orbit = adhesive_orbit(&s, 4);
+    assert_eq!(orbit.contact_fraction, 0.0, "the tip must not touch");
+    assert_eq!(orbit.max_force, 0.0, "F is the largest push: none");
+    check_invariants(&s, &orbit);
+
+    let c = model::cantilever(&s).unwrap();
+    let strength = 6.4e-20 * 10e-9 / 6.0;
+    let a0 = 0.165e-9;
+    let compliance: f64 = c
+        .modes
+        .iter()
+        .map(|m| m.tip_value * m.tip_value / m.stiffness)
+        .sum();
+    // Static equilibrium: the mean tip deflection w = compliance·g(gap + w), by fixed point.
+    let mut w = 0.0;
+    for _ in 0..100 {
+        let d = a0 + s.surface.distance + w;
+        w = -compliance * strength / (d * d);
+    }
+    let d = a0 + s.surface.distance + w;
+    let mean_force = -strength / (d * d);
+    let gradient = 2.0 * strength / (d * d * d);
+    let omega = 2.0 * std::f64::consts::PI * s.drive.frequency;
+    let receptance: Complex64 = c
+        .modes
+        .iter()
+        .map(|m| m.tip_value * m.tip_value / m.stiffness * m.transfer(omega))
+        .sum();
+    let factor = Complex64::new(1.0, 0.0) - gradient * receptance;
+    // θ = lag(tap) − lag(free) = arg(1 − g′H); amplitude = free / |1 − g′H|.
+    let theta = factor.arg();
+    let a = s.drive.free_amplitude / factor.norm();
+    let mean_force = mean_force * (1.0 + 1.5 * a * a / (d * d));
+    let free = orbit.tapping_amplitude * factor.norm();
+    eprintln!(
+        "attractive regime: θ {:.4}° (linearised {:.4}°), mean force {:.5e} N ({:.5e} N), \
+         free amplitude implied {:.6e} m (set {:e} m)",
+        orbit.phase_shift_deg(),
+        theta.to_degrees(),
+        orbit.force_coefficients[0].re,
+        mean_force,
+        free,
+        s.drive.free_amplitude
+    );
+    assert!(theta.to_degrees() > 2.0, "the test must feel the spring");
+    assert!(
+        (orbit.phase_shift / theta - 1.0).abs() < 1e-3,
+        "θ {:.4}° vs linearised {:.4}°",
+        orbit.phase_shift_deg(),
+        theta.to_degrees()
+    );
+    assert!(
+        (free / s.drive.free_amplitude - 1.0).abs() < 1e-4,
+        "free amplitude implied {free:e} m"
+    );
+    assert!(
+        (orbit.force_coefficients[0].re / mean_force - 1.0).abs() < 1e-4,
+        "mean force {:e} N vs {mean_force:e} N",
+        orbit.force_coefficients[0].re
+    );
 }

@@ -8,7 +8,7 @@ use std::f64::consts::PI;
 
 use ftafm::config::{Engine, Settings, default_settings};
 use ftafm::model;
-use ftafm::physics::{CoupledOrbit, CoupledProblem, HertzContact};
+use ftafm::physics::{CoupledOrbit, HertzContact};
 use ftafm::synth::{SynthPlan, SynthState};
 use rustfft::num_complex::Complex64;
 
@@ -18,22 +18,13 @@ fn coupled(mut s: Settings) -> Settings {
     s
 }
 
-/// The offline periodic orbit at the plan's realised drive frequency.
+/// The offline periodic orbit at the plan's realised drive frequency (with the settings'
+/// adhesion).
 fn reference(settings: &Settings, plan: &SynthPlan) -> CoupledOrbit {
     let cantilever = model::cantilever(settings).unwrap();
-    CoupledProblem::new(
-        &cantilever,
-        plan.drive_frequency,
-        settings.drive.free_amplitude,
-        settings.surface.distance,
-        HertzContact::new(
-            model::elastic(settings.tip),
-            model::elastic(settings.sample),
-            settings.cantilever.tip_radius,
-        ),
-    )
-    .solve(24)
-    .unwrap()
+    model::coupled_problem(settings, &cantilever, settings.sample, plan.drive_frequency)
+        .solve(24)
+        .unwrap()
 }
 
 /// Peak-amplitude phasor of harmonic k (k = 0: the mean) over whole periods.
@@ -203,6 +194,24 @@ fn a_300_khz_lever_on_fused_silica_matches_the_offline_reference() {
     s.sample.poisson = 0.17;
     // 83⅓ samples per period: 3 periods are 250 samples.
     check_against_reference(&s, 210);
+}
+
+#[test]
+fn with_dmt_adhesion_the_silicon_orbit_matches_the_offline_reference() {
+    let mut s = coupled(default_settings());
+    s.adhesion.enable = true;
+    check_against_reference(&s, 200);
+}
+
+#[test]
+fn with_adhesion_in_hard_tapping_on_a_polymer_it_matches_the_offline_reference() {
+    // The pull (3.9 nN) against a soft contact's smaller repulsion, the tip deep in it.
+    let mut s = coupled(default_settings());
+    s.adhesion.enable = true;
+    s.sample.youngs_modulus = 3e9;
+    s.sample.poisson = 0.35;
+    s.surface.distance = 15e-9;
+    check_against_reference(&s, 200);
 }
 
 #[test]

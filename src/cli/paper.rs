@@ -105,6 +105,8 @@ pub struct ContrastRow {
 pub struct PaperReport {
     /// The engine that computed it: "paper" (the 1-DOF method) or "coupled" (§6).
     pub engine: &'static str,
+    /// Whether the rows include DMT adhesion (`[adhesion]`): only the coupled engine's do.
+    pub adhesion: bool,
     /// The cantilever's modes.
     pub modes: Vec<ModeRow>,
     /// The sample, then the inhomogeneity.
@@ -158,13 +160,8 @@ fn coupled_row(
     cantilever: &Cantilever,
 ) -> Result<MaterialRow, PaperError> {
     let oscillator = impact_oscillator(settings, cantilever, material);
-    let problem = crate::physics::CoupledProblem::new(
-        cantilever,
-        settings.drive.frequency,
-        settings.drive.free_amplitude,
-        settings.surface.distance,
-        oscillator.contact,
-    );
+    let problem =
+        crate::model::coupled_problem(settings, cantilever, material, settings.drive.frequency);
     let orbit = problem
         .solve(MAX_HARMONIC)
         .map_err(|source| PaperError::Coupled {
@@ -240,6 +237,7 @@ pub fn compute_with(
         .collect();
     Ok(PaperReport {
         engine: engine.name(),
+        adhesion: engine == Engine::Coupled && settings.adhesion.enable,
         modes,
         materials: vec![sample, inh],
         contrast,
@@ -473,6 +471,7 @@ pub fn is_paper_case(settings: &Settings) -> bool {
         && settings.sample == d.sample
         && settings.drive == d.drive
         && settings.surface == d.surface
+        && !settings.adhesion.enable
 }
 
 /// The command line.
@@ -526,6 +525,12 @@ pub fn command(
             crate::config::Engine::Coupled => (&other, &report),
         };
         println!();
+        if settings.adhesion.enable {
+            println!(
+                "Adhesion (/adhesion/enable): the coupled engine's rows include it, the paper \
+                 engine has none."
+            );
+        }
         print!("{}", render_engines(p, c));
     }
     Ok(ExitCode::SUCCESS)

@@ -95,6 +95,10 @@ const POISSON: Range = Range::between(-1.0, 0.5);
 const RELATIVE_MODULUS: Range = Range::closed(0.0, 1e4);
 /// Amplitudes and distances in m: up to 1 µm.
 const LENGTH: Range = Range::above_up_to(0.0, 1e-6);
+/// Hamaker constant in J: up to 1e-17 J, beyond any pair of solids (metals reach ~4e-19 J).
+const HAMAKER: Range = Range::above_up_to(0.0, 1e-17);
+/// Intermolecular distance a0 of the adhesion in m: 0.01 nm to 1 nm.
+const INTERMOLECULAR_DISTANCE: Range = Range::closed(1e-11, 1e-9);
 /// Photodiode sample rate in Hz.
 const SAMPLE_RATE: Range = Range::closed(1e3, 1e9);
 /// Filter time constant in s.
@@ -173,6 +177,12 @@ pub enum Field {
     DriveFreeAmplitude,
     /// `/surface/distance` (m).
     SurfaceDistance,
+    /// `/adhesion/enable` (bool).
+    AdhesionEnable,
+    /// `/adhesion/hamaker` (J).
+    AdhesionHamaker,
+    /// `/adhesion/distance` (m).
+    AdhesionDistance,
     /// `/synth/sample_rate` (Hz), read-only at runtime.
     SynthSampleRate,
     /// `/synth/engine` (text).
@@ -536,7 +546,7 @@ impl Typed {
 
 impl Field {
     /// Nodes outside the index-keyed tables (inclusions, demodulators), in tree order.
-    pub(crate) const SCALARS: [Field; 62] = [
+    pub(crate) const SCALARS: [Field; 65] = [
         Field::CantileverF1,
         Field::CantileverK,
         Field::CantileverQ,
@@ -550,6 +560,9 @@ impl Field {
         Field::DriveFollowF1,
         Field::DriveFreeAmplitude,
         Field::SurfaceDistance,
+        Field::AdhesionEnable,
+        Field::AdhesionHamaker,
+        Field::AdhesionDistance,
         Field::SynthSampleRate,
         Field::SynthEngine,
         Field::SynthSeed,
@@ -644,6 +657,9 @@ impl Field {
             Field::DriveFollowF1 => "/drive/follow_f1",
             Field::DriveFreeAmplitude => "/drive/free_amplitude",
             Field::SurfaceDistance => "/surface/distance",
+            Field::AdhesionEnable => "/adhesion/enable",
+            Field::AdhesionHamaker => "/adhesion/hamaker",
+            Field::AdhesionDistance => "/adhesion/distance",
             Field::SynthSampleRate => "/synth/sample_rate",
             Field::SynthEngine => "/synth/engine",
             Field::SynthSeed => "/synth/seed",
@@ -714,11 +730,11 @@ impl Field {
         fixed.to_owned()
     }
 
-    /// SI unit: `Hz`, `N/m`, `m`, `Pa`, `s`, `1/s`, `K`, `m/√Hz`, `1` (dimensionless numbers
-    /// and counts), `bit` (ADC resolution), `samples` (FFT and trace lengths, decimation,
-    /// points of the force waveform), `frames` (demodulator frames averaged), `pixels` (per
-    /// scan line), `clients`, `messages`, or empty for text, lists of text, booleans and the
-    /// inversion's harmonic numbers.
+    /// SI unit: `Hz`, `N/m`, `m`, `Pa`, `s`, `1/s`, `K`, `m/√Hz`, `J` (the Hamaker
+    /// constant), `1` (dimensionless numbers and counts), `bit` (ADC resolution), `samples`
+    /// (FFT and trace lengths, decimation, points of the force waveform), `frames`
+    /// (demodulator frames averaged), `pixels` (per scan line), `clients`, `messages`, or
+    /// empty for text, lists of text, booleans and the inversion's harmonic numbers.
     pub fn unit(self) -> &'static str {
         match self {
             Field::CantileverF1
@@ -732,6 +748,7 @@ impl Field {
             Field::CantileverTipRadius
             | Field::DriveFreeAmplitude
             | Field::SurfaceDistance
+            | Field::AdhesionDistance
             | Field::NoiseAdcRange
             | Field::ScanSize
             | Field::ScanX
@@ -743,6 +760,7 @@ impl Field {
             | Field::InclusionLength(_)
             | Field::InclusionHeight(_) => "m",
             Field::NoiseTemperature => "K",
+            Field::AdhesionHamaker => "J",
             Field::NoiseDetectorDensity => "m/√Hz",
             Field::NoiseAdcBits => "bit",
             Field::SpectrumSize
@@ -781,6 +799,7 @@ impl Field {
             | Field::SynthRealtime
             | Field::SynthAntiAlias
             | Field::DriveFollowF1
+            | Field::AdhesionEnable
             | Field::NoiseEnable
             | Field::SpectrumEnable
             | Field::SpectrumWindow
@@ -827,6 +846,8 @@ impl Field {
             }
             Field::InclusionRelativeModulus(_) => Kind::Float(RELATIVE_MODULUS),
             Field::DriveFreeAmplitude | Field::SurfaceDistance => Kind::Float(LENGTH),
+            Field::AdhesionHamaker => Kind::Float(HAMAKER),
+            Field::AdhesionDistance => Kind::Float(INTERMOLECULAR_DISTANCE),
             Field::SynthSampleRate => Kind::Float(SAMPLE_RATE),
             Field::SynthEngine => Kind::Text(Engine::NAMES),
             Field::SynthSeed => Kind::Integer {
@@ -836,6 +857,7 @@ impl Field {
             Field::SynthRealtime
             | Field::SynthAntiAlias
             | Field::DriveFollowF1
+            | Field::AdhesionEnable
             | Field::NoiseEnable
             | Field::SpectrumEnable
             | Field::ScopeEnable
@@ -972,6 +994,15 @@ impl Field {
             }
             Field::DriveFreeAmplitude => {
                 "Free (non-contact) peak tip amplitude at the drive frequency, in m."
+            }
+            Field::AdhesionEnable => {
+                "DMT adhesion (physics.md §6): the van der Waals pull −HR/(6(a0 + gap)²) above the surface and the constant −HR/(6a0²) in contact, added to the Hertz force. The coupled engine only: the paper engine's 1-DOF orbit has none (a warning says so)."
+            }
+            Field::AdhesionHamaker => {
+                "Hamaker constant H of the tip, sample and medium between them, in J (silicon on silicon in air ≈ 6.4e-20 J)."
+            }
+            Field::AdhesionDistance => {
+                "Intermolecular distance a0, in m: the gap at which the attraction saturates (0.165 nm in the literature's tapping simulations)."
             }
             Field::SurfaceDistance => {
                 "Distance A_set from the tip's rest position to the sample surface, in m; the tip taps when it is below the amplitude."
@@ -1205,6 +1236,9 @@ impl Field {
             Field::DriveFollowF1 => Typed::Bool(s.drive.follow_f1),
             Field::DriveFreeAmplitude => Typed::Float(s.drive.free_amplitude),
             Field::SurfaceDistance => Typed::Float(s.surface.distance),
+            Field::AdhesionEnable => Typed::Bool(s.adhesion.enable),
+            Field::AdhesionHamaker => Typed::Float(s.adhesion.hamaker),
+            Field::AdhesionDistance => Typed::Float(s.adhesion.distance),
             Field::SynthSampleRate => Typed::Float(s.synth.sample_rate),
             Field::SynthEngine => Typed::Text(s.synth.engine.name()),
             Field::SynthSeed => Typed::Integer(s.synth.seed),
@@ -1294,6 +1328,9 @@ impl Field {
             (Field::DriveFollowF1, Typed::Bool(b)) => s.drive.follow_f1 = b,
             (Field::DriveFreeAmplitude, Typed::Float(x)) => s.drive.free_amplitude = x,
             (Field::SurfaceDistance, Typed::Float(x)) => s.surface.distance = x,
+            (Field::AdhesionEnable, Typed::Bool(b)) => s.adhesion.enable = b,
+            (Field::AdhesionHamaker, Typed::Float(x)) => s.adhesion.hamaker = x,
+            (Field::AdhesionDistance, Typed::Float(x)) => s.adhesion.distance = x,
             (Field::SynthSampleRate, Typed::Float(x)) => s.synth.sample_rate = x,
             (Field::SynthEngine, Typed::Text(name)) => s.synth.engine = Engine::from_name(name)?,
             (Field::SynthSeed, Typed::Integer(n)) => s.synth.seed = n,

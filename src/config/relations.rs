@@ -12,7 +12,7 @@ use super::field::{
 };
 use super::quantity::{number, quantity};
 use super::registry::registry;
-use super::settings::{DEMODULATOR_COUNT, INCLUSION_COUNT, Settings};
+use super::settings::{DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, Settings};
 
 impl Settings {
     /// Checks everything `set` and the config loader guarantee: exactly
@@ -155,8 +155,16 @@ impl Settings {
 impl Settings {
     /// Why the node at `path` does not do what its value alone suggests, for `list`, `get`
     /// and `status`: an enabled demodulator out of band, an inversion harmonic replaced by
-    /// an in-band one (or no two in band). `None` when there is nothing to say.
+    /// an in-band one (or no two in band), adhesion that the paper engine does not model.
+    /// `None` when there is nothing to say.
     pub fn node_warning(&self, path: &str) -> Option<String> {
+        if path.starts_with("/adhesion/") || path == "/synth/engine" {
+            return self.adhesion_ignored().then(|| {
+                "adhesion is on but /synth/engine is \"paper\", whose 1-DOF orbit has no \
+                 adhesion: it acts only with /synth/engine = \"coupled\""
+                    .to_owned()
+            });
+        }
         let rest = path.strip_prefix("/demods/");
         if let Some((index, key)) = rest.and_then(|r| r.split_once('/')) {
             let i: usize = index.parse().ok()?;
@@ -206,8 +214,14 @@ impl Settings {
         })
     }
 
+    /// Whether `[adhesion]` is on where the engine ignores it.
+    fn adhesion_ignored(&self) -> bool {
+        self.adhesion.enable && self.synth.engine == Engine::Paper
+    }
+
     /// Every node warning ([`Settings::node_warning`]), each once: demodulators out of band
-    /// in one line, then the inversion's. For `status` and the dashboard.
+    /// in one line, then the inversion's, then adhesion the engine ignores. For `status`
+    /// and the dashboard.
     pub fn warnings(&self) -> Vec<String> {
         let mut out = Vec::new();
         let outside = self.demods_out_of_band();
@@ -232,6 +246,9 @@ impl Settings {
                 out.push(format!("{path}: {w}"));
                 seen.push(w);
             }
+        }
+        if let Some(w) = self.node_warning("/adhesion/enable") {
+            out.push(format!("/adhesion/enable: {w}"));
         }
         out
     }
@@ -1001,5 +1018,20 @@ mod tests {
             1,
             "{warnings:?}"
         );
+    }
+
+    #[test]
+    fn adhesion_on_the_paper_engine_is_a_warning_on_its_nodes_and_in_status() {
+        let mut s = default_settings();
+        assert!(s.warnings().is_empty());
+        s.adhesion.enable = true;
+        s.validate().unwrap();
+        let w = s.node_warning("/adhesion/hamaker").unwrap();
+        assert!(w.contains("\"paper\"") && w.contains("\"coupled\""), "{w}");
+        assert_eq!(s.node_warning("/synth/engine").as_deref(), Some(w.as_str()));
+        assert_eq!(s.warnings(), vec![format!("/adhesion/enable: {w}")]);
+        s.synth.engine = Engine::Coupled;
+        assert!(s.node_warning("/adhesion/enable").is_none());
+        assert!(s.warnings().is_empty());
     }
 }

@@ -22,6 +22,7 @@ pub struct Settings {
     pub sample: Material,
     pub drive: DriveSettings,
     pub surface: SurfaceSettings,
+    pub adhesion: AdhesionSettings,
     pub synth: SynthSettings,
     pub noise: NoiseSettings,
     pub spectrum: SpectrumSettings,
@@ -87,6 +88,19 @@ pub struct DriveSettings {
 #[serde(deny_unknown_fields)]
 pub struct SurfaceSettings {
     /// A_set: distance from the tip's rest position to the sample surface (m).
+    pub distance: f64,
+}
+
+/// `[adhesion]`: DMT adhesion on top of the Hertz contact (physics.md §6), off by default as
+/// in the paper.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AdhesionSettings {
+    /// Whether the coupled engine adds the adhesion force.
+    pub enable: bool,
+    /// Hamaker constant H (J).
+    pub hamaker: f64,
+    /// Intermolecular distance a0 (m).
     pub distance: f64,
 }
 

@@ -79,3 +79,35 @@ impl HertzContact {
         }
     }
 }
+
+/// DMT adhesion (physics.md §6): the van der Waals attraction of a sphere of radius R to a
+/// flat, `−HR/(6(a0 − δ)²)` out of contact (δ < 0) and the constant `−HR/(6a0²)` in
+/// contact, where it adds to the Hertz force (Derjaguin–Muller–Toporov).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Adhesion {
+    /// Hamaker constant H (J).
+    pub hamaker: f64,
+    /// Intermolecular distance a0 (m): where the attraction saturates.
+    pub distance: f64,
+}
+
+impl Adhesion {
+    /// HR/6 (N·m) of a tip of radius `radius` (m): the attraction is this over a squared
+    /// distance.
+    pub fn strength(&self, radius: f64) -> f64 {
+        self.hamaker * radius / 6.0
+    }
+
+    /// The adhesion force HR/(6a0²) (N, a magnitude): the pull in contact, and the most
+    /// negative force out of it.
+    pub fn pull_off(&self, radius: f64) -> f64 {
+        self.strength(radius) / (self.distance * self.distance)
+    }
+
+    /// Attractive force (N, ≤ 0) of a tip of radius `radius` (m) at indentation `delta`
+    /// (m; negative: a gap of −δ to the surface).
+    pub fn force(&self, radius: f64, delta: f64) -> f64 {
+        let d = self.distance - delta.min(0.0);
+        -self.strength(radius) / (d * d)
+    }
+}

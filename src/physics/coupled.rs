@@ -12,6 +12,8 @@
 //!   next contact is found by scanning the exact trajectory and bisecting on it;
 //! - in contact it is integrated by an adaptive Dormand–Prince 5(4) Runge–Kutta with a tight
 //!   tolerance and a step cap, and the exit is located by bisection on the step;
+//! - with DMT adhesion the force never vanishes, so the Runge–Kutta integrates the whole
+//!   period (a longer cap outside contact) and bisects for the entry as for the exit;
 //! - the periodic orbit is the fixed point of the one-period map `h(0) ↦ h(T)`, found by
 //!   Newton's method (Jacobian by central differences) after a transient has decayed;
 //!   the Jacobian at the solution is the monodromy matrix, whose eigenvalues are the Floquet
@@ -19,14 +21,15 @@
 //!
 //! At the periodic orbit `h` is exactly the periodic response to `g`, so the harmonics of the
 //! tip motion and of the photodiode follow from the Fourier coefficients of `g`, which are
-//! integrated over the contact (where `g` lives) on the integrator's own steps.
+//! integrated over the contact (where `g` lives; the whole period with adhesion) on the
+//! integrator's own steps.
 
 use std::f64::consts::PI;
 
 use rustfft::num_complex::Complex64;
 
 use super::beam::{Cantilever, Mode};
-use super::contact::HertzContact;
+use super::contact::{Adhesion, HertzContact};
 
 /// The tapping problem of §6: modes, drive, surface and contact.
 #[derive(Clone, Debug)]
@@ -41,6 +44,8 @@ pub struct CoupledProblem {
     pub surface_distance: f64,
     /// The Hertz contact.
     pub contact: HertzContact,
+    /// DMT adhesion on top of it, if any ([`CoupledProblem::with_adhesion`]).
+    pub adhesion: Option<Adhesion>,
 }
 
 /// Why no periodic orbit came out.
@@ -61,7 +66,7 @@ pub enum CoupledError {
 pub struct CoupledOrbit {
     /// Base amplitude U (m) that gives the free amplitude.
     pub base_amplitude: f64,
-    /// Peak tip–sample force F (N).
+    /// Peak tip–sample force F (N): the largest push, 0 if the tip never pushes.
     pub max_force: f64,
     /// Maximum indentation δ_max (m).
     pub max_indentation: f64,
@@ -148,6 +153,23 @@ impl CoupledProblem {
             free_amplitude,
             surface_distance,
             contact,
+            adhesion: None,
+        }
+    }
+
+    /// The same problem with DMT adhesion (physics.md §6). Its force acts at every distance,
+    /// so the orbit is then integrated by the Runge–Kutta over the whole period.
+    pub fn with_adhesion(mut self, adhesion: Option<Adhesion>) -> Self {
+        self.adhesion = adhesion;
+        self
+    }
+
+    /// Tip–sample force g (N, positive pushes the tip away) at indentation `delta` (m).
+    pub fn force(&self, delta: f64) -> f64 {
+        let repulsion = self.contact.force(delta.max(0.0));
+        match self.adhesion {
+            Some(a) => repulsion + a.force(self.contact.radius, delta),
+            None => repulsion,
         }
     }
 
@@ -279,7 +301,7 @@ impl CoupledProblem {
         let contact_time: f64 = record
             .force
             .windows(2)
-            .filter(|w| w[0].1 > 0.0 || w[1].1 > 0.0)
+            .filter(|w| w[0].2 > 0.0 || w[1].2 > 0.0)
             .map(|w| w[1].0 - w[0].0)
             .sum();
         let fwhm = full_width_at_half_maximum(&record.force, max_force);
@@ -482,7 +504,7 @@ impl<'a> PeriodMap<'a> {
 
     /// dh/dt in contact.
     fn derivative(&self, t: f64, h: &[f64], out: &mut [f64]) {
-        let g = self.p.contact.force(self.indentation(t, h).max(0.0));
+        let g = self.p.force(self.indentation(t, h));
         for (n, m) in self.p.modes.iter().enumerate() {
             let (y, v) = (h[2 * n], h[2 * n + 1]);
             out[2 * n] = v;
@@ -567,6 +589,8 @@ impl<'a> PeriodMap<'a> {
     ) -> Result<Vec<f64>, CoupledError> {
         let t_end = self.t_period;
         let max_contact_step = contact_step * t_end;
+        // Adhesion pulls at every distance: no force-free stretch to propagate exactly.
+        let force_free_outside = self.p.adhesion.is_none();
         let mut t = 0.0;
         let mut h = h.to_vec();
         let mut in_contact = self.indentation(0.0, &h) > 0.0;
@@ -575,7 +599,7 @@ impl<'a> PeriodMap<'a> {
             self.accumulate(r, t, &h);
         }
         while t < t_end {
-            if !in_contact {
+            if !in_contact && force_free_outside {
                 let step = self.scan_step.min(t_end - t);
                 let next = self.propagate(&h, step);
                 if self.indentation(t + step, &next) > 0.0 {
@@ -605,8 +629,14 @@ impl<'a> PeriodMap<'a> {
                 }
                 continue;
             }
-            // In contact: one adaptive step.
-            let step = dt.min(max_contact_step).min(t_end - t);
+            // One adaptive step, no longer than the contact's cap inside and the scan step
+            // outside.
+            let cap = if in_contact {
+                max_contact_step
+            } else {
+                self.scan_step
+            };
+            let step = dt.min(cap).min(t_end - t);
             let (trial, err) = self.dp_step(t, &h, step);
             if err > 1.0 && step > 1e-14 * t_end {
                 dt = step * (0.9 * err.powf(-0.2)).max(0.2);
@@ -620,12 +650,14 @@ impl<'a> PeriodMap<'a> {
             } else {
                 5.0
             };
-            if self.indentation(t + step, &trial) < 0.0 {
-                // Left contact within the step: bisect on the step length.
+            if (self.indentation(t + step, &trial) > 0.0) != in_contact {
+                // Crossed the surface within the step (the force's law changes there):
+                // bisect on the step length.
                 let (mut lo, mut hi) = (0.0, step);
                 for _ in 0..80 {
                     let mid = 0.5 * (lo + hi);
-                    if self.indentation(t + mid, &self.dp_step(t, &h, mid).0) > 0.0 {
+                    if (self.indentation(t + mid, &self.dp_step(t, &h, mid).0) > 0.0) == in_contact
+                    {
                         lo = mid;
                     } else {
                         hi = mid;
@@ -636,17 +668,17 @@ impl<'a> PeriodMap<'a> {
                 }
                 h = self.dp_step(t, &h, hi).0;
                 t += hi;
-                in_contact = false;
-                if let Some(r) = record.as_deref_mut() {
-                    self.accumulate(r, t, &h);
+                in_contact = !in_contact;
+                if in_contact {
+                    dt = max_contact_step * 0.01;
                 }
             } else {
                 h = trial;
                 t += step;
                 dt = step * grow;
-                if let Some(r) = record.as_deref_mut() {
-                    self.accumulate(r, t, &h);
-                }
+            }
+            if let Some(r) = record.as_deref_mut() {
+                self.accumulate(r, t, &h);
             }
         }
         Ok(h)
@@ -657,7 +689,7 @@ impl<'a> PeriodMap<'a> {
         let (_, ubase_v) = self.base(t);
         let udd = -self.u * self.p.drive_omega.powi(2) * (self.p.drive_omega * t).sin();
         let delta = self.indentation(t, h);
-        let g = self.p.contact.force(delta.max(0.0));
+        let g = self.p.force(delta);
         let mut drive = 0.0;
         let mut damping = 0.0;
         let mut tip_v = ubase_v;
@@ -682,7 +714,7 @@ impl<'a> PeriodMap<'a> {
             r.damping_work += 0.5 * dt * (before.1 + now.1);
             r.contact_work += 0.5 * dt * (before.2 + now.2);
             r.base_contact_work += 0.5 * dt * (before.3 + now.3);
-            if before.4 > 0.0 || now.4 > 0.0 {
+            if before.4 != 0.0 || now.4 != 0.0 {
                 let w = self.p.drive_omega;
                 for (k, c) in r.coefficients.iter_mut().enumerate() {
                     let e0 = Complex64::from_polar(1.0, -(k as f64) * w * t0);
@@ -691,7 +723,7 @@ impl<'a> PeriodMap<'a> {
                 }
             }
         }
-        if now.4 > 0.0 || r.force.last().is_some_and(|l| l.1 > 0.0) {
+        if now.4 != 0.0 || r.force.last().is_some_and(|l| l.1 != 0.0) {
             r.force.push((t, now.4, now.5.max(0.0)));
         }
         r.last = Some((t, now));

@@ -10,7 +10,7 @@ pub mod sample_map;
 pub mod spectrum;
 
 pub use beam::{Cantilever, Mode};
-pub use contact::{Elastic, HertzContact};
+pub use contact::{Adhesion, Elastic, HertzContact};
 pub use coupled::{CoupledError, CoupledOrbit, CoupledProblem};
 pub use impact::{ImpactOscillator, ImpactSolution, SolveOptions};
 pub use sample_map::{Outline, Region, SampleMap};

@@ -12,8 +12,9 @@
 //!   first kick, so a step costs one force evaluation).
 //!
 //! A sample is one step while the tip is well clear of the surface at both of its ends
-//! (where `g = 0` and the step is exact); otherwise it is redone in [`SUBSTEPS`] sub-steps,
-//! so that the contact, which lasts a few samples, is resolved. The thermal input is held
+//! (where `g = 0` and the step is exact, or with adhesion where the van der Waals pull is
+//! weak and smooth); otherwise it is redone in [`SUBSTEPS`] sub-steps, so that the contact,
+//! which lasts a few samples, is resolved. The thermal input is held
 //! over the whole sample, and the sub-steps' propagation of it sums to exactly the
 //! one-step value, so the noise does not depend on where the engine sub-steps.
 
@@ -26,7 +27,13 @@ use rustfft::num_complex::Complex64;
 
 use super::modal::{ModalKernel, lane_sum};
 use crate::physics::beam::{MAX_MODES, Mode};
-use crate::physics::contact::HertzContact;
+use crate::physics::contact::{Adhesion, HertzContact};
+
+/// With adhesion, a sample is one step only where the gap is at least this many
+/// intermolecular distances a0 at both ends, where the pull is below 1/121 of its most and
+/// its gradient below 1/1331 of its most. Measured against the offline reference with
+/// adhesion (`tests/synth_coupled.rs`).
+pub const ADHESION_REACH: f64 = 10.0;
 
 /// Sub-steps per sample near and in contact. Measured against the offline reference
 /// (`tests/synth_coupled.rs`): see docs/ft-afm.md.
@@ -91,6 +98,12 @@ pub struct CoupledTrace {
 pub struct CoupledKernel {
     /// Hertz prefactor κ_eff·√R (N/m^{3/2}).
     pub(crate) stiffness: f64,
+    /// Adhesion HR/6 (N·m; 0 without adhesion), its intermolecular distance a0 (m) and the
+    /// pull in contact HR/(6a0²) (N).
+    strength: f64,
+    a0: f64,
+    pull_off: f64,
+    adhesion: Option<Adhesion>,
     /// A_set: the surface is at z = −A_set (m).
     pub(crate) distance: f64,
     /// The free tip position (base plus free deflection): z⁰ = Re[free_tip·e^{iθ}] (m).
@@ -120,8 +133,9 @@ pub struct CoupledKernel {
 impl CoupledKernel {
     /// The kernel for `modes` sampled every `h` (s), driven at `omega` (rad/s) with free
     /// modal responses `drive_response` (Y⁰_n = Re[Ŷ_n e^{iθ}], m) from a base amplitude
-    /// `base_amplitude` (m), the surface at `distance` (m) and the `contact`, with the
-    /// thermal input of each mode held over a sample of standard deviation `thermal_sigma`.
+    /// `base_amplitude` (m), the surface at `distance` (m), the `contact` and its
+    /// `adhesion`, with the thermal input of each mode held over a sample of standard
+    /// deviation `thermal_sigma`.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn new(
         modes: &[Mode],
@@ -131,6 +145,7 @@ impl CoupledKernel {
         base_amplitude: f64,
         distance: f64,
         contact: &HertzContact,
+        adhesion: Option<Adhesion>,
         thermal_sigma: &[f64],
     ) -> Self {
         let mut tip = [0.0; MAX_MODES];
@@ -149,8 +164,21 @@ impl CoupledKernel {
             curvature += omega * omega * (y * mode.tip_value).norm();
         }
         let dt = h / SUBSTEPS as f64;
+        // Twice the chord bound a·h²/8, and never below 1 pm.
+        let mut margin = (curvature * h * h / 4.0).max(1e-12);
+        let (mut strength, mut a0, mut pull_off) = (0.0, 1.0, 0.0);
+        if let Some(a) = adhesion {
+            strength = a.strength(contact.radius);
+            a0 = a.distance;
+            pull_off = a.pull_off(contact.radius);
+            margin = margin.max(ADHESION_REACH * a.distance);
+        }
         Self {
             stiffness: contact.stiffness_coefficient(),
+            strength,
+            a0,
+            pull_off,
+            adhesion,
             distance,
             free_tip,
             tip,
@@ -160,8 +188,7 @@ impl CoupledKernel {
             half_h: 0.5 * h,
             half_dt: 0.5 * dt,
             sub_rotation: Complex64::from_polar(1.0, omega * dt),
-            // Twice the chord bound a·h²/8, and never below 1 pm.
-            margin: (curvature * h * h / 4.0).max(1e-12),
+            margin,
             base_amplitude,
             omega,
             contact: *contact,
@@ -173,7 +200,10 @@ impl CoupledKernel {
     pub(crate) fn force(&self, gap: f64) -> f64 {
         if gap < 0.0 {
             let delta = -gap;
-            self.stiffness * delta * delta.sqrt()
+            self.stiffness * delta * delta.sqrt() - self.pull_off
+        } else if self.strength != 0.0 {
+            let d = self.a0 + gap;
+            -self.strength / (d * d)
         } else {
             0.0
         }
@@ -230,11 +260,16 @@ impl CoupledKernel {
         self.full.apply(&mut r1, &mut i1, z);
         let gap1 = self.gap(next, &i1);
         if gap0.min(gap1) >= self.margin {
-            // Clear of the surface at both ends (so no force at the end either).
+            // Clear of the surface at both ends: no force at the end, or adhesion's weak one.
+            let mut g1 = 0.0;
+            if self.strength != 0.0 {
+                g1 = self.force(gap1);
+                self.kick_lanes(&mut r1, self.half_h * g1);
+            }
             *re = r1;
             *im = i1;
             for _ in 0..SUBSTEPS {
-                record(0.0);
+                record(g1);
             }
             return false;
         }
@@ -338,6 +373,7 @@ impl CoupledKernel {
             self.base_amplitude,
             self.distance,
             &self.contact,
+            self.adhesion,
             &silent,
         );
         // A scan may have set another surface under the tip.
@@ -394,6 +430,7 @@ mod tests {
             1e-10,
             1.0,
             &contact,
+            None,
             &sigma,
         );
         (k, c.modes)

@@ -265,6 +265,7 @@ impl SynthPlan {
                 gain / (omega * omega),
                 settings.surface.distance,
                 &contact,
+                model::adhesion(settings),
                 &thermal_sigma,
             )
         });
