@@ -120,6 +120,13 @@ pub struct CoupledKernel {
     pub(crate) half_dt: f64,
     /// Drive phasor per sub-step, e^{iΩh/S}.
     pub(crate) sub_rotation: Complex64,
+    /// The tip's displacement after a sub-step's drift per unit of Im q, of Re q and of
+    /// the thermal deviate before it (m), and per unit of the impulse kicked before it
+    /// (Σ tip·a_im·kick, m/(N·s)).
+    sub_gap_im: [f64; MAX_MODES],
+    sub_gap_re: [f64; MAX_MODES],
+    sub_gap_noise: [f64; MAX_MODES],
+    sub_gap_kick: f64,
     /// A sample whose ends both leave at least this gap to the surface is one step (m):
     /// a bound on how far the tip can dip below the chord of its path within a sample.
     pub(crate) margin: f64,
@@ -173,8 +180,22 @@ impl CoupledKernel {
             pull_off = a.pull_off(contact.radius);
             margin = margin.max(ADHESION_REACH * a.distance);
         }
+        let sub = Drift::new(modes, dt, thermal_sigma);
+        let (mut sub_gap_im, mut sub_gap_re) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
+        let mut sub_gap_noise = [0.0; MAX_MODES];
+        let mut sub_gap_kick = 0.0;
+        for m in 0..modes.len() {
+            sub_gap_im[m] = tip[m] * sub.a_re[m];
+            sub_gap_re[m] = tip[m] * sub.a_im[m];
+            sub_gap_noise[m] = tip[m] * sub.noise_im[m];
+            sub_gap_kick += tip[m] * sub.a_im[m] * kick[m];
+        }
         Self {
             stiffness: contact.stiffness_coefficient(),
+            sub_gap_im,
+            sub_gap_re,
+            sub_gap_noise,
+            sub_gap_kick,
             strength,
             a0,
             pull_off,
@@ -184,7 +205,7 @@ impl CoupledKernel {
             tip,
             kick,
             full: Drift::new(modes, h, thermal_sigma),
-            sub: Drift::new(modes, dt, thermal_sigma),
+            sub,
             half_h: 0.5 * h,
             half_dt: 0.5 * dt,
             sub_rotation: Complex64::from_polar(1.0, omega * dt),
@@ -209,15 +230,15 @@ impl CoupledKernel {
         }
     }
 
-    /// Gap to the surface (m) at drive phasor `rho` with mode lanes `im`.
+    /// Tip position z (m) at drive phasor `rho` with mode lanes `im`.
     #[inline(always)]
-    pub(crate) fn gap<const L: usize>(&self, rho: Complex64, im: &[f64; L]) -> f64 {
+    pub(crate) fn tip_position<const L: usize>(&self, rho: Complex64, im: &[f64; L]) -> f64 {
         let mut p = [0.0; L];
         for m in 0..L {
             p[m] = self.tip[m] * im[m];
         }
         let w = lane_sum(p);
-        (self.free_tip * rho).re + w + self.distance
+        (self.free_tip * rho).re + w
     }
 
     /// Advances the lanes by one sample from drive phasor `rho` to `next` with the
@@ -233,12 +254,15 @@ impl CoupledKernel {
         z: &[f64],
         mid: &mut [f64; L],
     ) -> bool {
-        self.step_recorded(re, im, rho, next, z, mid, &mut |_| {})
+        let mut tip = f64::NAN;
+        self.step_recorded(re, im, rho, next, z, mid, &mut tip, &mut |_| {})
     }
 
     /// [`step`](Self::step), handing `record` the force at the end of every sub-step
     /// ([`SUBSTEPS`] values per sample, the end-of-sample force repeated where the sample
-    /// is one step). The real-time loop passes a no-op, which compiles away.
+    /// is one step). The real-time loop passes a no-op, which compiles away. `tip` is the
+    /// tip position at `rho` if known (NaN if not: it is computed) and is left at the
+    /// position at `next`, so a loop of steps computes each position once.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     pub(crate) fn step_recorded<const L: usize>(
@@ -249,16 +273,23 @@ impl CoupledKernel {
         next: Complex64,
         z: &[f64],
         mid: &mut [f64; L],
+        tip: &mut f64,
         record: &mut impl FnMut(f64),
     ) -> bool {
-        let gap0 = self.gap(rho, im);
+        let z0 = if tip.is_nan() {
+            self.tip_position(rho, im)
+        } else {
+            *tip
+        };
+        let gap0 = z0 + self.distance;
         let g0 = self.force(gap0);
         let (mut r1, mut i1) = (*re, *im);
         if g0 != 0.0 {
             self.kick_lanes(&mut r1, self.half_h * g0);
         }
         self.full.apply(&mut r1, &mut i1, z);
-        let gap1 = self.gap(next, &i1);
+        let z1 = self.tip_position(next, &i1);
+        let gap1 = z1 + self.distance;
         if gap0.min(gap1) >= self.margin {
             // Clear of the surface at both ends: no force at the end, or adhesion's weak one.
             let mut g1 = 0.0;
@@ -268,28 +299,45 @@ impl CoupledKernel {
             }
             *re = r1;
             *im = i1;
+            *tip = z1;
             for _ in 0..SUBSTEPS {
                 record(g1);
             }
             return false;
         }
+        // Sub-steps, the two half kicks between them merged into one. The gap after a
+        // drift is split into the part without the kick of the force g before it (lanes
+        // only) and that kick's part, a scalar: C·g. So the chain from one force to the
+        // next is one multiply-add, the force law and the kick's scalar, and the lanes'
+        // arithmetic runs beside it instead of in it (the sub-steps are latency-bound).
         let mut r = rho;
         let mut g = g0;
+        let mut weight = self.half_dt;
         for j in 0..SUBSTEPS {
             if j == SUBSTEPS / 2 {
                 // Kicks move Re q only, so Im q here is the midpoint's either side of one.
                 *mid = *im;
             }
+            r *= self.sub_rotation;
+            let mut p = [0.0; L];
+            for m in 0..L {
+                p[m] = self.sub_gap_im[m] * im[m]
+                    + self.sub_gap_re[m] * re[m]
+                    + self.sub_gap_noise[m] * z[m];
+            }
+            let impulse = weight * g;
+            *tip = (self.free_tip * r).re + lane_sum(p) + self.sub_gap_kick * impulse;
+            let next_g = self.force(*tip + self.distance);
             if g != 0.0 {
-                self.kick_lanes(re, self.half_dt * g);
+                self.kick_lanes(re, impulse);
             }
             self.sub.apply(re, im, z);
-            r *= self.sub_rotation;
-            g = self.force(self.gap(r, im));
+            g = next_g;
             record(g);
-            if g != 0.0 {
-                self.kick_lanes(re, self.half_dt * g);
-            }
+            weight = 2.0 * self.half_dt;
+        }
+        if g != 0.0 {
+            self.kick_lanes(re, self.half_dt * g);
         }
         true
     }
@@ -392,9 +440,17 @@ impl CoupledKernel {
                 if period >= periods {
                     let before = im;
                     let mut largest = 0.0f64;
-                    kernel.step_recorded(&mut re, &mut im, rho, next, &z, &mut mid, &mut |g| {
-                        largest = largest.max(g)
-                    });
+                    let mut tip = f64::NAN;
+                    kernel.step_recorded(
+                        &mut re,
+                        &mut im,
+                        rho,
+                        next,
+                        &z,
+                        &mut mid,
+                        &mut tip,
+                        &mut |g| largest = largest.max(g),
+                    );
                     sample(phase, &before, largest);
                 } else {
                     kernel.step(&mut re, &mut im, rho, next, &z, &mut mid);

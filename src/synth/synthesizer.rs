@@ -268,6 +268,8 @@ impl SynthPlan {
         let mut re: [f64; L] = std::array::from_fn(|m| state.re[m]);
         let mut im: [f64; L] = std::array::from_fn(|m| state.im[m]);
         let mut mid_im = [0.0; L];
+        // The coupled engine's tip position at the next sample, once a step has found it.
+        let mut tip = f64::NAN;
         let mut phase = state.phase;
         let mut rho = state.rho;
         let mut index = state.counters.samples;
@@ -321,7 +323,17 @@ impl SynthPlan {
                 let next = rho * step;
                 if let Some(coupled) = coupled {
                     // The coupled engine: the tap force from the tip position.
-                    if coupled.step(&mut re, &mut im, rho, next, &z[1..], &mut mid_im) && MID {
+                    let substepped = coupled.step_recorded(
+                        &mut re,
+                        &mut im,
+                        rho,
+                        next,
+                        &z[1..],
+                        &mut mid_im,
+                        &mut tip,
+                        &mut |_| {},
+                    );
+                    if substepped && MID {
                         mid = (self.drive_signal * rho * self.half_rotation).re
                             + lane_sum(mul(&k.lever, &mid_im));
                     }
@@ -394,10 +406,18 @@ impl SynthPlan {
             let rho = Complex64::from_polar(1.0, phase_to_radians(state.phase));
             let next_phase = state.phase.wrapping_add(step);
             let next = Complex64::from_polar(1.0, phase_to_radians(next_phase));
-            trace.tip.push(coupled.gap(rho, &im) - coupled.distance);
-            coupled.step_recorded(&mut re, &mut im, rho, next, &z, &mut mid, &mut |g| {
-                trace.force.push(g)
-            });
+            let mut tip = coupled.tip_position(rho, &im);
+            trace.tip.push(tip);
+            coupled.step_recorded(
+                &mut re,
+                &mut im,
+                rho,
+                next,
+                &z,
+                &mut mid,
+                &mut tip,
+                &mut |g| trace.force.push(g),
+            );
             state.phase = next_phase;
             state.counters.samples += 1;
         }
