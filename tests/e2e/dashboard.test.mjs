@@ -223,7 +223,7 @@ test("the FT-AFM force panel receives estimates and draws them", { ...TEST }, as
   // the force stream is only subscribed while the panel is on screen
   await page.locator("#p-force").scrollIntoViewIfNeeded();
   // the page takes every 20th of the 1 kHz estimates (`every`): 50 a second, which it keeps up with
-  await until(() => window.ftafm.stats.messages.force >= 100 && window.ftafm.stats.draws.force >= 5, null, "2 s of force messages and drawn force plots", 15000);
+  await until(() => window.ftafm.stats.messages.force >= 100 && window.ftafm.stats.draws.force >= 5, null, "2 s of force messages and drawn force plots");
   const s = await stats();
   t.diagnostic(`force: ${s.messages.force} messages, ${s.gaps.force} lost, ${s.draws.force} draws; demods ${s.gaps.demods} lost of ${s.messages.demods}`);
   assert.equal(s.gaps.force, 0, "no force estimate the page asked for is lost: the trend has no gaps");
