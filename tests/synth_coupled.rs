@@ -114,7 +114,7 @@ fn check_against_reference(settings: &Settings, periods: usize) {
     let n = whole_periods(&plan, periods);
     let (start, samples) = tap_response(&plan, &mut state, n);
     let h6 = orbit.spectrum[6];
-    let mut worst = (0, 0.0f64);
+    let (mut worst, mut h1) = ((0, 0.0f64), 0.0);
     for k in 1..=18u64 {
         let got = harmonic(&samples, &plan, start, k).norm();
         let want = orbit.spectrum[k as usize];
@@ -128,7 +128,9 @@ fn check_against_reference(settings: &Settings, periods: usize) {
             "H{k}: real-time {got:.6e} m, offline {want:.6e} m ({:.3} %)",
             err * 100.0
         );
-        if k > 1 && !NEAR_ZEROS.contains(&k) && err > worst.1 {
+        if k == 1 {
+            h1 = err;
+        } else if !NEAR_ZEROS.contains(&k) && err > worst.1 {
             worst = (k, err);
         }
     }
@@ -147,9 +149,10 @@ fn check_against_reference(settings: &Settings, periods: usize) {
     // The figures docs/ft-afm.md quotes (`cargo test --release --test synth_coupled --
     // --nocapture`).
     eprintln!(
-        "F {:+.3} %, τ {:+.3} %, θ {dtheta:+.4}°, worst of H2–H18 H{} {:.3} %",
+        "F {:+.3} %, τ {:+.3} %, θ {dtheta:+.4}°, H1 {:.4} %, worst of H2–H18 H{} {:.3} %",
         (force / orbit.max_force - 1.0) * 100.0,
         (tau / orbit.contact_time_ratio - 1.0) * 100.0,
+        h1 * 100.0,
         worst.0,
         worst.1 * 100.0
     );
