@@ -54,7 +54,8 @@ pub struct ImageFrame {
 
 /// The frame being filled.
 struct Frame {
-    generation: u32,
+    /// The raster its pixels come from: generation and geometry.
+    raster: Raster,
     frame: u64,
     /// Per channel: name, unit, pixels² values.
     channels: Vec<(String, &'static str, Vec<f64>)>,
@@ -65,12 +66,12 @@ struct Frame {
     t_synth_ns: u64,
 }
 
-/// Builds lines and frames from pixels (topography first, then harmonics, per pixel).
+/// Builds lines and frames from pixels (topography first, then harmonics, per pixel). Each
+/// pixel is placed by the geometry of its own raster, which it carries, so pixels in flight
+/// across a change of `/scan/...` land in the image they were scanned for.
 pub struct Assembler {
+    /// Pixels per line of the configured scan: sizes the bounds of the waiting queues.
     pixels: u32,
-    size: f64,
-    origin: (f64, f64),
-    line_rate: f64,
     sample_rate: f64,
     estimator: Option<ForceEstimator>,
     topography: BTreeMap<(u32, u64), PixelTopography>,
@@ -86,8 +87,7 @@ pub struct Assembler {
     finished: Option<ImageFrame>,
     /// Pixels whose inversion failed (their FT-AFM channels are NaN).
     pub inversion_failed: u64,
-    /// Pixels of a raster of another size than the one configured (in flight across a
-    /// change of `/scan/pixels`), dropped.
+    /// Pixels outside their own raster (none are expected), dropped.
     pub misplaced: u64,
 }
 
@@ -96,9 +96,6 @@ impl Assembler {
     pub fn new(settings: &Settings) -> Self {
         let mut a = Self {
             pixels: 0,
-            size: 0.0,
-            origin: (0.0, 0.0),
-            line_rate: 0.0,
             sample_rate: 0.0,
             estimator: None,
             topography: BTreeMap::new(),
@@ -114,27 +111,9 @@ impl Assembler {
         a
     }
 
-    /// Follows new settings (raster geometry, estimator).
+    /// Follows new settings (the estimator, the frames' metadata, the queues' bounds).
     pub fn configure(&mut self, settings: &Settings) {
-        let raster = Raster::new(
-            &settings.scan,
-            settings.synth.sample_rate,
-            settings.drive.frequency,
-            0,
-            0,
-        );
-        // A frame opened under another geometry cannot take this one's pixels (its channels
-        // are sized for the old pixel count): the next pixel opens a fresh frame.
-        if raster.pixels != self.pixels {
-            self.current = None;
-        }
-        self.pixels = raster.pixels;
-        self.size = raster.size;
-        self.origin = (
-            raster.centre.0 - 0.5 * raster.size,
-            raster.centre.1 - 0.5 * raster.size,
-        );
-        self.line_rate = raster.line_rate(settings.synth.sample_rate);
+        self.pixels = settings.scan.pixels;
         self.sample_rate = settings.synth.sample_rate;
         self.settings = std::sync::Arc::new(settings.clone());
         // One estimate per pixel, whatever the live stream averages.
@@ -164,7 +143,7 @@ impl Assembler {
         self.pending.push_back(*p);
         let mut lines = Vec::new();
         while let Some(front) = self.pending.front() {
-            let key = (front.generation, front.pixel.serial);
+            let key = (front.raster.generation, front.pixel.serial);
             let ready = self.topography.contains_key(&key)
                 || self.latest_topography.is_some_and(|k| k > key)
                 // Topography stopped coming (dropped, or a scan without it): go on.
@@ -181,26 +160,27 @@ impl Assembler {
     /// Puts one pixel into the frame; returns the line it finishes, if any.
     fn place(&mut self, p: &PixelHarmonics) -> Option<ImageLine> {
         let id = p.pixel;
+        let raster = p.raster;
         // This pixel's topography, and none older: those pixels' harmonics were lost.
-        let mut rest = self.topography.split_off(&(p.generation, id.serial));
-        let topo = rest.remove(&(p.generation, id.serial));
+        let mut rest = self.topography.split_off(&(raster.generation, id.serial));
+        let topo = rest.remove(&(raster.generation, id.serial));
         self.topography = rest;
         if id.retrace {
             return None;
         }
-        if id.line >= self.pixels || id.column >= self.pixels {
-            // A pixel of the raster before (or after) a change of size: it has no place here.
+        if id.line >= raster.pixels || id.column >= raster.pixels {
             self.misplaced += 1;
             return None;
         }
-        let n = self.pixels as usize;
+        let n = raster.pixels as usize;
+        // A new raster is a new image, even where it kept the generation's frame number.
         let fresh = self
             .current
             .as_ref()
-            .is_none_or(|f| f.generation != p.generation || f.frame != id.frame);
+            .is_none_or(|f| f.raster != raster || f.frame != id.frame);
         if fresh {
             self.current = Some(Frame {
-                generation: p.generation,
+                raster,
                 frame: id.frame,
                 channels: Vec::new(),
                 lines_done: 0,
@@ -271,19 +251,19 @@ impl Assembler {
         frame.open_line = Some(id.line);
         frame.t = p.frame.t;
         frame.t_synth_ns = p.frame.t_synth_ns;
-        if id.column + 1 == self.pixels {
+        if id.column + 1 == raster.pixels {
             finished = frame.open_line.take();
         }
         let line = finished?;
         let out = ImageLine {
             t: frame.t,
             t_synth_ns: frame.t_synth_ns,
-            generation: frame.generation,
+            generation: raster.generation,
             frame: frame.frame,
             line,
-            pixels: self.pixels,
-            size: self.size,
-            line_rate: self.line_rate,
+            pixels: raster.pixels,
+            size: raster.size,
+            line_rate: raster.line_rate(self.sample_rate),
             channels: frame
                 .channels
                 .iter()
@@ -297,13 +277,16 @@ impl Assembler {
                 .collect(),
         };
         frame.lines_done += 1;
-        if line + 1 == self.pixels {
+        if line + 1 == raster.pixels {
             let done = ImageFrame {
-                generation: frame.generation,
+                generation: raster.generation,
                 frame: frame.frame,
-                pixels: self.pixels,
-                size: self.size,
-                origin: self.origin,
+                pixels: raster.pixels,
+                size: raster.size,
+                origin: (
+                    raster.centre.0 - 0.5 * raster.size,
+                    raster.centre.1 - 0.5 * raster.size,
+                ),
                 settings: self.settings.clone(),
                 channels: frame
                     .channels
@@ -325,5 +308,71 @@ impl Assembler {
     /// The frame the last line finished, once.
     pub fn take_finished(&mut self) -> Option<ImageFrame> {
         self.finished.take()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::DemodFrame;
+
+    /// Every pixel of one frame of `raster`: its topography and its harmonics (H1 only,
+    /// its amplitude the pixel's serial).
+    fn frame_of(raster: Raster) -> Vec<(PixelTopography, PixelHarmonics)> {
+        let per_frame = 2 * u64::from(raster.pixels).pow(2);
+        (0..per_frame)
+            .map(|serial| {
+                let pixel = raster.pixel(serial);
+                let mut frame = DemodFrame::empty();
+                frame.values[0].harmonic = 1;
+                frame.values[0].x = serial as f64;
+                frame.len = 1;
+                (
+                    PixelTopography {
+                        generation: raster.generation,
+                        pixel,
+                        height: 0.0,
+                        amplitude: 0.0,
+                        periods: 10,
+                    },
+                    PixelHarmonics {
+                        raster,
+                        pixel,
+                        samples: 4,
+                        frame,
+                    },
+                )
+            })
+            .collect()
+    }
+
+    #[test]
+    fn pixels_are_placed_by_their_own_raster_not_by_settings_that_lag() {
+        // The assembler still has the 128-pixel settings when a 16-pixel raster's pixels
+        // arrive (the settings reach its thread on another path): before, they were put
+        // into a 128-pixel frame and no line of them ever finished.
+        let mut settings = crate::config::default_settings();
+        settings.scan.enable = true;
+        let mut assembler = Assembler::new(&settings);
+        settings.scan.pixels = 16;
+        let raster = Raster::new(&settings.scan, 10e6, 100e3, 0, 2);
+        assert_eq!(raster.pixels, 16);
+        let mut lines = Vec::new();
+        for (topography, harmonics) in frame_of(raster) {
+            assembler.topography(topography);
+            lines.extend(assembler.pixel(&harmonics));
+        }
+        assert_eq!(lines.len(), 16);
+        for (i, line) in lines.iter().enumerate() {
+            assert_eq!((line.line, line.pixels, line.generation), (i as u32, 16, 2));
+            assert_eq!(line.line_rate, raster.line_rate(10e6));
+            let amplitude = &line.channels.iter().find(|c| c.0 == "amplitude").unwrap().2;
+            // Trace pixels of line i are serials 32·i … 32·i + 15.
+            let want: Vec<f64> = (0..16).map(|c| (32 * i + c) as f64).collect();
+            assert_eq!(amplitude, &want);
+        }
+        let frame = assembler.take_finished().expect("the frame finished");
+        assert_eq!((frame.pixels, frame.generation), (16, 2));
+        assert_eq!(assembler.misplaced, 0);
     }
 }

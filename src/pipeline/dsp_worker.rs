@@ -193,7 +193,7 @@ impl DspWorker {
                             let boundary = r.pixel_start(id.serial + 1) + delay;
                             if boundary <= end {
                                 stop = boundary;
-                                finishes = Some((r.generation, id));
+                                finishes = Some((r, id));
                             }
                         }
                     }
@@ -204,7 +204,7 @@ impl DspWorker {
                         self.plan.process(part, &mut emit);
                     }
                 }
-                if let Some((generation, pixel)) = finishes {
+                if let Some((raster, pixel)) = finishes {
                     let samples = self.plan.take_pixel(&mut self.pixel_frame);
                     let frame = &mut self.pixel_frame;
                     frame.sample_index = stop - 1;
@@ -212,7 +212,7 @@ impl DspWorker {
                     frame.t_synth_ns = header.t_synth_ns;
                     frame.t_dsp_ns = unix_ns();
                     let record = PixelHarmonics {
-                        generation,
+                        raster,
                         pixel,
                         samples,
                         frame: *frame,

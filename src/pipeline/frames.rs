@@ -125,8 +125,9 @@ impl ScopeBuffer {
 /// exactly the pixel's samples (a boxcar, so the image has no filter lag and sharp edges).
 #[derive(Clone, Copy, Debug)]
 pub struct PixelHarmonics {
-    /// Generation of the raster the pixel belongs to.
-    pub generation: u32,
+    /// The raster the pixel belongs to (its generation and geometry: a consumer places the
+    /// pixel by it, not by settings that may have moved on or not yet arrived).
+    pub raster: crate::synth::Raster,
     /// The pixel.
     pub pixel: crate::synth::PixelId,
     /// Pre-decimated samples averaged.
