@@ -6,6 +6,7 @@
 pub mod adc;
 pub mod coupled;
 pub mod modal;
+pub mod normals;
 pub mod plan;
 pub mod pulse;
 pub mod raster;

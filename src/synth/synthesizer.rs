@@ -7,14 +7,12 @@
 //! sample n is then the filtered signal at t_n − D), detector noise, clipping and
 //! quantisation.
 
-use rand_distr::{Distribution, StandardNormal};
-use rand_xoshiro::Xoshiro256PlusPlus;
-use rand_xoshiro::rand_core::SeedableRng;
 use rustfft::num_complex::Complex64;
 
 use super::adc::{AdcFilter, GRID_HISTORY, MID_HISTORY};
 use super::coupled::{CoupledKernel, CoupledTrace, SUBSTEPS};
 use super::modal::lane_sum;
+use super::normals::NormalSource;
 
 /// The lane-wise products `a[m]·b[m]` of the first `L` lanes.
 #[inline(always)]
@@ -44,10 +42,13 @@ pub struct SynthCounters {
     pub clipped: u64,
 }
 
-/// Samples per chunk of pre-drawn normal deviates. Drawing them in a tight loop is several
-/// times faster than interleaving the ziggurat's branches with the oscillator arithmetic;
-/// they are consumed in the same order either way, so the stream is unchanged.
+/// Samples per chunk of pre-drawn normal deviates: they are drawn many at a time in
+/// vector registers ([`NormalSource`]), then read by the oscillator loop.
 const CHUNK: usize = 256;
+
+/// Thermal deviates a chunk may hold: one per mode and sample, and the padding that the
+/// last sample's lanes read past its modes.
+const THERMAL_LEN: usize = (CHUNK + 1) * MAX_MODES;
 
 /// Mutable state of the synthesiser. Build it off the real-time thread.
 #[derive(Clone, Debug)]
@@ -57,10 +58,16 @@ pub struct SynthState {
     im: [f64; MAX_MODES],
     phase: u64,
     rho: Complex64,
-    rng: Xoshiro256PlusPlus,
-    /// Pre-drawn standard normals for one chunk: per sample the detector's, then one per
-    /// mode. Allocated once here, reused by every `process`.
-    normals: Vec<f64>,
+    /// The modes' thermal deviates and the detector's: two sources of one seed.
+    thermal_source: NormalSource,
+    detector_source: NormalSource,
+    /// Pre-drawn standard normals for one chunk: per sample one per mode, densely, and
+    /// the detector's. A sample's `L` lanes are read from its first mode's deviate on, so
+    /// lanes past the plan's modes read the next samples' deviates (or the padding at the
+    /// end), which their zero coefficients ignore. Allocated once here, reused by every
+    /// `process`.
+    thermal: Vec<f64>,
+    detector: Vec<f64>,
     /// The ADC filter's histories and the chunk's grid and midpoint samples.
     adc: AdcFilter,
     /// Whether the CPU has AVX2 (the loop is then compiled for it).
@@ -74,7 +81,7 @@ impl SynthState {
     /// state under the tap force and its thermal motion drawn from the stationary
     /// distribution, so the stream starts settled. `seed` seeds every random source.
     pub fn steady(plan: &SynthPlan, seed: u64) -> Self {
-        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+        let mut start = NormalSource::set(seed, 2);
         let mut thermal = [Complex64::new(0.0, 0.0); MAX_MODES];
         for (m, kernel) in plan.modes.iter().enumerate() {
             let sigma = plan.thermal_sigma[m];
@@ -90,10 +97,9 @@ impl SynthState {
             let l11 = vr.max(0.0).sqrt();
             let l21 = if l11 > 0.0 { c / l11 } else { 0.0 };
             let l22 = (vi - l21 * l21).max(0.0).sqrt();
-            let (z1, z2): (f64, f64) = (
-                StandardNormal.sample(&mut rng),
-                StandardNormal.sample(&mut rng),
-            );
+            let mut z = [0.0; 2];
+            start.fill(&mut z);
+            let [z1, z2] = z;
             thermal[m] = Complex64::new(l11 * z1, l21 * z1 + l22 * z2);
         }
         let (q, adc) = if plan.anti_alias.is_some() {
@@ -110,8 +116,10 @@ impl SynthState {
             im: q.map(|q| q.im),
             phase: 0,
             rho: Complex64::new(1.0, 0.0),
-            rng,
-            normals: vec![0.0; CHUNK * (MAX_MODES + 1)],
+            thermal_source: NormalSource::set(seed, 0),
+            detector_source: NormalSource::set(seed, 1),
+            thermal: vec![0.0; THERMAL_LEN],
+            detector: vec![0.0; CHUNK],
             adc,
             avx2: crate::cpu::avx2_available(),
             counters: SynthCounters::default(),
@@ -143,7 +151,8 @@ impl SynthState {
     /// restarts the noise generator from it (the stream from then on is that seed's).
     pub fn retarget(&mut self, old: &SynthPlan, new: &SynthPlan) {
         if new.seed != old.seed {
-            self.rng = Xoshiro256PlusPlus::seed_from_u64(new.seed);
+            self.thermal_source = NormalSource::set(new.seed, 0);
+            self.detector_source = NormalSource::set(new.seed, 1);
         }
         let theta = phase_to_radians(self.phase);
         let rho = Complex64::from_polar(1.0, theta);
@@ -264,7 +273,6 @@ impl SynthPlan {
             1.0,
             self.frequency_word as f64 / TURN * std::f64::consts::TAU,
         );
-        let stride = L + 1;
         let mut re: [f64; L] = std::array::from_fn(|m| state.re[m]);
         let mut im: [f64; L] = std::array::from_fn(|m| state.im[m]);
         let mut mid_im = [0.0; L];
@@ -275,8 +283,9 @@ impl SynthPlan {
         let mut index = state.counters.samples;
         let mut clipped = 0u64;
         for chunk in out.chunks_mut(CHUNK) {
-            self.draw_normals::<L>(state, chunk.len());
-            let normals = &state.normals[..chunk.len() * stride];
+            self.draw_normals(state, chunk.len());
+            let thermal = &state.thermal[..];
+            let n_modes = self.modes.len();
             // With the filter the loop writes the signal at t_n and at t_n + h/2 behind the
             // filter's histories, and the filter writes the chunk; without, the chunk.
             let (grid, mids) = if MID {
@@ -288,11 +297,10 @@ impl SynthPlan {
             } else {
                 (&mut chunk[..], &mut [][..])
             };
-            for (i, (out, z)) in grid
-                .iter_mut()
-                .zip(normals.chunks_exact(stride))
-                .enumerate()
-            {
+            for (i, out) in grid.iter_mut().enumerate() {
+                let z: &[f64; L] = thermal[i * n_modes..i * n_modes + L]
+                    .try_into()
+                    .expect("the padding holds a sample's L lanes");
                 if index % REANCHOR == 0 {
                     rho = Complex64::from_polar(1.0, phase_to_radians(phase));
                 }
@@ -310,7 +318,6 @@ impl SynthPlan {
                 // takes one step (clear of the surface) and where no pulse falls in it.
                 let mut mid = 0.0;
                 if MID {
-                    let z = &z[1..=L];
                     let mut p = [0.0; L];
                     for m in 0..L {
                         p[m] = k.lever[m]
@@ -328,7 +335,7 @@ impl SynthPlan {
                         &mut im,
                         rho,
                         next,
-                        &z[1..],
+                        z,
                         &mut mid_im,
                         &mut tip,
                         &mut |_| {},
@@ -351,8 +358,8 @@ impl SynthPlan {
                     // inputs.
                     for m in 0..L {
                         let (r, i) = (re[m], im[m]);
-                        re[m] = k.a_re[m] * r - k.a_im[m] * i + k.noise_re[m] * z[1 + m];
-                        im[m] = k.a_re[m] * i + k.a_im[m] * r + k.noise_im[m] * z[1 + m];
+                        re[m] = k.a_re[m] * r - k.a_im[m] * i + k.noise_re[m] * z[m];
+                        im[m] = k.a_re[m] * i + k.a_im[m] * r + k.noise_im[m] * z[m];
                     }
                     if let (Some(pulse), Some(overlap)) = (pulse, &overlap) {
                         pulse.apply(
@@ -375,7 +382,7 @@ impl SynthPlan {
             } else {
                 state.adc.remember(chunk);
             }
-            clipped += self.detect_and_quantise(chunk, &state.normals, stride);
+            clipped += self.detect_and_quantise(chunk, &state.detector);
         }
         state.re[..L].copy_from_slice(&re);
         state.im[..L].copy_from_slice(&im);
@@ -450,8 +457,10 @@ impl SynthPlan {
             im: [0.0; MAX_MODES],
             phase: start,
             rho: Complex64::from_polar(1.0, phase_to_radians(start)),
-            rng: Xoshiro256PlusPlus::seed_from_u64(0),
-            normals: vec![0.0; CHUNK * (MAX_MODES + 1)],
+            thermal_source: NormalSource::set(0, 0),
+            detector_source: NormalSource::set(0, 1),
+            thermal: vec![0.0; THERMAL_LEN],
+            detector: vec![0.0; CHUNK],
             adc: AdcFilter::new(CHUNK, |_| 0.0),
             avx2: crate::cpu::avx2_available(),
             counters: SynthCounters::default(),
@@ -470,41 +479,27 @@ impl SynthPlan {
         (std::array::from_fn(|m| temp.q(m)), temp.adc)
     }
 
-    /// Draws the standard normals of the next `len` samples into `state.normals`: per
-    /// sample, at a fixed stride of `L + 1`, the detector's at 0 and mode m's at 1 + m.
-    /// Slots that are not drawn stay zero, so the loops over all L lanes need no branches;
-    /// the order of drawing is the order of use, whatever the block size.
+    /// Draws the standard normals of the next `len` samples: one per mode and sample into
+    /// `state.thermal` if any mode has thermal noise, one per sample into
+    /// `state.detector` if the detector has. Each source's order of drawing is its order
+    /// of use, whatever the block size. Slots not drawn are multiplied by zero.
     #[inline(always)]
-    fn draw_normals<const L: usize>(&self, state: &mut SynthState, len: usize) {
-        let stride = L + 1;
-        let n_modes = self.modes.len();
-        let detector = self.detector_sigma > 0.0;
-        let thermal = self.thermal_sigma.iter().any(|&s| s > 0.0);
-        let normals = &mut state.normals[..len * stride];
-        if detector || thermal {
-            // A local copy keeps the generator in registers (the compiler cannot prove
-            // the buffer's stores leave a field of `state` alone).
-            let mut rng = state.rng.clone();
-            for z in normals.chunks_exact_mut(stride) {
-                if detector {
-                    z[0] = StandardNormal.sample(&mut rng);
-                }
-                if thermal {
-                    for z in &mut z[1..=n_modes] {
-                        *z = StandardNormal.sample(&mut rng);
-                    }
-                }
-            }
-            state.rng = rng;
+    fn draw_normals(&self, state: &mut SynthState, len: usize) {
+        if self.detector_sigma > 0.0 {
+            state.detector_source.fill(&mut state.detector[..len]);
+        }
+        if self.thermal_sigma.iter().any(|&s| s > 0.0) {
+            let n = self.modes.len();
+            state.thermal_source.fill(&mut state.thermal[..len * n]);
         }
     }
 
     /// The detector noise and the ADC, which act on the signal only, not on the modes: a
     /// separate branch-free pass over the chunk. Returns the samples clipped.
-    fn detect_and_quantise(&self, chunk: &mut [f64], normals: &[f64], stride: usize) -> u64 {
+    fn detect_and_quantise(&self, chunk: &mut [f64], detector: &[f64]) -> u64 {
         if self.detector_sigma > 0.0 {
-            for (out, z) in chunk.iter_mut().zip(normals.chunks_exact(stride)) {
-                *out += self.detector_sigma * z[0];
+            for (out, z) in chunk.iter_mut().zip(detector) {
+                *out += self.detector_sigma * z;
             }
         }
         let mut clipped = 0;
