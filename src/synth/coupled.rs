@@ -121,12 +121,14 @@ pub struct CoupledKernel {
     /// Drive phasor per sub-step, e^{iΩh/S}.
     pub(crate) sub_rotation: Complex64,
     /// The tip's displacement after a sub-step's drift per unit of Im q, of Re q and of
-    /// the thermal deviate before it (m), and per unit of the impulse kicked before it
-    /// (Σ tip·a_im·kick, m/(N·s)).
+    /// the thermal deviate before it (m), and per newton of the force whose kick opened
+    /// the sub-step (Σ tip·a_im·kick times the kick's duration, m/N): half a sub-step
+    /// for the first, a whole one for the others.
     sub_gap_im: [f64; MAX_MODES],
     sub_gap_re: [f64; MAX_MODES],
     sub_gap_noise: [f64; MAX_MODES],
-    sub_gap_kick: f64,
+    first_gap_per_force: f64,
+    gap_per_force: f64,
     /// A sample whose ends both leave at least this gap to the surface is one step (m):
     /// a bound on how far the tip can dip below the chord of its path within a sample.
     pub(crate) margin: f64,
@@ -195,7 +197,8 @@ impl CoupledKernel {
             sub_gap_im,
             sub_gap_re,
             sub_gap_noise,
-            sub_gap_kick,
+            first_gap_per_force: sub_gap_kick * 0.5 * dt,
+            gap_per_force: sub_gap_kick * dt,
             strength,
             a0,
             pull_off,
@@ -308,11 +311,12 @@ impl CoupledKernel {
         // Sub-steps, the two half kicks between them merged into one. The gap after a
         // drift is split into the part without the kick of the force g before it (lanes
         // only) and that kick's part, a scalar: C·g. So the chain from one force to the
-        // next is one multiply-add, the force law and the kick's scalar, and the lanes'
-        // arithmetic runs beside it instead of in it (the sub-steps are latency-bound).
+        // next is one multiply-add and the force law, and the lanes' arithmetic runs
+        // beside it instead of in it (the sub-steps are latency-bound).
         let mut r = rho;
         let mut g = g0;
         let mut weight = self.half_dt;
+        let mut gap_per_force = self.first_gap_per_force;
         for j in 0..SUBSTEPS {
             if j == SUBSTEPS / 2 {
                 // Kicks move Re q only, so Im q here is the midpoint's either side of one.
@@ -325,9 +329,11 @@ impl CoupledKernel {
                     + self.sub_gap_re[m] * re[m]
                     + self.sub_gap_noise[m] * z[m];
             }
+            let lanes = (self.free_tip * r).re + lane_sum(p) + self.distance;
+            let gap = lanes + gap_per_force * g;
+            let next_g = self.force(gap);
+            *tip = gap - self.distance;
             let impulse = weight * g;
-            *tip = (self.free_tip * r).re + lane_sum(p) + self.sub_gap_kick * impulse;
-            let next_g = self.force(*tip + self.distance);
             if g != 0.0 {
                 self.kick_lanes(re, impulse);
             }
@@ -335,6 +341,7 @@ impl CoupledKernel {
             g = next_g;
             record(g);
             weight = 2.0 * self.half_dt;
+            gap_per_force = self.gap_per_force;
         }
         if g != 0.0 {
             self.kick_lanes(re, self.half_dt * g);

@@ -112,8 +112,9 @@ pub struct SynthPlan {
     pub adc: Option<Adc>,
     /// The ADC's anti-alias filter ([`adc`]): its grid taps, or none to sample directly.
     pub(crate) anti_alias: Option<[f64; adc::GRID_TAPS]>,
-    /// The drive phasor over half a sample, e^{iΩh/2}.
-    pub(crate) half_rotation: Complex64,
+    /// The drive's photodiode response half a sample on, Ŝ·e^{iΩh/2}: the midpoint's is
+    /// Re[drive_mid·e^{iθ_n}].
+    pub(crate) drive_mid: Complex64,
     /// Per-mode constants laid out for the hot loop.
     pub(crate) lanes: Lanes,
     /// Seed of the noise generator (`/synth/seed`).
@@ -138,11 +139,12 @@ pub(crate) struct Lanes {
     /// Thermal input per standard normal deviate: σ·∫₀ʰe^{λ(h−s)}ds, real and imaginary.
     pub noise_re: [f64; MAX_MODES],
     pub noise_im: [f64; MAX_MODES],
-    /// To the midpoint of a sample, for the ADC's filter: e^{λh/2}, and the imaginary part
-    /// of the thermal input held over the first half, σ·Im ∫₀^{h/2} e^{λ(h/2−s)}ds.
-    pub half_re: [f64; MAX_MODES],
-    pub half_im: [f64; MAX_MODES],
-    pub half_noise_im: [f64; MAX_MODES],
+    /// The photodiode at the midpoint of a sample, for the ADC's filter, per unit of Re q,
+    /// of Im q and of the thermal deviate at the sample's start: `lever` times
+    /// Im e^{λh/2}, Re e^{λh/2} and σ·Im ∫₀^{h/2} e^{λ(h/2−s)}ds.
+    pub mid_re: [f64; MAX_MODES],
+    pub mid_im: [f64; MAX_MODES],
+    pub mid_noise: [f64; MAX_MODES],
 }
 
 impl Lanes {
@@ -155,9 +157,9 @@ impl Lanes {
             l.noise_re[m] = k.hold_gain.re * sigma;
             l.noise_im[m] = k.hold_gain.im * sigma;
             let half = (k.lambda * (0.5 * h)).exp();
-            l.half_re[m] = half.re;
-            l.half_im[m] = half.im;
-            l.half_noise_im[m] = ((half - 1.0) / k.lambda).im * sigma;
+            l.mid_re[m] = k.lever_gain * half.im;
+            l.mid_im[m] = k.lever_gain * half.re;
+            l.mid_noise[m] = k.lever_gain * ((half - 1.0) / k.lambda).im * sigma;
         }
         l
     }
@@ -316,7 +318,8 @@ impl SynthPlan {
             detector_sigma,
             adc,
             anti_alias: settings.synth.anti_alias.then(adc::grid_taps),
-            half_rotation: Complex64::from_polar(1.0, 0.5 * word as f64 / TURN * 2.0 * PI),
+            drive_mid: drive_signal
+                * Complex64::from_polar(1.0, 0.5 * word as f64 / TURN * 2.0 * PI),
             epoch: 0,
         })
     }

@@ -320,12 +320,9 @@ impl SynthPlan {
                 if MID {
                     let mut p = [0.0; L];
                     for m in 0..L {
-                        p[m] = k.lever[m]
-                            * (k.half_im[m] * re[m]
-                                + k.half_re[m] * im[m]
-                                + k.half_noise_im[m] * z[m]);
+                        p[m] = k.mid_re[m] * re[m] + k.mid_im[m] * im[m] + k.mid_noise[m] * z[m];
                     }
-                    mid = (self.drive_signal * rho * self.half_rotation).re + lane_sum(p);
+                    mid = (self.drive_mid * rho).re + lane_sum(p);
                 }
                 let next = rho * step;
                 if let Some(coupled) = coupled {
@@ -341,8 +338,7 @@ impl SynthPlan {
                         &mut |_| {},
                     );
                     if substepped && MID {
-                        mid = (self.drive_signal * rho * self.half_rotation).re
-                            + lane_sum(mul(&k.lever, &mid_im));
+                        mid = (self.drive_mid * rho).re + lane_sum(mul(&k.lever, &mid_im));
                     }
                 } else {
                     if MID && let (Some(pulse), Some(overlap)) = (pulse, &overlap) {
