@@ -25,6 +25,7 @@ use std::f64::consts::PI;
 
 use rustfft::num_complex::Complex64;
 
+use super::lanes8::Lanes8;
 use super::modal::{ModalKernel, lane_sum};
 use crate::physics::beam::{MAX_MODES, Mode};
 use crate::physics::contact::{Adhesion, HertzContact};
@@ -74,6 +75,17 @@ impl Drift {
             im[m] = self.a_re[m] * i + self.a_im[m] * r + self.noise_im[m] * z[m];
         }
     }
+}
+
+/// A kernel's constants for [`CoupledKernel::step_clear`], as eight lanes.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ClearLanes<V> {
+    tip: V,
+    kick: V,
+    a_re: V,
+    a_im: V,
+    noise_re: V,
+    noise_im: V,
 }
 
 /// The coupled engine's contact as it integrated it ([`SynthPlan::coupled_trace`]).
@@ -347,6 +359,62 @@ impl CoupledKernel {
             self.kick_lanes(re, self.half_dt * g);
         }
         true
+    }
+
+    /// The constants of [`step_clear`](Self::step_clear) as eight lanes.
+    #[inline(always)]
+    pub(crate) fn clear_lanes<V: Lanes8>(&self) -> ClearLanes<V> {
+        ClearLanes {
+            tip: V::load(&self.tip),
+            kick: V::load(&self.kick),
+            a_re: V::load(&self.full.a_re),
+            a_im: V::load(&self.full.a_im),
+            noise_re: V::load(&self.full.noise_re),
+            noise_im: V::load(&self.full.noise_im),
+        }
+    }
+
+    /// [`step_recorded`](Self::step_recorded)'s single step, for a sample clear of the
+    /// surface, on eight lanes `c` of this kernel: the same operations in the same order.
+    /// Returns the lanes and the tip position at `next`, or `None` if the sample comes
+    /// near the surface (then it is to be sub-stepped by `step_recorded`, from the same
+    /// state). `tip` is the position at `rho` if known (NaN if not).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    pub(crate) fn step_clear<V: Lanes8>(
+        &self,
+        c: &ClearLanes<V>,
+        re: V,
+        im: V,
+        rho: Complex64,
+        next: Complex64,
+        z: V,
+        tip: f64,
+    ) -> Option<(V, V, f64)> {
+        let z0 = if tip.is_nan() {
+            (self.free_tip * rho).re + c.tip.mul(im).sum()
+        } else {
+            tip
+        };
+        let gap0 = z0 + self.distance;
+        let g0 = self.force(gap0);
+        let mut r = re;
+        if g0 != 0.0 {
+            r = r.add(c.kick.mul(V::splat(self.half_h * g0)));
+        }
+        let r1 = c.a_re.mul(r).sub(c.a_im.mul(im)).add(c.noise_re.mul(z));
+        let i1 = c.a_re.mul(im).add(c.a_im.mul(r)).add(c.noise_im.mul(z));
+        let z1 = (self.free_tip * next).re + c.tip.mul(i1).sum();
+        let gap1 = z1 + self.distance;
+        if gap0.min(gap1) < self.margin {
+            return None;
+        }
+        let mut r1 = r1;
+        if self.strength != 0.0 {
+            let g1 = self.force(gap1);
+            r1 = r1.add(c.kick.mul(V::splat(self.half_h * g1)));
+        }
+        Some((r1, i1, z1))
     }
 
     #[inline(always)]

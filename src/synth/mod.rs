@@ -5,6 +5,7 @@
 
 pub mod adc;
 pub mod coupled;
+mod lanes8;
 pub mod modal;
 pub mod normals;
 pub mod plan;

@@ -11,6 +11,9 @@ use rustfft::num_complex::Complex64;
 
 use super::adc::{AdcFilter, GRID_HISTORY, MID_HISTORY};
 use super::coupled::{CoupledKernel, CoupledTrace, SUBSTEPS};
+#[cfg(target_arch = "x86_64")]
+use super::lanes8::Avx8;
+use super::lanes8::{Lanes8, Portable8};
 use super::modal::lane_sum;
 use super::normals::NormalSource;
 
@@ -201,7 +204,7 @@ impl SynthPlan {
             unsafe { self.process_avx2(pulse, coupled, state, out) };
             return;
         }
-        self.process_modes(pulse, coupled, state, out);
+        self.process_modes::<Portable8>(pulse, coupled, state, out);
     }
 
     /// [`process_with`](Self::process_with) compiled for AVX2: the same operations in the
@@ -216,11 +219,12 @@ impl SynthPlan {
         state: &mut SynthState,
         out: &mut [f64],
     ) {
-        self.process_modes(pulse, coupled, state, out);
+        self.process_modes::<Avx8>(pulse, coupled, state, out);
     }
 
+    /// Up to eight modes: the loop on eight lanes of `V`; more: on arrays of all lanes.
     #[inline(always)]
-    fn process_modes(
+    fn process_modes<V: Lanes8>(
         &self,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
@@ -228,7 +232,12 @@ impl SynthPlan {
         out: &mut [f64],
     ) {
         if self.modes.len() <= 8 {
-            self.process_lanes::<8>(pulse, coupled, state, out);
+            match (coupled, self.anti_alias.is_some()) {
+                (Some(c), true) => self.process_eight::<V, true, true>(None, Some(c), state, out),
+                (Some(c), false) => self.process_eight::<V, false, true>(None, Some(c), state, out),
+                (None, true) => self.process_eight::<V, true, false>(pulse, None, state, out),
+                (None, false) => self.process_eight::<V, false, false>(pulse, None, state, out),
+            }
         } else {
             self.process_lanes::<MAX_MODES>(pulse, coupled, state, out);
         }
@@ -247,13 +256,13 @@ impl SynthPlan {
     ) {
         match (coupled, self.anti_alias.is_some()) {
             (Some(coupled), true) => {
-                self.process_engine::<L, true>(None, Some(coupled), state, out)
+                self.process_engine::<L, true, true>(None, Some(coupled), state, out)
             }
             (Some(coupled), false) => {
-                self.process_engine::<L, false>(None, Some(coupled), state, out)
+                self.process_engine::<L, false, true>(None, Some(coupled), state, out)
             }
-            (None, true) => self.process_engine::<L, true>(pulse, None, state, out),
-            (None, false) => self.process_engine::<L, false>(pulse, None, state, out),
+            (None, true) => self.process_engine::<L, true, false>(pulse, None, state, out),
+            (None, false) => self.process_engine::<L, false, false>(pulse, None, state, out),
         }
     }
 
@@ -261,7 +270,7 @@ impl SynthPlan {
     // the compiler vectorises, and clearer than a five-way zip.
     #[allow(clippy::needless_range_loop)]
     #[inline(always)]
-    fn process_engine<const L: usize, const MID: bool>(
+    fn process_engine<const L: usize, const MID: bool, const COUPLED: bool>(
         &self,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
@@ -298,9 +307,12 @@ impl SynthPlan {
                 (&mut chunk[..], &mut [][..])
             };
             for (i, out) in grid.iter_mut().enumerate() {
-                let z: &[f64; L] = thermal[i * n_modes..i * n_modes + L]
+                // A copy in registers: read through the slice, the compiler assembles the
+                // lanes one by one.
+                let z: [f64; L] = thermal[i * n_modes..i * n_modes + L]
                     .try_into()
                     .expect("the padding holds a sample's L lanes");
+                let z = &z;
                 if index % REANCHOR == 0 {
                     rho = Complex64::from_polar(1.0, phase_to_radians(phase));
                 }
@@ -311,7 +323,7 @@ impl SynthPlan {
                 let lever = lane_sum(p);
                 *out = (self.drive_signal * rho).re + lever;
                 let overlap = match pulse {
-                    Some(pulse) if coupled.is_none() => pulse.overlap(phase, self.frequency_word),
+                    Some(pulse) if !COUPLED => pulse.overlap(phase, self.frequency_word),
                     _ => None,
                 };
                 // The midpoint without force over the first half: where the coupled engine
@@ -325,7 +337,7 @@ impl SynthPlan {
                     mid = (self.drive_mid * rho).re + lane_sum(p);
                 }
                 let next = rho * step;
-                if let Some(coupled) = coupled {
+                if COUPLED && let Some(coupled) = coupled {
                     // The coupled engine: the tap force from the tip position.
                     let substepped = coupled.step_recorded(
                         &mut re,
@@ -382,6 +394,140 @@ impl SynthPlan {
         }
         state.re[..L].copy_from_slice(&re);
         state.im[..L].copy_from_slice(&im);
+        state.phase = phase;
+        state.rho = rho;
+        state.counters.samples = index;
+        state.counters.clipped += clipped;
+    }
+
+    /// [`process_engine`](Self::process_engine) for up to eight modes, on eight lanes of
+    /// `V` held in registers: the same operations in the same order, so the same stream.
+    /// The samples where a pulse falls (paper engine) or the tip comes near the surface
+    /// (coupled engine) take the arrays' path of `process_engine`.
+    #[allow(clippy::needless_range_loop)]
+    #[inline(always)]
+    fn process_eight<V: Lanes8, const MID: bool, const COUPLED: bool>(
+        &self,
+        pulse: Option<&PulseKernel>,
+        coupled: Option<&CoupledKernel>,
+        state: &mut SynthState,
+        out: &mut [f64],
+    ) {
+        let k = &self.lanes;
+        let step = Complex64::from_polar(
+            1.0,
+            self.frequency_word as f64 / TURN * std::f64::consts::TAU,
+        );
+        let (a_re, a_im) = (V::load(&k.a_re), V::load(&k.a_im));
+        let (noise_re, noise_im) = (V::load(&k.noise_re), V::load(&k.noise_im));
+        let lever = V::load(&k.lever);
+        let (mid_re, mid_im, mid_noise) = (
+            V::load(&k.mid_re),
+            V::load(&k.mid_im),
+            V::load(&k.mid_noise),
+        );
+        let clear = coupled.map(|c| c.clear_lanes::<V>());
+        let n = self.modes.len();
+        let mut re = V::load(&state.re);
+        let mut im = V::load(&state.im);
+        // The coupled engine's tip position at the next sample, once a step has found it.
+        let mut tip = f64::NAN;
+        let mut phase = state.phase;
+        let mut rho = state.rho;
+        let mut index = state.counters.samples;
+        let mut clipped = 0u64;
+        for chunk in out.chunks_mut(CHUNK) {
+            self.draw_normals(state, chunk.len());
+            let thermal = &state.thermal[..];
+            let (grid, mids) = if MID {
+                let len = chunk.len();
+                (
+                    &mut state.adc.grid[GRID_HISTORY..GRID_HISTORY + len],
+                    &mut state.adc.mid[MID_HISTORY..MID_HISTORY + len],
+                )
+            } else {
+                (&mut chunk[..], &mut [][..])
+            };
+            for (i, out) in grid.iter_mut().enumerate() {
+                // Lanes past the plan's modes read the next samples' deviates (zero
+                // coefficients).
+                let z = V::load(&thermal[i * n..]);
+                if index % REANCHOR == 0 {
+                    rho = Complex64::from_polar(1.0, phase_to_radians(phase));
+                }
+                *out = (self.drive_signal * rho).re + lever.mul(im).sum();
+                let mut mid = 0.0;
+                if MID {
+                    let p = mid_re.mul(re).add(mid_im.mul(im)).add(mid_noise.mul(z));
+                    mid = (self.drive_mid * rho).re + p.sum();
+                }
+                let next = rho * step;
+                if COUPLED && let (Some(coupled), Some(clear)) = (coupled, &clear) {
+                    if let Some((r, i, t)) = coupled.step_clear(clear, re, im, rho, next, z, tip) {
+                        (re, im, tip) = (r, i, t);
+                    } else {
+                        // Near the surface: the arrays' step, which sub-steps.
+                        let (mut r, mut i) = (re.to_array(), im.to_array());
+                        let mut mid_im = [0.0; 8];
+                        let substepped = coupled.step_recorded(
+                            &mut r,
+                            &mut i,
+                            rho,
+                            next,
+                            &z.to_array(),
+                            &mut mid_im,
+                            &mut tip,
+                            &mut |_| {},
+                        );
+                        if substepped && MID {
+                            mid = (self.drive_mid * rho).re + lane_sum(mul(&k.lever, &mid_im));
+                        }
+                        (re, im) = (V::load(&r), V::load(&i));
+                    }
+                } else if let Some(overlap) =
+                    pulse.and_then(|p| p.overlap(phase, self.frequency_word))
+                {
+                    // A pulse falls in this sample: the arrays' path of `process_engine`.
+                    let pulse = pulse.expect("an overlap has a pulse");
+                    if MID {
+                        let mut dre = [0.0; MAX_MODES];
+                        let mut dim = [0.0; MAX_MODES];
+                        pulse.apply_to_midpoint(
+                            &overlap,
+                            &self.modes,
+                            &mut dre[..n],
+                            &mut dim[..n],
+                        );
+                        for m in 0..n {
+                            mid += k.lever[m] * dim[m];
+                        }
+                    }
+                    let r1 = a_re.mul(re).sub(a_im.mul(im)).add(noise_re.mul(z));
+                    let i1 = a_re.mul(im).add(a_im.mul(re)).add(noise_im.mul(z));
+                    let (mut r, mut i) = (r1.to_array(), i1.to_array());
+                    pulse.apply(&overlap, &self.modes, &mut r[..n], &mut i[..n]);
+                    (re, im) = (V::load(&r), V::load(&i));
+                } else {
+                    let r1 = a_re.mul(re).sub(a_im.mul(im)).add(noise_re.mul(z));
+                    im = a_re.mul(im).add(a_im.mul(re)).add(noise_im.mul(z));
+                    re = r1;
+                }
+                if MID {
+                    mids[i] = mid;
+                }
+                phase = phase.wrapping_add(self.frequency_word);
+                rho = next;
+                index += 1;
+            }
+            if MID && let Some(taps) = &self.anti_alias {
+                state.adc.decimate(taps, chunk);
+            } else {
+                state.adc.remember(chunk);
+            }
+            clipped += self.detect_and_quantise(chunk, &state.detector);
+        }
+        state.re[..8].copy_from_slice(&re.to_array());
+        state.im[..8].copy_from_slice(&im.to_array());
         state.phase = phase;
         state.rho = rho;
         state.counters.samples = index;
