@@ -77,15 +77,23 @@ impl Drift {
     }
 }
 
-/// A kernel's constants for [`CoupledKernel::step_clear`], as eight lanes.
+/// A kernel's constants for [`CoupledKernel::step_lanes`], as eight lanes: the whole
+/// sample's drift, the sub-steps' and the read-outs.
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct ClearLanes<V> {
+pub(crate) struct CoupledLanes<V> {
     tip: V,
     kick: V,
     a_re: V,
     a_im: V,
     noise_re: V,
     noise_im: V,
+    sub_a_re: V,
+    sub_a_im: V,
+    sub_noise_re: V,
+    sub_noise_im: V,
+    sub_gap_im: V,
+    sub_gap_re: V,
+    sub_gap_noise: V,
 }
 
 /// The coupled engine's contact as it integrated it ([`SynthPlan::coupled_trace`]).
@@ -361,36 +369,44 @@ impl CoupledKernel {
         true
     }
 
-    /// The constants of [`step_clear`](Self::step_clear) as eight lanes.
+    /// The constants of [`step_lanes`](Self::step_lanes) as eight lanes.
     #[inline(always)]
-    pub(crate) fn clear_lanes<V: Lanes8>(&self) -> ClearLanes<V> {
-        ClearLanes {
+    pub(crate) fn lanes<V: Lanes8>(&self) -> CoupledLanes<V> {
+        CoupledLanes {
             tip: V::load(&self.tip),
             kick: V::load(&self.kick),
             a_re: V::load(&self.full.a_re),
             a_im: V::load(&self.full.a_im),
             noise_re: V::load(&self.full.noise_re),
             noise_im: V::load(&self.full.noise_im),
+            sub_a_re: V::load(&self.sub.a_re),
+            sub_a_im: V::load(&self.sub.a_im),
+            sub_noise_re: V::load(&self.sub.noise_re),
+            sub_noise_im: V::load(&self.sub.noise_im),
+            sub_gap_im: V::load(&self.sub_gap_im),
+            sub_gap_re: V::load(&self.sub_gap_re),
+            sub_gap_noise: V::load(&self.sub_gap_noise),
         }
     }
 
-    /// [`step_recorded`](Self::step_recorded)'s single step, for a sample clear of the
-    /// surface, on eight lanes `c` of this kernel: the same operations in the same order.
-    /// Returns the lanes and the tip position at `next`, or `None` if the sample comes
-    /// near the surface (then it is to be sub-stepped by `step_recorded`, from the same
-    /// state). `tip` is the position at `rho` if known (NaN if not).
+    /// [`step_recorded`](Self::step_recorded) on eight lanes `c` of this kernel, without a
+    /// record: the same operations in the same order, so the same bits. Returns the lanes
+    /// and the tip position at `next`, and whether it sub-stepped; if it did, `mid` holds
+    /// the lanes' Im q at the sample's midpoint. `tip` is the position at `rho` if known
+    /// (NaN if not).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    pub(crate) fn step_clear<V: Lanes8>(
+    pub(crate) fn step_lanes<V: Lanes8>(
         &self,
-        c: &ClearLanes<V>,
+        c: &CoupledLanes<V>,
         re: V,
         im: V,
         rho: Complex64,
         next: Complex64,
         z: V,
         tip: f64,
-    ) -> Option<(V, V, f64)> {
+        mid: &mut V,
+    ) -> (V, V, f64, bool) {
         let z0 = if tip.is_nan() {
             (self.free_tip * rho).re + c.tip.mul(im).sum()
         } else {
@@ -406,15 +422,73 @@ impl CoupledKernel {
         let i1 = c.a_re.mul(im).add(c.a_im.mul(r)).add(c.noise_im.mul(z));
         let z1 = (self.free_tip * next).re + c.tip.mul(i1).sum();
         let gap1 = z1 + self.distance;
-        if gap0.min(gap1) < self.margin {
-            return None;
+        if gap0.min(gap1) >= self.margin {
+            let mut r1 = r1;
+            if self.strength != 0.0 {
+                let g1 = self.force(gap1);
+                r1 = r1.add(c.kick.mul(V::splat(self.half_h * g1)));
+            }
+            return (r1, i1, z1, false);
         }
-        let mut r1 = r1;
-        if self.strength != 0.0 {
-            let g1 = self.force(gap1);
-            r1 = r1.add(c.kick.mul(V::splat(self.half_h * g1)));
+        self.substeps(c, re, im, rho, z, g0, mid)
+    }
+
+    /// The sub-steps of [`step_lanes`](Self::step_lanes), as in `step_recorded`, from the
+    /// force `g0` at the sample's start.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn substeps<V: Lanes8>(
+        &self,
+        c: &CoupledLanes<V>,
+        mut re: V,
+        mut im: V,
+        rho: Complex64,
+        z: V,
+        g0: f64,
+        mid: &mut V,
+    ) -> (V, V, f64, bool) {
+        let mut r = rho;
+        let mut g = g0;
+        let mut weight = self.half_dt;
+        let mut gap_per_force = self.first_gap_per_force;
+        let mut tip = f64::NAN;
+        for j in 0..SUBSTEPS {
+            if j == SUBSTEPS / 2 {
+                *mid = im;
+            }
+            r *= self.sub_rotation;
+            let p = c
+                .sub_gap_im
+                .mul(im)
+                .add(c.sub_gap_re.mul(re))
+                .add(c.sub_gap_noise.mul(z));
+            let lanes = (self.free_tip * r).re + p.sum() + self.distance;
+            let gap = lanes + gap_per_force * g;
+            let next_g = self.force(gap);
+            tip = gap - self.distance;
+            let impulse = weight * g;
+            if g != 0.0 {
+                re = re.add(c.kick.mul(V::splat(impulse)));
+            }
+            let r1 = c
+                .sub_a_re
+                .mul(re)
+                .sub(c.sub_a_im.mul(im))
+                .add(c.sub_noise_re.mul(z));
+            im = c
+                .sub_a_re
+                .mul(im)
+                .add(c.sub_a_im.mul(re))
+                .add(c.sub_noise_im.mul(z));
+            re = r1;
+            g = next_g;
+            weight = 2.0 * self.half_dt;
+            gap_per_force = self.gap_per_force;
         }
-        Some((r1, i1, z1))
+        if g != 0.0 {
+            re = re.add(c.kick.mul(V::splat(self.half_dt * g)));
+        }
+        (re, im, tip, true)
     }
 
     #[inline(always)]
