@@ -26,3 +26,15 @@ pub fn avx2_available() -> bool {
 pub fn avx2_available() -> bool {
     false
 }
+
+/// Whether the CPU has AVX-512 (the foundation instructions) and AVX2.
+#[cfg(target_arch = "x86_64")]
+pub fn avx512_available() -> bool {
+    std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("avx2")
+}
+
+/// Whether the CPU has AVX-512 (never, off x86-64).
+#[cfg(not(target_arch = "x86_64"))]
+pub fn avx512_available() -> bool {
+    false
+}

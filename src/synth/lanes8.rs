@@ -1,10 +1,10 @@
 //! Eight `f64` mode lanes as one value, for the synthesiser's loop with up to eight modes:
-//! two AVX2 registers where the CPU has them ([`Avx8`]), an array otherwise
-//! ([`Portable8`]). Written out, the loop's lanes stay in registers; as arrays indexed in
+//! one AVX-512 register where the CPU has it ([`Avx512x8`]), two AVX2 registers where it
+//! has those ([`Avx8`]), an array otherwise ([`Portable8`]). Written out, the loop's lanes stay in registers; as arrays indexed in
 //! a large loop body the compiler assembled them lane by lane (about three times the
 //! instructions per sample).
 //!
-//! Both do the same IEEE operations in the same order, lane by lane, and reduce in the
+//! All do the same IEEE operations in the same order, lane by lane, and reduce in the
 //! same tree as [`lane_sum`](super::modal::lane_sum) (lane m with m + 4, then with m + 2,
 //! then the two), so the two builds give the same bits.
 
@@ -59,7 +59,7 @@ impl Lanes8 for Portable8 {
 }
 
 #[cfg(target_arch = "x86_64")]
-pub(crate) use avx::Avx8;
+pub(crate) use avx::{Avx8, Avx512x8};
 
 #[cfg(target_arch = "x86_64")]
 mod avx {
@@ -119,6 +119,54 @@ mod avx {
             }
         }
     }
+    /// Eight lanes in one AVX-512 register. Only made inside code compiled for AVX-512
+    /// on a CPU that has it (the synthesiser's `process_avx512`), where these functions
+    /// are inlined.
+    #[derive(Clone, Copy, Debug)]
+    pub(crate) struct Avx512x8(__m512d);
+
+    // SAFETY (every `unsafe` below): an `Avx512x8` exists only on a CPU with AVX-512F and
+    // AVX2; loads read eight f64 that `load`'s bounds check guarantees.
+    impl Lanes8 for Avx512x8 {
+        #[inline(always)]
+        fn load(a: &[f64]) -> Self {
+            let a = &a[..8];
+            unsafe { Self(_mm512_loadu_pd(a.as_ptr())) }
+        }
+        #[inline(always)]
+        fn to_array(self) -> [f64; 8] {
+            let mut a = [0.0; 8];
+            unsafe { _mm512_storeu_pd(a.as_mut_ptr(), self.0) };
+            a
+        }
+        #[inline(always)]
+        fn splat(x: f64) -> Self {
+            unsafe { Self(_mm512_set1_pd(x)) }
+        }
+        #[inline(always)]
+        fn add(self, o: Self) -> Self {
+            unsafe { Self(_mm512_add_pd(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn sub(self, o: Self) -> Self {
+            unsafe { Self(_mm512_sub_pd(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn mul(self, o: Self) -> Self {
+            unsafe { Self(_mm512_mul_pd(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn sum(self) -> f64 {
+            unsafe {
+                let s = _mm256_add_pd(
+                    _mm512_castpd512_pd256(self.0),
+                    _mm512_extractf64x4_pd::<1>(self.0),
+                );
+                let t = _mm_add_pd(_mm256_castpd256_pd128(s), _mm256_extractf128_pd::<1>(s));
+                _mm_cvtsd_f64(t) + _mm_cvtsd_f64(_mm_unpackhi_pd(t, t))
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -139,7 +187,21 @@ mod tests {
         )
     }
 
-    /// Both kinds give the same bits, and the sum is `lane_sum`'s.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx2")]
+    fn avx512_ops(a: &[f64], b: &[f64]) -> ([[f64; 8]; 3], f64) {
+        let (x, y) = (Avx512x8::load(a), Avx512x8::load(b));
+        (
+            [
+                x.add(y).to_array(),
+                x.sub(y).to_array(),
+                x.mul(y).to_array(),
+            ],
+            x.mul(y).add(Avx512x8::splat(0.1)).sum(),
+        )
+    }
+
+    /// All kinds give the same bits, and the sum is `lane_sum`'s.
     #[test]
     fn the_avx_lanes_are_the_portable_lanes() {
         let a: Vec<f64> = (0..8)
@@ -164,6 +226,13 @@ mod tests {
         if crate::cpu::avx2_available() {
             // SAFETY: the CPU has AVX2.
             let fast = unsafe { avx_ops(&a, &b) };
+            assert_eq!(fast.0, portable.0);
+            assert_eq!(fast.1.to_bits(), portable.1.to_bits());
+        }
+        #[cfg(target_arch = "x86_64")]
+        if crate::cpu::avx512_available() {
+            // SAFETY: the CPU has AVX-512F and AVX2.
+            let fast = unsafe { avx512_ops(&a, &b) };
             assert_eq!(fast.0, portable.0);
             assert_eq!(fast.1.to_bits(), portable.1.to_bits());
         }

@@ -12,7 +12,7 @@ use rustfft::num_complex::Complex64;
 use super::adc::{AdcFilter, GRID_HISTORY, MID_HISTORY};
 use super::coupled::{CoupledKernel, CoupledTrace, SUBSTEPS};
 #[cfg(target_arch = "x86_64")]
-use super::lanes8::Avx8;
+use super::lanes8::{Avx8, Avx512x8};
 use super::lanes8::{Lanes8, Portable8};
 use super::modal::lane_sum;
 use super::normals::NormalSource;
@@ -35,6 +35,27 @@ use crate::timebase::phase_to_radians;
 /// integer phase at every multiple of this many samples (of the absolute sample index, so
 /// the stream does not depend on how it is cut into blocks).
 const REANCHOR: u64 = 256;
+
+/// The builds of the synthesis loop: the same stream from each, bit for bit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Build {
+    Portable,
+    Avx2,
+    Avx512,
+}
+
+impl Build {
+    /// The widest build this CPU runs.
+    fn detect() -> Self {
+        if crate::cpu::avx512_available() {
+            Self::Avx512
+        } else if crate::cpu::avx2_available() {
+            Self::Avx2
+        } else {
+            Self::Portable
+        }
+    }
+}
 
 /// Counters the synthesiser keeps; read them between blocks.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -73,8 +94,8 @@ pub struct SynthState {
     detector: Vec<f64>,
     /// The ADC filter's histories and the chunk's grid and midpoint samples.
     adc: AdcFilter,
-    /// Whether the CPU has AVX2 (the loop is then compiled for it).
-    avx2: bool,
+    /// The widest vector instructions the CPU has (the loop is compiled for them).
+    build: Build,
     /// Counters.
     pub counters: SynthCounters,
 }
@@ -124,7 +145,7 @@ impl SynthState {
             thermal: vec![0.0; THERMAL_LEN],
             detector: vec![0.0; CHUNK],
             adc,
-            avx2: crate::cpu::avx2_available(),
+            build: Build::detect(),
             counters: SynthCounters::default(),
         }
     }
@@ -198,13 +219,29 @@ impl SynthPlan {
         state: &mut SynthState,
         out: &mut [f64],
     ) {
-        #[cfg(target_arch = "x86_64")]
-        if state.avx2 {
-            // SAFETY: `avx2` is true only where the CPU has AVX2.
-            unsafe { self.process_avx2(pulse, coupled, state, out) };
-            return;
+        match state.build {
+            // SAFETY: `build` names an instruction set only where the CPU has it.
+            #[cfg(target_arch = "x86_64")]
+            Build::Avx512 => unsafe { self.process_avx512(pulse, coupled, state, out) },
+            #[cfg(target_arch = "x86_64")]
+            Build::Avx2 => unsafe { self.process_avx2(pulse, coupled, state, out) },
+            _ => self.process_modes::<Portable8>(pulse, coupled, state, out),
         }
-        self.process_modes::<Portable8>(pulse, coupled, state, out);
+    }
+
+    /// [`process_with`](Self::process_with) compiled for AVX-512: the same operations in
+    /// the same order, eight lanes to a register, so the same stream bit for bit. The CPU
+    /// must have AVX-512F and AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx2")]
+    unsafe fn process_avx512(
+        &self,
+        pulse: Option<&PulseKernel>,
+        coupled: Option<&CoupledKernel>,
+        state: &mut SynthState,
+        out: &mut [f64],
+    ) {
+        self.process_modes::<Avx512x8>(pulse, coupled, state, out);
     }
 
     /// [`process_with`](Self::process_with) compiled for AVX2: the same operations in the
@@ -590,7 +627,7 @@ impl SynthPlan {
             thermal: vec![0.0; THERMAL_LEN],
             detector: vec![0.0; CHUNK],
             adc: AdcFilter::new(CHUNK, |_| 0.0),
-            avx2: crate::cpu::avx2_available(),
+            build: Build::detect(),
             counters: SynthCounters::default(),
         };
         for (m, kernel) in self.modes.iter().enumerate() {
@@ -693,21 +730,39 @@ mod tests {
         }
     }
 
-    /// The AVX2 build of the loop and the portable one give the same stream, bit for bit,
-    /// for both engines with every noise source and the ADC's filter on.
+    /// The AVX-512 and AVX2 builds of the loop and the portable one give the same stream,
+    /// bit for bit, for both engines with every noise source and the ADC's filter on (the
+    /// builds this CPU has).
     #[test]
-    fn the_avx2_loop_is_bit_identical_to_the_portable_one() {
+    fn the_vector_builds_of_the_loop_are_bit_identical_to_the_portable_one() {
+        let builds: Vec<Build> = [Build::Avx512, Build::Avx2]
+            .into_iter()
+            .filter(|b| match b {
+                Build::Avx512 => crate::cpu::avx512_available(),
+                _ => crate::cpu::avx2_available(),
+            })
+            .collect();
+        eprintln!("builds compared with the portable one: {builds:?}");
         for engine in [Engine::Paper, Engine::Coupled] {
             let mut settings = default_settings();
             settings.synth.engine = engine;
             let plan = SynthPlan::new(&settings).unwrap();
-            let mut fast = SynthState::steady(&plan, 7);
-            let mut portable = fast.clone();
-            portable.avx2 = false;
-            let (mut a, mut b) = (vec![0.0; 20_000], vec![0.0; 20_000]);
-            plan.process(&mut fast, &mut a);
+            let mut portable = SynthState::steady(&plan, 7);
+            portable.build = Build::Portable;
+            let mut b = vec![0.0; 20_000];
+            let mut fast: Vec<SynthState> = builds
+                .iter()
+                .map(|&build| SynthState {
+                    build,
+                    ..portable.clone()
+                })
+                .collect();
             plan.process(&mut portable, &mut b);
-            assert_eq!(a, b, "{engine:?}");
+            for state in &mut fast {
+                let mut a = vec![0.0; 20_000];
+                plan.process(state, &mut a);
+                assert_eq!(a, b, "{engine:?} {:?}", state.build);
+            }
         }
     }
 }
