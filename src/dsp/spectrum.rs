@@ -191,7 +191,7 @@ impl SlidingSpectrum {
         debug_assert!(done.is_ok());
         // The one-sided doubling applies to neither DC nor Nyquist: they have no mirror.
         self.bins[0] *= 0.5;
-        if self.config.size % 2 == 0 {
+        if self.config.size.is_multiple_of(2) {
             let last = self.bins.len() - 1;
             self.bins[last] *= 0.5;
         }

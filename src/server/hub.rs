@@ -300,7 +300,7 @@ pub(crate) async fn run(
             last_counters = counters;
             last_status = Instant::now();
             status_count += 1;
-            if !retired.is_empty() || status_count % TRIM_EVERY == 0 {
+            if !retired.is_empty() || status_count.is_multiple_of(TRIM_EVERY) {
                 // Plans the threads gave back are freed, and memory freed after large
                 // settings (a 2^20-point spectrum's plan and messages) goes back to the
                 // system, not only to the allocator; off the hub, which must not stall.

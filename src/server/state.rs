@@ -369,7 +369,7 @@ impl ClientHandle {
     /// Whether this client takes message `seq` of stream `stream` (by its `every`).
     pub fn takes(&self, stream: usize, seq: u64) -> bool {
         let every = u64::from(self.every[stream].load(Ordering::Relaxed).max(1));
-        seq % every == 0
+        seq.is_multiple_of(every)
     }
 
     pub fn unsubscribe(&self, stream: StreamKind) {

@@ -124,7 +124,11 @@ impl NormalSource {
 /// Stream j of the interleaved order in which the vector code pairs the words of the two
 /// halves of the streams: 0, 4, 1, 5, 2, 6, 3, 7.
 const fn interleaved(j: usize) -> usize {
-    if j % 2 == 0 { j / 2 } else { LANES / 2 + j / 2 }
+    if j.is_multiple_of(2) {
+        j / 2
+    } else {
+        LANES / 2 + j / 2
+    }
 }
 
 /// The next batch of the streams `s`: each stream's next word turned into two deviates,

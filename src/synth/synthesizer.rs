@@ -350,7 +350,7 @@ impl SynthPlan {
                     .try_into()
                     .expect("the padding holds a sample's L lanes");
                 let z = &z;
-                if index % REANCHOR == 0 {
+                if index.is_multiple_of(REANCHOR) {
                     rho = Complex64::from_polar(1.0, phase_to_radians(phase));
                 }
                 let mut p = [0.0; L];
@@ -489,7 +489,7 @@ impl SynthPlan {
                 // Lanes past the plan's modes read the next samples' deviates (zero
                 // coefficients).
                 let z = V::load(&thermal[i * n..]);
-                if index % REANCHOR == 0 {
+                if index.is_multiple_of(REANCHOR) {
                     rho = Complex64::from_polar(1.0, phase_to_radians(phase));
                 }
                 *out = (self.drive_signal * rho).re + lever.mul(im).sum();
