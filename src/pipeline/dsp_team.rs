@@ -9,7 +9,10 @@
 //! [`DspTeam::run`], and the same workers serve every plan.
 //!
 //! Hand-off and wait are atomics, no lock: a job number per worker (release/acquire), a
-//! count of workers still busy, and for each side a "sleeping" flag. A waiting thread spins
+//! "taken" flag per job, a count of jobs not finished, and for each side a "sleeping"
+//! flag. Whoever takes a job runs it: its worker, or the leader once its own work is done
+//! and the worker has not started (descheduled on a loaded machine), so a split stage is
+//! never held up by a worker that does not get a core. A waiting thread spins
 //! briefly ([`SPIN`]), then raises its flag, looks once more and parks; the other side
 //! unparks it only if the flag is up (sequentially consistent on both sides, so one of
 //! them always sees the other). Nothing is allocated, locked or logged per piece; an
@@ -55,6 +58,8 @@ struct Slot {
     seq: AtomicU64,
     /// The worker is (about to be) parked: the leader must unpark it.
     sleeping: AtomicBool,
+    /// The current job has been taken, by the worker or by the leader.
+    taken: AtomicBool,
     /// Written by the leader before `seq` is raised, read by the worker after it sees it.
     job: UnsafeCell<Job>,
 }
@@ -62,7 +67,7 @@ struct Slot {
 /// What the leader and the workers share.
 struct Shared {
     slots: Box<[Slot]>,
-    /// Workers not done with the current jobs.
+    /// Jobs handed out and not finished.
     busy: AtomicUsize,
     /// The leader is (about to be) parked: the last worker to finish must unpark it.
     leader_sleeping: AtomicBool,
@@ -104,6 +109,7 @@ impl DspTeam {
                 .map(|_| Slot {
                     seq: AtomicU64::new(0),
                     sleeping: AtomicBool::new(false),
+                    taken: AtomicBool::new(true),
                     job: UnsafeCell::new(Job::NONE),
                 })
                 .collect(),
@@ -138,7 +144,8 @@ impl DspTeam {
 
     /// Runs `shards[i]` over `input` with its outputs into `outputs[i]` (cleared first; the
     /// caller sized them so they never grow): shards 1 … workers on the workers, the others
-    /// and then `beside` on the calling thread, and returns when all are done. Real-time
+    /// and then `beside` on the calling thread, then any shard whose worker has not started
+    /// it yet, and returns when all are done. Real-time
     /// safe: allocates nothing (given the capacities), takes no lock.
     pub(crate) fn run(
         &mut self,
@@ -171,9 +178,10 @@ impl DspTeam {
             self.shared.busy.store(handed, Ordering::SeqCst);
             for w in 0..handed {
                 let slot = &self.shared.slots[w];
-                // SAFETY: worker `w` is idle (see above) and reads its job only after the
-                // store below.
+                // SAFETY: no one runs a job now (see above), and the job is read only by
+                // whoever takes it, after the stores below.
                 unsafe { *slot.job.get() = job(w + 1) };
+                slot.taken.store(false, Ordering::SeqCst);
                 slot.seq.store(self.seq, Ordering::SeqCst);
                 if slot.sleeping.load(Ordering::SeqCst) {
                     self.threads[w].0.unpark();
@@ -186,6 +194,12 @@ impl DspTeam {
         }
         beside();
         if handed > 0 {
+            for w in 0..handed {
+                if !self.shared.slots[w].taken.swap(true, Ordering::SeqCst) {
+                    run_job(job(w + 1));
+                    self.shared.busy.fetch_sub(1, Ordering::SeqCst);
+                }
+            }
             self.wait();
             assert!(
                 !self.shared.panicked.load(Ordering::Relaxed),
@@ -194,7 +208,7 @@ impl DspTeam {
         }
     }
 
-    /// Waits until every worker has finished its job.
+    /// Waits until every job taken by a worker is finished.
     fn wait(&self) {
         let shared = &self.shared;
         let mut spins = 0;
@@ -271,8 +285,13 @@ fn work(shared: &Shared, w: usize) {
             return;
         }
         seen = seq;
-        // SAFETY: the leader wrote the job before raising `seq` and leaves it alone until
-        // this worker reports it done.
+        if slot.taken.swap(true, Ordering::SeqCst) {
+            // The leader ran it (or this is a job number already served: a job taken
+            // under an earlier look at `seq` was the newest one).
+            continue;
+        }
+        // SAFETY: the leader wrote the job before clearing `taken`, and leaves it alone
+        // until every job taken is reported done, which this one is not yet.
         let job = unsafe { *slot.job.get() };
         if std::panic::catch_unwind(AssertUnwindSafe(|| run_job(job))).is_err() {
             shared.panicked.store(true, Ordering::Relaxed);
