@@ -266,7 +266,8 @@ fn the_pipeline_on_three_threads_gives_the_frames_of_one_and_joins_its_workers()
         ));
         let mut got = std::collections::BTreeMap::new();
         let deadline = Instant::now() + Duration::from_secs(120);
-        while got.len() < 300 {
+        // Until the new plan is in (an event: the DSP thread counts it) and enough frames.
+        while got.len() < 300 || pipeline.counters().dsp_plans_applied == 0 {
             while let Some(f) = output.demods.try_pop() {
                 let values: Vec<_> = f
                     .values()
