@@ -309,3 +309,33 @@ fn the_pipeline_on_three_threads_gives_the_frames_of_one_and_joins_its_workers()
         assert_eq!(one[k], three[k], "frame at sample {k}");
     }
 }
+
+/// A panic on the DSP thread while the workers run their shards (here a sink's) waits for
+/// them before it unwinds, and the team still stops and joins.
+#[test]
+fn a_panic_beside_the_workers_waits_for_them_and_the_team_still_joins() {
+    let _serial = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    struct Fails;
+    impl DspSink for Fails {
+        fn demod(&mut self, _: u64, _: DemodValue) {}
+        fn spectrum<I: ExactSizeIterator<Item = f64>>(&mut self, _: u64, _: f64, _: I) {
+            panic!("a sink that fails");
+        }
+    }
+    let mut settings = mixed_settings();
+    settings.dsp.threads = 4;
+    let (word, blocks) = stream(&settings, 1);
+    let mut plan = DspPlan::new(&settings).unwrap();
+    let mut team = DspTeam::spawn(3, false).unwrap();
+    let failed = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        for (phase, block) in &blocks {
+            plan.process_block(&mut team, *phase, word, block, &mut Fails);
+        }
+    }));
+    assert!(failed.is_err(), "the sink's panic comes through");
+    drop(plan);
+    drop(team);
+    if cfg!(target_os = "linux") {
+        assert_eq!(worker_threads(), 0, "workers joined");
+    }
+}

@@ -188,24 +188,37 @@ impl DspTeam {
                 }
             }
         }
-        run_job(job(0));
-        for i in handed + 1..shards.len() {
-            run_job(job(i));
-        }
-        beside();
+        // A panic here (a sink's, say) must not unwind past the workers' jobs while they
+        // still use the shards: it is held until they are done.
+        let mine = std::panic::catch_unwind(AssertUnwindSafe(|| {
+            run_job(job(0));
+            for i in handed + 1..shards.len() {
+                run_job(job(i));
+            }
+            beside();
+        }));
         if handed > 0 {
             for w in 0..handed {
                 if !self.shared.slots[w].taken.swap(true, Ordering::SeqCst) {
-                    run_job(job(w + 1));
+                    // Not started by its worker: run here (unless unwinding anyway).
+                    if mine.is_ok()
+                        && std::panic::catch_unwind(AssertUnwindSafe(|| run_job(job(w + 1))))
+                            .is_err()
+                    {
+                        self.shared.panicked.store(true, Ordering::Relaxed);
+                    }
                     self.shared.busy.fetch_sub(1, Ordering::SeqCst);
                 }
             }
             self.wait();
-            assert!(
-                !self.shared.panicked.load(Ordering::Relaxed),
-                "a DSP worker thread panicked"
-            );
         }
+        if let Err(panic) = mine {
+            std::panic::resume_unwind(panic);
+        }
+        assert!(
+            !self.shared.panicked.load(Ordering::Relaxed),
+            "a DSP worker thread panicked"
+        );
     }
 
     /// Waits until every job taken by a worker is finished.
