@@ -1,5 +1,7 @@
 //! DSP throughput on one core, in input samples per second (goal: the 32-demodulator bank
-//! and the sliding spectrum together at ≥ 30 MS/s, three times the 10 MS/s real-time rate).
+//! and the sliding spectrum together at ≥ 30 MS/s, three times the 10 MS/s real-time rate);
+//! and the DSP stage (`DspPlan`) on one thread against the bank split over two
+//! (`/dsp/threads`), which needs two free cores to show a gain.
 
 use std::hint::black_box;
 
@@ -132,5 +134,62 @@ fn together(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, lockin, sliding_spectrum, together);
+/// The DSP stage as the DSP thread runs it: 32 demodulators of order 4 and the spectrum
+/// (N = 4096, hop 1024), on 1 thread and split over 2 (the second a worker).
+fn threads(c: &mut Criterion) {
+    use ftafm::config::default_settings;
+    use ftafm::pipeline::{DemodValue, DspPlan, DspSink, DspTeam};
+
+    struct Sum(f64);
+    impl DspSink for Sum {
+        fn demod(&mut self, _: u64, v: DemodValue) {
+            self.0 += v.x;
+        }
+        fn spectrum<I: ExactSizeIterator<Item = f64>>(&mut self, _: u64, _: f64, mut bins: I) {
+            self.0 += bins.nth(1).unwrap_or(0.0);
+        }
+    }
+
+    let mut group = c.benchmark_group("dsp_threads");
+    group.throughput(Throughput::Elements(BLOCK as u64));
+    for threads in [1, 2] {
+        let mut settings = default_settings();
+        settings.dsp.threads = threads;
+        settings.drive.frequency = DRIVE;
+        settings.spectrum.size = 4096;
+        // One spectrum every 1024 samples (above the node's range; the plan takes it).
+        settings.spectrum.rate = SAMPLE_RATE / 1024.0;
+        for (i, d) in settings.demods.iter_mut().enumerate() {
+            *d = ftafm::config::DemodSettings {
+                enable: true,
+                harmonic: i as u32 + 1,
+                order: 4,
+                timeconstant: 100e-6,
+                rate: 10e3,
+            };
+        }
+        let mut plan = DspPlan::new(&settings).expect("valid plan");
+        assert_eq!(plan.shards(), threads as usize);
+        let mut team = DspTeam::spawn(plan.shards() - 1, false).expect("worker threads");
+        let word = ftafm::timebase::frequency_word(DRIVE, SAMPLE_RATE).expect("valid drive");
+        let mut feed = Feed::new();
+        let mut first = 0u64;
+        group.bench_function(
+            format!("32_demods_order4_n4096_hop1024_{threads}_thread"),
+            |bencher| {
+                bencher.iter(|| {
+                    let mut sum = Sum(0.0);
+                    let block = feed.block();
+                    let phase = word.wrapping_mul(first);
+                    plan.process_block(&mut team, phase, word, block, &mut sum);
+                    first += block.len() as u64;
+                    black_box(sum.0)
+                })
+            },
+        );
+    }
+    group.finish();
+}
+
+criterion_group!(benches, lockin, sliding_spectrum, together, threads);
 criterion_main!(benches);

@@ -931,6 +931,32 @@ fn allowed_origins_by_set() {
 }
 
 #[test]
+fn dsp_threads_are_checked_and_fixed_while_running() {
+    assert_eq!(default_settings().dsp.threads, 0, "auto by default");
+    assert_eq!(
+        error_of("[dsp]\nthreads = 9\n"),
+        "test.toml: /dsp/threads = 9 is out of range: allowed 0 ≤ value ≤ 8"
+    );
+    assert_mentions(
+        &error_of("[dsp]\nthreads = -1\n"),
+        &["/dsp/threads", "0 ≤ value ≤ 8"],
+    );
+    assert_mentions(
+        &error_of("[dsp]\nthreads = \"auto\"\n"),
+        &["/dsp/threads", "0 ≤ value ≤ 8"],
+    );
+    assert_eq!(
+        load_str("[dsp]\nthreads = 3\n", "t").unwrap().dsp.threads,
+        3
+    );
+    let mut s = default_settings();
+    assert!(matches!(
+        s.set("/dsp/threads", &json!(2)),
+        Err(NodeError::ReadOnly { .. })
+    ));
+}
+
+#[test]
 fn server_ranges_name_the_key() {
     assert_eq!(
         error_of("[server]\nmax_clients = 0\n"),
@@ -2018,8 +2044,8 @@ fn every_node_round_trips_through_set() {
 fn list_entries_have_the_protocol_fields() {
     let nodes = default_settings().nodes();
     assert_eq!(nodes.len(), registry().len());
-    // 65 scalar nodes, 8 inclusions of 10 nodes, 32 demodulators of 5.
-    assert_eq!(nodes.len(), 65 + 8 * 10 + 32 * 5);
+    // 66 scalar nodes, 8 inclusions of 10 nodes, 32 demodulators of 5.
+    assert_eq!(nodes.len(), 66 + 8 * 10 + 32 * 5);
     let entry = serde_json::to_value(&nodes[0]).unwrap();
     let keys: BTreeSet<&str> = entry
         .as_object()

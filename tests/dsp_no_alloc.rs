@@ -109,3 +109,60 @@ fn process_allocates_nothing() {
     let v = vec![0u8; 10];
     assert!(allocations() > before, "{v:?}");
 }
+
+/// The DSP stage split over three threads ([`DspPlan`] with `/dsp/threads` = 3 and a
+/// [`DspTeam`] of two workers): warmed-up blocks allocate nothing on the calling thread (the
+/// counter is per thread); the workers' own allocations are counted by
+/// `pipeline_no_alloc`, where they run in the pipeline.
+#[test]
+fn threaded_dsp_plan_allocates_nothing_on_the_calling_thread() {
+    use ftafm::config::default_settings;
+    use ftafm::pipeline::{DemodValue, DspPlan, DspSink, DspTeam};
+
+    struct Count(usize, usize, f64);
+    impl DspSink for Count {
+        fn demod(&mut self, _: u64, v: DemodValue) {
+            self.0 += 1;
+            self.2 += v.x;
+        }
+        fn spectrum<I: ExactSizeIterator<Item = f64>>(&mut self, _: u64, _: f64, bins: I) {
+            self.1 += 1;
+            self.2 += bins.sum::<f64>();
+        }
+    }
+
+    let mut settings = default_settings();
+    settings.dsp.threads = 3;
+    settings.spectrum.size = 4096;
+    settings.spectrum.rate = 1000.0;
+    for d in &mut settings.demods {
+        d.rate = 20e3;
+    }
+    let mut plan = DspPlan::new(&settings).unwrap();
+    assert_eq!(plan.shards(), 3);
+    let mut team = DspTeam::spawn(2, false).unwrap();
+    let (fs, fd) = (settings.synth.sample_rate, settings.drive.frequency);
+    let word = ftafm::timebase::frequency_word(fd, fs).unwrap();
+    let signal: Vec<f64> = (0..400_000)
+        .map(|m| 1e-8 * (std::f64::consts::TAU * fd / fs * m as f64).cos())
+        .collect();
+    let mut sink = Count(0, 0, 0.0);
+    // Blocks as the ring gives them, then longer than a hand-off piece.
+    let mut run = |range: std::ops::Range<usize>, len: usize, sink: &mut Count| {
+        for (i, block) in signal[range.clone()].chunks(len).enumerate() {
+            let first = (range.start + i * len) as u64;
+            plan.process_block(&mut team, word.wrapping_mul(first), word, block, sink);
+        }
+    };
+    run(0..40_960, 4096, &mut sink);
+    let before = allocations();
+    run(40_960..400_000, 9000, &mut sink);
+    let during = allocations() - before;
+    assert!(
+        sink.0 > 10_000 && sink.1 > 30,
+        "the test did work: {} {}",
+        sink.0,
+        sink.1
+    );
+    assert_eq!(during, 0, "allocations during warmed-up threaded blocks");
+}

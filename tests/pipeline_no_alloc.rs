@@ -1,5 +1,6 @@
-//! The real-time threads (`ftafm-synth`, `ftafm-dsp`) allocate nothing once running, also
-//! while settings change: a global allocator that counts allocations made on them.
+//! The real-time threads (`ftafm-synth`, `ftafm-dsp` and its workers `ftafm-dsp-w1` …)
+//! allocate nothing once running, also while settings change: a global allocator that
+//! counts allocations made on them.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
@@ -24,9 +25,10 @@ fn on_realtime_thread() -> bool {
             Some(v) => v,
             None => {
                 // Decided on the thread's first allocation, which is before its loop runs.
-                let v = std::thread::current()
-                    .name()
-                    .is_some_and(|n| matches!(n, "ftafm-synth" | "ftafm-dsp" | "ftafm-probe"));
+                let v = std::thread::current().name().is_some_and(|n| {
+                    matches!(n, "ftafm-synth" | "ftafm-dsp" | "ftafm-probe")
+                        || n.starts_with("ftafm-dsp-w")
+                });
                 flag.set(Some(v));
                 v
             }
@@ -65,9 +67,22 @@ static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 #[test]
 fn realtime_threads_do_not_allocate_or_free_while_running() {
+    realtime_threads_do_not_allocate_or_free_on(1);
+}
+
+/// The same with the bank split over the DSP thread and two workers (forced, whatever the
+/// machine's cores): the hand-offs, the shards' output buffers and the merge allocate
+/// nothing either, also across new plans.
+#[test]
+fn dsp_workers_do_not_allocate_or_free_while_running() {
+    realtime_threads_do_not_allocate_or_free_on(3);
+}
+
+fn realtime_threads_do_not_allocate_or_free_on(threads: u32) {
     let _serial = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let mut settings = default_settings();
     settings.synth.realtime = false;
+    settings.dsp.threads = threads;
     let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
     // Let both threads pass their start-up (buffers are allocated before the loops).
     while pipeline.counters().demod_frames < 20 {
@@ -108,18 +123,20 @@ fn realtime_threads_do_not_allocate_or_free_while_running() {
         "allocations or frees on the real-time threads"
     );
     drop(pipeline);
-    // Sanity of the instrument: a thread of that name that does allocate is seen.
-    let seen = std::thread::Builder::new()
-        .name("ftafm-probe".into())
-        .spawn(|| {
-            let before = REALTIME_ALLOCATIONS.load(Ordering::SeqCst);
-            drop(std::hint::black_box(vec![0u8; 32]));
-            REALTIME_ALLOCATIONS.load(Ordering::SeqCst) - before
-        })
-        .unwrap()
-        .join()
-        .unwrap();
-    assert!(seen >= 1);
+    // Sanity of the instrument: a thread of such a name that does allocate is seen.
+    for name in ["ftafm-probe", "ftafm-dsp-w9"] {
+        let seen = std::thread::Builder::new()
+            .name(name.into())
+            .spawn(|| {
+                let before = REALTIME_ALLOCATIONS.load(Ordering::SeqCst);
+                drop(std::hint::black_box(vec![0u8; 32]));
+                REALTIME_ALLOCATIONS.load(Ordering::SeqCst) - before
+            })
+            .unwrap()
+            .join()
+            .unwrap();
+        assert!(seen >= 1, "{name}");
+    }
 }
 
 #[test]

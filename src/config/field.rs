@@ -44,6 +44,9 @@ pub const MIN_CLIENT_QUEUE_BYTES: u64 = 1 << 16;
 pub const MAX_CLIENT_QUEUE_BYTES: u64 = 1 << 30;
 /// Most WebSocket clients connected at once (`/server/max_clients`).
 pub const MAX_CLIENTS: u32 = 4096;
+/// Most threads of the DSP stage (`/dsp/threads`): the lock-in bank splits into shards of at
+/// least 4 of its 32 demodulators.
+pub const MAX_DSP_THREADS: u32 = 8;
 /// Shortest per-client outgoing queue, in messages (`/server/client_queue`).
 pub const MIN_CLIENT_QUEUE: u32 = 16;
 /// Longest per-client outgoing queue, in messages (`/server/client_queue`): 2^16.
@@ -219,6 +222,8 @@ pub enum Field {
     ScopeDecimation,
     /// `/scope/rate` (Hz).
     ScopeRate,
+    /// `/dsp/threads` (threads; 0 = auto), read-only at runtime.
+    DspThreads,
     /// `/server/allowed_origins` (list of text).
     ServerAllowedOrigins,
     /// `/server/allowed_hosts` (list of text).
@@ -546,7 +551,7 @@ impl Typed {
 
 impl Field {
     /// Nodes outside the index-keyed tables (inclusions, demodulators), in tree order.
-    pub(crate) const SCALARS: [Field; 65] = [
+    pub(crate) const SCALARS: [Field; 66] = [
         Field::CantileverF1,
         Field::CantileverK,
         Field::CantileverQ,
@@ -581,6 +586,7 @@ impl Field {
         Field::ScopeLength,
         Field::ScopeDecimation,
         Field::ScopeRate,
+        Field::DspThreads,
         Field::ServerAllowedOrigins,
         Field::ServerAllowedHosts,
         Field::ServerMaxClients,
@@ -678,6 +684,7 @@ impl Field {
             Field::ScopeLength => "/scope/length",
             Field::ScopeDecimation => "/scope/decimation",
             Field::ScopeRate => "/scope/rate",
+            Field::DspThreads => "/dsp/threads",
             Field::ServerAllowedOrigins => "/server/allowed_origins",
             Field::ServerAllowedHosts => "/server/allowed_hosts",
             Field::ServerMaxClients => "/server/max_clients",
@@ -772,6 +779,7 @@ impl Field {
             Field::SweeperSettling => "s",
             Field::ScanPixels => "pixels",
             Field::ServerMaxClients => "clients",
+            Field::DspThreads => "threads",
             Field::ServerClientQueue => "messages",
             Field::ServerClientQueueBytes => "bytes",
             Field::TipYoungsModulus
@@ -819,9 +827,10 @@ impl Field {
     }
 
     /// Whether the protocol's `set` may change the node while the instrument runs. Only the
-    /// sample rate is fixed: every buffer, filter and FFT plan is sized from it.
+    /// sample rate is fixed (every buffer, filter and FFT plan is sized from it), and the DSP
+    /// stage's thread count (its threads start with the pipeline).
     pub fn writable(self) -> bool {
-        self != Field::SynthSampleRate
+        !matches!(self, Field::SynthSampleRate | Field::DspThreads)
     }
 
     /// The values the node takes, without the limits that depend on other nodes.
@@ -915,6 +924,10 @@ impl Field {
             Field::ServerMaxClients => Kind::Integer {
                 min: 1,
                 max: MAX_CLIENTS.into(),
+            },
+            Field::DspThreads => Kind::Integer {
+                min: 0,
+                max: MAX_DSP_THREADS.into(),
             },
             Field::ServerClientQueueBytes => Kind::Integer {
                 min: MIN_CLIENT_QUEUE_BYTES,
@@ -1061,6 +1074,9 @@ impl Field {
             }
             Field::ServerAllowedOrigins => {
                 "Web origins (scheme://host[:port], e.g. \"http://localhost:3000\") besides the server's own whose pages may open the WebSocket; any other origin is refused with 403; no \"*\" wildcard. A change applies to connections opened from then on."
+            }
+            Field::DspThreads => {
+                "Threads of the DSP stage, in threads: the lock-in bank is split between them (each runs a share of the demodulators on every block; the outputs are bit for bit those of one thread); 0 (auto) adds threads only on a machine with more than 2 cores, one per core beyond two, at most 4 in all; fixed at start (config file only)."
             }
             Field::ServerMaxClients => {
                 "Most WebSocket clients connected at once, in clients; beyond it the handshake is refused with 503. A change applies to connections opened from then on."
@@ -1261,6 +1277,7 @@ impl Field {
             Field::ServerAllowedHosts => Typed::TextList(s.server.allowed_hosts.clone()),
             Field::ServerClientQueueBytes => Typed::Integer(s.server.client_queue_bytes),
             Field::ServerMaxClients => Typed::Integer(s.server.max_clients.into()),
+            Field::DspThreads => Typed::Integer(s.dsp.threads.into()),
             Field::ServerClientQueue => Typed::Integer(s.server.client_queue.into()),
             Field::ServerStallTimeout => Typed::Float(s.server.stall_timeout),
             Field::InversionEnable => Typed::Bool(s.inversion.enable),
@@ -1366,6 +1383,7 @@ impl Field {
             (Field::ServerClientQueueBytes, Typed::Integer(n)) => {
                 s.server.client_queue_bytes = n;
             }
+            (Field::DspThreads, Typed::Integer(n)) => s.dsp.threads = u32::try_from(n).ok()?,
             (Field::ServerMaxClients, Typed::Integer(n)) => {
                 s.server.max_clients = u32::try_from(n).ok()?;
             }

@@ -27,6 +27,9 @@ pub struct Settings {
     pub noise: NoiseSettings,
     pub spectrum: SpectrumSettings,
     pub scope: ScopeSettings,
+    /// `[dsp]`: threads of the DSP stage (absent from older files: the default, auto).
+    #[serde(default)]
+    pub dsp: DspSettings,
     pub server: ServerSettings,
     pub inversion: InversionSettings,
     pub scan: ScanSettings,
@@ -230,6 +233,16 @@ pub struct SpectrumSettings {
     pub window: SpectrumWindow,
     /// Spectra per second (Hz); frames may overlap, so only `rate ≤ sample_rate` is required.
     pub rate: f64,
+}
+
+/// `[dsp]`: how the DSP stage uses the machine's cores.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DspSettings {
+    /// Threads the DSP stage runs on, the DSP thread included (1 … 8); 0 (auto): 1 on a
+    /// machine with 2 cores or fewer, else one more per core beyond two, at most 4. Fixed
+    /// while the pipeline runs.
+    pub threads: u32,
 }
 
 /// `[scope]`: time-domain traces of the raw photodiode signal (the `scope` stream).

@@ -28,6 +28,10 @@ use crate::timebase::{PREDECIMATION, PhaseAccumulator, harmonic_phase, phase_to_
 
 /// Number of demodulators a bank holds at most.
 pub const MAX_DEMODULATORS: usize = 32;
+/// Granularity of [`LockInBank::split`]: shards hold whole groups of this many lanes, the
+/// width of one AVX2 register of f64 (the portable SSE2 kernel's registers hold 2, which
+/// divides it).
+pub const SPLIT_LANES: usize = 4;
 /// Order N of the CIC pre-decimator (cascaded boxcars).
 pub const PREDECIMATION_ORDER: usize = 4;
 
@@ -265,6 +269,15 @@ impl LockInBank {
         demodulators: &[Demodulator],
     ) -> Result<Self, DspError> {
         let drive = PhaseAccumulator::new(drive_frequency, sample_rate)?;
+        Self::with_drive(sample_rate, drive, demodulators)
+    }
+
+    /// [`new`](Self::new) with the drive given as a phase accumulator.
+    fn with_drive(
+        sample_rate: f64,
+        drive: PhaseAccumulator,
+        demodulators: &[Demodulator],
+    ) -> Result<Self, DspError> {
         if demodulators.len() > MAX_DEMODULATORS {
             return Err(DspError::TooManyDemodulators(demodulators.len()));
         }
@@ -344,6 +357,54 @@ impl LockInBank {
             state,
             fma: crate::cpu::fma_available(),
         })
+    }
+
+    /// Splits the bank into at most `parts` banks ("shards") that together compute, bit for
+    /// bit, what this one would: each takes a run of consecutive enabled demodulators (its
+    /// lanes), cut only at multiples of [`SPLIT_LANES`], and keeps this bank's drive, kernel
+    /// and number of low-pass sections (a lane whose order is below the bank's highest still
+    /// runs the pass-through sections above it, whose rounding is part of its output).
+    /// Every step of the kernel is lane-wise, so a lane's arithmetic does not depend on
+    /// which bank holds it nor where in its vector registers it sits. Shards hold their
+    /// demodulators under their own indices (those of other shards disabled), and report
+    /// them in index order, so running the shards on the same input and taking their outputs
+    /// shard by shard for each output time gives this bank's outputs in its order.
+    ///
+    /// Gives fewer parts when there are fewer groups of [`SPLIT_LANES`] lanes (one when no
+    /// demodulator is enabled). The shards start as a new bank starts (filters at zero); the
+    /// drive phase and frequency are this bank's. Allocates (call it off the real-time
+    /// thread).
+    pub fn split(self, parts: usize) -> Result<Vec<LockInBank>, DspError> {
+        let groups = self.plan.count.div_ceil(SPLIT_LANES);
+        let parts = parts.clamp(1, groups.max(1));
+        if parts == 1 {
+            return Ok(vec![self]);
+        }
+        let mut shards = Vec::with_capacity(parts);
+        for part in 0..parts {
+            let lo = (groups * part / parts * SPLIT_LANES).min(self.plan.count);
+            let hi = (groups * (part + 1) / parts * SPLIT_LANES).min(self.plan.count);
+            let mine = &self.plan.demod[lo..hi];
+            let demods: Vec<Demodulator> = self
+                .demods
+                .iter()
+                .enumerate()
+                .map(|(index, d)| Demodulator {
+                    enable: d.enable && mine.contains(&index),
+                    ..*d
+                })
+                .collect();
+            let mut shard = Self::with_drive(self.sample_rate, self.state.drive, &demods)?;
+            shard.plan.sections = self.plan.sections;
+            shard.fma = self.fma;
+            shards.push(shard);
+        }
+        Ok(shards)
+    }
+
+    /// Enabled demodulators (lanes in use).
+    pub fn lanes(&self) -> usize {
+        self.plan.count
     }
 
     /// Use the portable kernel even where the AVX2/FMA one could run (for comparisons;

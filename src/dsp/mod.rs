@@ -17,7 +17,9 @@ mod simd;
 mod spectrum;
 mod window;
 
-pub use lockin::{Demodulator, LockInBank, LockInSample, MAX_DEMODULATORS, PREDECIMATION_ORDER};
+pub use lockin::{
+    Demodulator, LockInBank, LockInSample, MAX_DEMODULATORS, PREDECIMATION_ORDER, SPLIT_LANES,
+};
 pub use lowpass::{LowPass, LowPassState, MAX_ORDER};
 pub use predecimator::Predecimator;
 pub use realfft::num_complex::Complex;

@@ -2,18 +2,55 @@
 //! settings: the lock-in bank and the sliding spectrum.
 
 use crate::config::{Settings, SpectrumWindow};
-use crate::dsp::{Demodulator, DspError, LockInBank, SlidingSpectrum, SpectrumConfig, Window};
+use crate::dsp::{
+    Demodulator, DspError, LockInBank, LockInSample, MAX_DEMODULATORS, SPLIT_LANES,
+    SlidingSpectrum, SpectrumConfig, Window,
+};
+use crate::timebase::PREDECIMATION;
 
-use super::dsp_worker::Emitter;
+use super::dsp_team::DspTeam;
 use super::frames::{DemodFrame, DemodValue};
 use super::scope::{ScopeCapture, ScopeConfig};
+
+/// Most DSP threads (`/dsp/threads`): the bank splits into at most this many shards of
+/// [`SPLIT_LANES`] lanes or more.
+pub const MAX_DSP_THREADS: usize = MAX_DEMODULATORS / SPLIT_LANES;
+const _: () = assert!(MAX_DSP_THREADS == crate::config::MAX_DSP_THREADS as usize);
+/// Input samples per hand-off to the workers: the shards' output buffers hold what this
+/// many samples can produce.
+const PIECE: usize = 4096;
+
+/// Where the DSP stage's outputs go: the DSP thread's frame queues, or a test's lists.
+pub trait DspSink {
+    /// One demodulator output at stream sample `index`; outputs come in time order, and
+    /// within one time in demodulator order.
+    fn demod(&mut self, index: u64, value: DemodValue);
+    /// One spectrum ending at stream sample `index`: `bin_width` (Hz) and the magnitudes.
+    fn spectrum<I: ExactSizeIterator<Item = f64>>(&mut self, index: u64, bin_width: f64, bins: I);
+}
+
+/// Threads the DSP stage runs on for `/dsp/threads`: the value itself from 1 up; 0 (auto)
+/// is 1 on a machine with 2 cores or fewer (the synthesiser and the DSP thread take one
+/// each) and otherwise one more for each core beyond two, at most 4.
+pub fn dsp_threads(settings: &Settings) -> usize {
+    match settings.dsp.threads {
+        0 => {
+            let cores = std::thread::available_parallelism().map_or(1, usize::from);
+            1 + cores.saturating_sub(2).min(3)
+        }
+        n => (n as usize).min(MAX_DSP_THREADS),
+    }
+}
 
 /// Lock-in bank plus sliding spectrum, with the mapping from their own sample counts to
 /// the stream's sample index.
 pub struct DspPlan {
     /// Input sample rate (Hz).
     pub sample_rate: f64,
-    bank: LockInBank,
+    /// The lock-in bank, split into shards (one per DSP thread, [`LockInBank::split`]).
+    bank: Vec<LockInBank>,
+    /// Each shard's outputs of the current piece (with more than one shard).
+    outputs: Vec<Vec<LockInSample>>,
     spectrum: Option<SlidingSpectrum>,
     pub(crate) scope: Option<ScopeCapture>,
     /// Stream index of the bank's sample 0.
@@ -25,7 +62,7 @@ pub struct DspPlan {
     pub(crate) epoch: u64,
     /// What the bank was built from: a plan built from the same takes over the running
     /// bank (its filters' state) instead of starting from zero.
-    bank_key: (f64, Vec<Demodulator>),
+    bank_key: (f64, Vec<Demodulator>, usize),
 }
 
 impl DspPlan {
@@ -33,7 +70,16 @@ impl DspPlan {
     pub fn new(settings: &Settings) -> Result<Self, DspError> {
         let fs = settings.synth.sample_rate;
         let demods = demodulators(settings);
-        let bank = LockInBank::new(fs, settings.drive.frequency, &demods)?;
+        let threads = dsp_threads(settings);
+        let bank = LockInBank::new(fs, settings.drive.frequency, &demods)?.split(threads)?;
+        let outputs = if bank.len() > 1 {
+            let per_lane = PIECE / PREDECIMATION + 1;
+            bank.iter()
+                .map(|shard| Vec::with_capacity(shard.lanes() * per_lane))
+                .collect()
+        } else {
+            Vec::new()
+        };
         let spectrum = if settings.spectrum.enable {
             let hop =
                 usize::try_from(samples_between(fs, settings.spectrum.rate)).unwrap_or(usize::MAX);
@@ -56,12 +102,13 @@ impl DspPlan {
         Ok(Self {
             sample_rate: fs,
             bank,
+            outputs,
             spectrum,
             scope,
             bank_offset: 0,
             spectrum_offset: 0,
             epoch: 0,
-            bank_key: (settings.drive.frequency, demods),
+            bank_key: (settings.drive.frequency, demods, threads),
         })
     }
 
@@ -80,10 +127,16 @@ impl DspPlan {
         }
     }
 
+    /// Shards of the lock-in bank: the threads it runs on, given as many in the team.
+    pub fn shards(&self) -> usize {
+        self.bank.len()
+    }
+
     /// The stream continues at `index` (a new plan, or after an overrun): map the bank's and
     /// the spectrum's own counts onto it.
     pub(crate) fn restart(&mut self, index: u64) {
-        self.bank_offset = index - self.bank.samples_processed();
+        // Every shard has taken the same samples.
+        self.bank_offset = index - self.bank[0].samples_processed();
         if let Some(s) = &mut self.spectrum {
             // A spectrum frame must not straddle a gap.
             s.reset();
@@ -97,51 +150,104 @@ impl DspPlan {
     /// Input samples between a decimated sample's centre and the input sample that
     /// completes it.
     pub(crate) fn group_delay(&self) -> u64 {
-        self.bank.group_delay() as u64
+        self.bank[0].group_delay() as u64
     }
 
     /// The boxcar demodulation of every enabled demodulator since the last call, into
     /// `frame`'s values (its length set); returns the decimated samples averaged.
     pub(crate) fn take_pixel(&mut self, frame: &mut DemodFrame) -> u32 {
         frame.len = 0;
-        self.bank.take_integrals(|demod, harmonic, x, y| {
-            if frame.len < frame.values.len() {
-                frame.values[frame.len] = DemodValue {
-                    index: demod as u8,
-                    harmonic,
-                    x,
-                    y,
-                };
-                frame.len += 1;
-            }
-        })
+        let mut samples = 0;
+        // Shards hold consecutive demodulators: shard by shard is index order.
+        for shard in &mut self.bank {
+            samples = shard.take_integrals(|demod, harmonic, x, y| {
+                if frame.len < frame.values.len() {
+                    frame.values[frame.len] = DemodValue {
+                        index: demod as u8,
+                        harmonic,
+                        x,
+                        y,
+                    };
+                    frame.len += 1;
+                }
+            });
+        }
+        samples
     }
 
     /// Locks the lock-in reference to the synthesiser's drive for the next sample.
     pub(crate) fn align(&mut self, phase: u64, frequency_word: u64) {
-        self.bank.align_drive(phase, frequency_word);
+        for shard in &mut self.bank {
+            shard.align_drive(phase, frequency_word);
+        }
     }
 
-    pub(crate) fn process(&mut self, input: &[f64], emit: &mut Emitter<'_>) {
+    /// One block of the stream as the DSP thread processes it, for tests and benchmarks:
+    /// the reference locked to the drive (`phase`, the phase word of the block's first
+    /// sample, and `frequency_word`, as in [`BlockHeader`](super::BlockHeader)), then the
+    /// bank and the spectrum over `input`, the bank's shards on `team`'s workers. The
+    /// stream starts at index 0 with the plan's first block and must continue without gaps.
+    pub fn process_block<S: DspSink>(
+        &mut self,
+        team: &mut DspTeam,
+        phase: u64,
+        frequency_word: u64,
+        input: &[f64],
+        sink: &mut S,
+    ) {
+        self.align(phase, frequency_word);
+        self.process(input, team, sink);
+    }
+
+    /// The bank and the spectrum over `input`. With one shard all on this thread; with more,
+    /// in pieces of at most [`PIECE`] samples, each handed to `team` (shards 1 … on its
+    /// workers, shard 0 and the spectrum here) and the shards' outputs then merged in time
+    /// order, shard by shard within one time: the order one bank gives.
+    pub(crate) fn process<S: DspSink>(&mut self, input: &[f64], team: &mut DspTeam, sink: &mut S) {
         let offset = self.bank_offset;
-        self.bank.process(input, |s| {
-            emit.demod(
-                offset + s.sample_index,
-                DemodValue {
-                    index: s.demod as u8,
-                    harmonic: s.harmonic,
-                    x: s.x,
-                    y: s.y,
-                },
-            )
-        });
-        if let Some(spectrum) = &mut self.spectrum {
-            let offset = self.spectrum_offset;
-            let size = spectrum.config().size as u64;
-            spectrum.process(input, |f| {
-                let newest = offset + f.start_index + size - 1;
-                emit.spectrum(newest, f.bin_width, f.bins.iter().map(|c| c.norm()));
+        let value = |s: &LockInSample| DemodValue {
+            index: s.demod as u8,
+            harmonic: s.harmonic,
+            x: s.x,
+            y: s.y,
+        };
+        let spectrum_offset = self.spectrum_offset;
+        let spectrum = |spectrum: &mut Option<SlidingSpectrum>, piece: &[f64], sink: &mut S| {
+            if let Some(spectrum) = spectrum {
+                let size = spectrum.config().size as u64;
+                spectrum.process(piece, |f| {
+                    let newest = spectrum_offset + f.start_index + size - 1;
+                    sink.spectrum(newest, f.bin_width, f.bins.iter().map(|c| c.norm()));
+                });
+            }
+        };
+        if let [bank] = self.bank.as_mut_slice() {
+            bank.process(input, |s| sink.demod(offset + s.sample_index, value(&s)));
+            spectrum(&mut self.spectrum, input, sink);
+            return;
+        }
+        for piece in input.chunks(PIECE) {
+            let sp = &mut self.spectrum;
+            let out = &mut *sink;
+            team.run(&mut self.bank, &mut self.outputs, piece, || {
+                spectrum(sp, piece, out)
             });
+            let mut heads = [0usize; MAX_DSP_THREADS];
+            loop {
+                let next = self
+                    .outputs
+                    .iter()
+                    .zip(&heads)
+                    .filter_map(|(out, &h)| out.get(h).map(|s| s.sample_index))
+                    .min();
+                let Some(index) = next else { break };
+                for (out, head) in self.outputs.iter().zip(&mut heads) {
+                    while let Some(s) = out.get(*head).filter(|s| s.sample_index == index) {
+                        sink.demod(offset + index, value(s));
+                        *head += 1;
+                    }
+                }
+            }
         }
     }
 }

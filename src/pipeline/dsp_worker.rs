@@ -10,7 +10,8 @@ use ringbuf::{HeapCons, HeapProd};
 
 use super::block::{BlockHeader, unix_ns};
 use super::counters::{Counters, monotonic_ns};
-use super::dsp_plan::DspPlan;
+use super::dsp_plan::{DspPlan, DspSink};
+use super::dsp_team::DspTeam;
 use super::frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
 
 /// Longest the DSP thread sleeps when the ring is empty. The synthesiser wakes it as each
@@ -56,6 +57,8 @@ pub(crate) struct DspWorker {
     pub pending: Option<Box<DspPlan>>,
     /// Where each plan was taken up, for the control side.
     pub epochs: Arc<super::Epochs>,
+    /// Worker threads for the lock-in bank's shards; stopped and joined with this thread.
+    pub team: DspTeam,
 }
 
 /// Stream samples `lo..hi` of a block held in the ring as two slices.
@@ -201,7 +204,7 @@ impl DspWorker {
                 let (lo, hi) = ((pos - base) as usize, (stop - base) as usize);
                 for part in slice_range(first, second, lo, hi) {
                     if !part.is_empty() {
-                        self.plan.process(part, &mut emit);
+                        self.plan.process(part, &mut self.team, &mut emit);
                     }
                 }
                 if let Some((raster, pixel)) = finishes {
@@ -311,6 +314,16 @@ pub(crate) struct Emitter<'a> {
     header: BlockHeader,
     frame: DemodFrame,
     sample_rate: f64,
+}
+
+impl DspSink for Emitter<'_> {
+    fn demod(&mut self, index: u64, value: DemodValue) {
+        Emitter::demod(self, index, value);
+    }
+
+    fn spectrum<I: ExactSizeIterator<Item = f64>>(&mut self, index: u64, bin_width: f64, bins: I) {
+        Emitter::spectrum(self, index, bin_width, bins);
+    }
 }
 
 impl Emitter<'_> {

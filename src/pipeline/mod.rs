@@ -15,6 +15,7 @@
 mod block;
 mod counters;
 mod dsp_plan;
+mod dsp_team;
 mod dsp_worker;
 mod epochs;
 mod frame_signal;
@@ -33,7 +34,8 @@ use ringbuf::{HeapCons, HeapProd, HeapRb};
 
 pub use block::{BlockHeader, unix_ns};
 pub use counters::{Counters, CountersSnapshot};
-pub use dsp_plan::{DspPlan, demodulators};
+pub use dsp_plan::{DspPlan, DspSink, MAX_DSP_THREADS, demodulators, dsp_threads};
+pub use dsp_team::DspTeam;
 pub use epochs::Epochs;
 pub use frame_signal::FrameSignal;
 pub use frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
@@ -226,7 +228,8 @@ fn plan_link<P>() -> (PlanLink<P>, HeapCons<Box<P>>, HeapProd<Box<P>>) {
     )
 }
 
-/// The running signal chain: a synthesiser thread and a DSP thread.
+/// The running signal chain: a synthesiser thread and a DSP thread (with the DSP's worker
+/// threads, if `/dsp/threads` asks for them).
 pub struct Pipeline {
     settings: Settings,
     counters: Arc<Counters>,
@@ -280,6 +283,10 @@ impl Pipeline {
         let synth_plan = Box::new(SynthPlan::new(settings)?);
         let tap_tables = synth_plan.scan.as_ref().and_then(|s| s.tables.clone());
         let dsp_plan = Box::new(DspPlan::new(settings)?);
+        // Workers for the bank's shards beyond the DSP thread's own; every later plan is
+        // split the same way (`/dsp/threads` is fixed while running).
+        let team = DspTeam::spawn(dsp_plan.shards() - 1, settings.synth.realtime)
+            .map_err(|e| PipelineError::Thread("dsp worker", e))?;
         let state = SynthState::steady(&synth_plan, settings.synth.seed);
 
         let (samples_in, samples_out) = HeapRb::<f64>::new(SAMPLE_RING).split();
@@ -353,6 +360,7 @@ impl Pipeline {
             signal: signal.clone(),
             pending: None,
             epochs: epochs.clone(),
+            team,
         };
         let mut pipeline = Self {
             settings: settings.clone(),
@@ -437,6 +445,9 @@ impl Pipeline {
         let old = &self.settings;
         if settings.synth.sample_rate != old.synth.sample_rate {
             return Err(PipelineError::Restart("/synth/sample_rate"));
+        }
+        if settings.dsp != old.dsp {
+            return Err(PipelineError::Restart("/dsp/threads"));
         }
         let synth_changed = settings.cantilever != old.cantilever
             || settings.tip != old.tip
