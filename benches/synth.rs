@@ -4,6 +4,7 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ftafm::config::{Engine, default_settings};
+use ftafm::synth::normals::NormalSource;
 use ftafm::synth::{SynthPlan, SynthState};
 
 fn synth(c: &mut Criterion) {
@@ -32,6 +33,12 @@ fn synth(c: &mut Criterion) {
         let mut block = vec![0.0; BLOCK];
         group.bench_function(name, |b| b.iter(|| plan.process(&mut state, &mut block)));
     }
+    // The noise sources' standard normal deviates alone (vectorised where the CPU has
+    // AVX2), in the synthesiser's chunks of 256 samples of five modes.
+    let mut source = NormalSource::new(1);
+    let mut deviates = vec![0.0; 5 * 256];
+    group.throughput(Throughput::Elements(deviates.len() as u64));
+    group.bench_function("normal_deviates", |b| b.iter(|| source.fill(&mut deviates)));
     group.finish();
 }
 
