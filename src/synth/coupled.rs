@@ -25,8 +25,8 @@ use std::f64::consts::PI;
 
 use rustfft::num_complex::Complex64;
 
-use super::lanes8::Lanes8;
-use super::modal::{ModalKernel, lane_sum};
+use super::lanes::{Lanes, Portable};
+use super::modal::ModalKernel;
 use crate::physics::beam::{MAX_MODES, Mode};
 use crate::physics::contact::{Adhesion, HertzContact};
 
@@ -65,20 +65,10 @@ impl Drift {
         }
         d
     }
-
-    /// Advances the first `L` lanes by one step with deviates `z[m]` per mode.
-    #[inline(always)]
-    fn apply<const L: usize>(&self, re: &mut [f64; L], im: &mut [f64; L], z: &[f64]) {
-        for m in 0..L {
-            let (r, i) = (re[m], im[m]);
-            re[m] = self.a_re[m] * r - self.a_im[m] * i + self.noise_re[m] * z[m];
-            im[m] = self.a_re[m] * i + self.a_im[m] * r + self.noise_im[m] * z[m];
-        }
-    }
 }
 
-/// A kernel's constants for [`CoupledKernel::step_lanes`], as eight lanes: the whole
-/// sample's drift, the sub-steps' and the read-outs.
+/// A kernel's constants for [`CoupledKernel::step_lanes`], as lanes: the whole sample's
+/// drift, the sub-steps' and the read-outs.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct CoupledLanes<V> {
     tip: V,
@@ -253,125 +243,9 @@ impl CoupledKernel {
         }
     }
 
-    /// Tip position z (m) at drive phasor `rho` with mode lanes `im`.
+    /// The constants of [`step_lanes`](Self::step_lanes) as lanes of `V`.
     #[inline(always)]
-    pub(crate) fn tip_position<const L: usize>(&self, rho: Complex64, im: &[f64; L]) -> f64 {
-        let mut p = [0.0; L];
-        for m in 0..L {
-            p[m] = self.tip[m] * im[m];
-        }
-        let w = lane_sum(p);
-        (self.free_tip * rho).re + w
-    }
-
-    /// Advances the lanes by one sample from drive phasor `rho` to `next` with the
-    /// thermal deviates `z` (one per mode lane). Returns whether it sub-stepped; if it did,
-    /// `mid` holds the lanes' Im q at the sample's midpoint (for the ADC's filter).
-    #[inline(always)]
-    pub(crate) fn step<const L: usize>(
-        &self,
-        re: &mut [f64; L],
-        im: &mut [f64; L],
-        rho: Complex64,
-        next: Complex64,
-        z: &[f64],
-        mid: &mut [f64; L],
-    ) -> bool {
-        let mut tip = f64::NAN;
-        self.step_recorded(re, im, rho, next, z, mid, &mut tip, &mut |_| {})
-    }
-
-    /// [`step`](Self::step), handing `record` the force at the end of every sub-step
-    /// ([`SUBSTEPS`] values per sample, the end-of-sample force repeated where the sample
-    /// is one step). The real-time loop passes a no-op, which compiles away. `tip` is the
-    /// tip position at `rho` if known (NaN if not: it is computed) and is left at the
-    /// position at `next`, so a loop of steps computes each position once.
-    #[allow(clippy::too_many_arguments)]
-    #[inline(always)]
-    pub(crate) fn step_recorded<const L: usize>(
-        &self,
-        re: &mut [f64; L],
-        im: &mut [f64; L],
-        rho: Complex64,
-        next: Complex64,
-        z: &[f64],
-        mid: &mut [f64; L],
-        tip: &mut f64,
-        record: &mut impl FnMut(f64),
-    ) -> bool {
-        let z0 = if tip.is_nan() {
-            self.tip_position(rho, im)
-        } else {
-            *tip
-        };
-        let gap0 = z0 + self.distance;
-        let g0 = self.force(gap0);
-        let (mut r1, mut i1) = (*re, *im);
-        if g0 != 0.0 {
-            self.kick_lanes(&mut r1, self.half_h * g0);
-        }
-        self.full.apply(&mut r1, &mut i1, z);
-        let z1 = self.tip_position(next, &i1);
-        let gap1 = z1 + self.distance;
-        if gap0.min(gap1) >= self.margin {
-            // Clear of the surface at both ends: no force at the end, or adhesion's weak one.
-            let mut g1 = 0.0;
-            if self.strength != 0.0 {
-                g1 = self.force(gap1);
-                self.kick_lanes(&mut r1, self.half_h * g1);
-            }
-            *re = r1;
-            *im = i1;
-            *tip = z1;
-            for _ in 0..SUBSTEPS {
-                record(g1);
-            }
-            return false;
-        }
-        // Sub-steps, the two half kicks between them merged into one. The gap after a
-        // drift is split into the part without the kick of the force g before it (lanes
-        // only) and that kick's part, a scalar: C·g. So the chain from one force to the
-        // next is one multiply-add and the force law, and the lanes' arithmetic runs
-        // beside it instead of in it (the sub-steps are latency-bound).
-        let mut r = rho;
-        let mut g = g0;
-        let mut weight = self.half_dt;
-        let mut gap_per_force = self.first_gap_per_force;
-        for j in 0..SUBSTEPS {
-            if j == SUBSTEPS / 2 {
-                // Kicks move Re q only, so Im q here is the midpoint's either side of one.
-                *mid = *im;
-            }
-            r *= self.sub_rotation;
-            let mut p = [0.0; L];
-            for m in 0..L {
-                p[m] = self.sub_gap_im[m] * im[m]
-                    + self.sub_gap_re[m] * re[m]
-                    + self.sub_gap_noise[m] * z[m];
-            }
-            let lanes = (self.free_tip * r).re + lane_sum(p) + self.distance;
-            let gap = lanes + gap_per_force * g;
-            let next_g = self.force(gap);
-            *tip = gap - self.distance;
-            let impulse = weight * g;
-            if g != 0.0 {
-                self.kick_lanes(re, impulse);
-            }
-            self.sub.apply(re, im, z);
-            g = next_g;
-            record(g);
-            weight = 2.0 * self.half_dt;
-            gap_per_force = self.gap_per_force;
-        }
-        if g != 0.0 {
-            self.kick_lanes(re, self.half_dt * g);
-        }
-        true
-    }
-
-    /// The constants of [`step_lanes`](Self::step_lanes) as eight lanes.
-    #[inline(always)]
-    pub(crate) fn lanes<V: Lanes8>(&self) -> CoupledLanes<V> {
+    pub(crate) fn lanes<V: Lanes>(&self) -> CoupledLanes<V> {
         CoupledLanes {
             tip: V::load(&self.tip),
             kick: V::load(&self.kick),
@@ -389,14 +263,24 @@ impl CoupledKernel {
         }
     }
 
-    /// [`step_recorded`](Self::step_recorded) on eight lanes `c` of this kernel, without a
-    /// record: the same operations in the same order, so the same bits. Returns the lanes
-    /// and the tip position at `next`, and whether it sub-stepped; if it did, `mid` holds
-    /// the lanes' Im q at the sample's midpoint. `tip` is the position at `rho` if known
-    /// (NaN if not).
+    /// Tip position z (m) at drive phasor `rho` with mode lanes `im` (Im q).
+    #[inline(always)]
+    pub(crate) fn tip_position<V: Lanes>(&self, c: &CoupledLanes<V>, rho: Complex64, im: V) -> f64 {
+        (self.free_tip * rho).re + c.tip.mul(im).sum()
+    }
+
+    /// Advances the lanes `re`, `im` (Re q, Im q) by one sample from drive phasor `rho` to
+    /// `next` with the thermal deviates `z` (one per mode lane), with the constants `c` of
+    /// this kernel. Returns the lanes and the tip position at `next`, and whether it
+    /// sub-stepped; if it did, `mid` holds the lanes' Im q at the sample's midpoint (for
+    /// the ADC's filter). `tip` is the position at `rho` if known (NaN if not: it is
+    /// computed), so a loop of steps computes each position once. `record` is handed the
+    /// force at the end of every sub-step ([`SUBSTEPS`] values per sample, the
+    /// end-of-sample force repeated where the sample is one step); the real-time loop
+    /// passes a no-op, which compiles away.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    pub(crate) fn step_lanes<V: Lanes8>(
+    pub(crate) fn step_lanes<V: Lanes>(
         &self,
         c: &CoupledLanes<V>,
         re: V,
@@ -406,9 +290,10 @@ impl CoupledKernel {
         z: V,
         tip: f64,
         mid: &mut V,
+        record: &mut impl FnMut(f64),
     ) -> (V, V, f64, bool) {
         let z0 = if tip.is_nan() {
-            (self.free_tip * rho).re + c.tip.mul(im).sum()
+            self.tip_position(c, rho, im)
         } else {
             tip
         };
@@ -420,24 +305,33 @@ impl CoupledKernel {
         }
         let r1 = c.a_re.mul(r).sub(c.a_im.mul(im)).add(c.noise_re.mul(z));
         let i1 = c.a_re.mul(im).add(c.a_im.mul(r)).add(c.noise_im.mul(z));
-        let z1 = (self.free_tip * next).re + c.tip.mul(i1).sum();
+        let z1 = self.tip_position(c, next, i1);
         let gap1 = z1 + self.distance;
         if gap0.min(gap1) >= self.margin {
+            // Clear of the surface at both ends: no force at the end, or adhesion's weak one.
             let mut r1 = r1;
+            let mut g1 = 0.0;
             if self.strength != 0.0 {
-                let g1 = self.force(gap1);
+                g1 = self.force(gap1);
                 r1 = r1.add(c.kick.mul(V::splat(self.half_h * g1)));
+            }
+            for _ in 0..SUBSTEPS {
+                record(g1);
             }
             return (r1, i1, z1, false);
         }
-        self.substeps(c, re, im, rho, z, g0, mid)
+        self.substeps(c, re, im, rho, z, g0, mid, record)
     }
 
-    /// The sub-steps of [`step_lanes`](Self::step_lanes), as in `step_recorded`, from the
-    /// force `g0` at the sample's start.
+    /// The sub-steps of [`step_lanes`](Self::step_lanes) from the force `g0` at the
+    /// sample's start, the two half kicks between them merged into one. The gap after a
+    /// drift is split into the part without the kick of the force g before it (lanes
+    /// only) and that kick's part, a scalar: C·g. So the chain from one force to the next
+    /// is one multiply-add and the force law, and the lanes' arithmetic runs beside it
+    /// instead of in it (the sub-steps are latency-bound).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn substeps<V: Lanes8>(
+    fn substeps<V: Lanes>(
         &self,
         c: &CoupledLanes<V>,
         mut re: V,
@@ -446,6 +340,7 @@ impl CoupledKernel {
         z: V,
         g0: f64,
         mid: &mut V,
+        record: &mut impl FnMut(f64),
     ) -> (V, V, f64, bool) {
         let mut r = rho;
         let mut g = g0;
@@ -454,6 +349,7 @@ impl CoupledKernel {
         let mut tip = f64::NAN;
         for j in 0..SUBSTEPS {
             if j == SUBSTEPS / 2 {
+                // Kicks move Re q only, so Im q here is the midpoint's either side of one.
                 *mid = im;
             }
             r *= self.sub_rotation;
@@ -482,6 +378,7 @@ impl CoupledKernel {
                 .add(c.sub_noise_im.mul(z));
             re = r1;
             g = next_g;
+            record(g);
             weight = 2.0 * self.half_dt;
             gap_per_force = self.gap_per_force;
         }
@@ -489,13 +386,6 @@ impl CoupledKernel {
             re = re.add(c.kick.mul(V::splat(self.half_dt * g)));
         }
         (re, im, tip, true)
-    }
-
-    #[inline(always)]
-    fn kick_lanes<const L: usize>(&self, re: &mut [f64; L], impulse: f64) {
-        for m in 0..L {
-            re[m] += self.kick[m] * impulse;
-        }
     }
 
     /// The modal states at drive phase `theta` (rad) on the engine's own periodic orbit: the
@@ -577,9 +467,11 @@ impl CoupledKernel {
         kernel.stiffness = self.stiffness;
         let q1 = modes.first().map_or(1.0, |m| m.q);
         let periods = ((15.0 * q1 / PI).ceil() as usize).clamp(50, 50_000);
-        let (mut re, mut im) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
-        let mut mid = [0.0; MAX_MODES];
-        let z = [0.0; MAX_MODES];
+        type All = Portable<MAX_MODES>;
+        let c = kernel.lanes::<All>();
+        let (mut re, mut im) = (All::splat(0.0), All::splat(0.0));
+        let mut mid = im;
+        let z = All::splat(0.0);
         for period in 0..periods + extra {
             let mut rho = Complex64::from_polar(1.0, theta);
             for j in 0..steps {
@@ -587,27 +479,34 @@ impl CoupledKernel {
                 let phase = theta + omega * step * j as f64;
                 let next = Complex64::from_polar(1.0, phase + omega * step);
                 if period >= periods {
-                    let before = im;
+                    let mut before = [0.0; MAX_MODES];
+                    im.store(&mut before);
                     let mut largest = 0.0f64;
-                    let mut tip = f64::NAN;
-                    kernel.step_recorded(
-                        &mut re,
-                        &mut im,
-                        rho,
-                        next,
-                        &z,
-                        &mut mid,
-                        &mut tip,
-                        &mut |g| largest = largest.max(g),
-                    );
+                    (re, im, _, _) =
+                        kernel.step_lanes(&c, re, im, rho, next, z, f64::NAN, &mut mid, &mut |g| {
+                            largest = largest.max(g)
+                        });
                     sample(phase, &before, largest);
                 } else {
-                    kernel.step(&mut re, &mut im, rho, next, &z, &mut mid);
+                    (re, im, _, _) = kernel.step_lanes(
+                        &c,
+                        re,
+                        im,
+                        rho,
+                        next,
+                        z,
+                        f64::NAN,
+                        &mut mid,
+                        &mut |_| {},
+                    );
                 }
                 rho = next;
             }
         }
-        (re, im)
+        let (mut re_out, mut im_out) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
+        re.store(&mut re_out);
+        im.store(&mut im_out);
+        (re_out, im_out)
     }
 }
 
@@ -647,18 +546,51 @@ mod tests {
         let mut sub = one.clone();
         // Force sub-stepping everywhere: without contact it must change nothing but rounding.
         sub.margin = f64::INFINITY;
-        let (mut a_re, mut a_im) = ([0.0; 8], [0.0; 8]);
-        let (mut b_re, mut b_im) = ([0.0; 8], [0.0; 8]);
+        type P = Portable<8>;
+        let (lanes_one, lanes_sub) = (one.lanes::<P>(), sub.lanes::<P>());
+        let (mut a_re, mut a_im) = (P::splat(0.0), P::splat(0.0));
+        let (mut b_re, mut b_im) = (P::splat(0.0), P::splat(0.0));
         let rotation = Complex64::from_polar(1.0, 2.0 * PI * 100e3 * 1e-7);
         let mut rho = Complex64::new(1.0, 0.0);
-        let mut mid = [0.0; 8];
+        let mut mid = a_re;
         for n in 0..5000 {
             let z: [f64; 8] = std::array::from_fn(|m| ((n * 7 + m * 13) % 11) as f64 - 5.0);
+            let z = P::load(&z);
             let next = rho * rotation;
-            assert!(!one.step(&mut a_re, &mut a_im, rho, next, &z, &mut mid));
-            assert!(sub.step(&mut b_re, &mut b_im, rho, next, &z, &mut mid));
+            let substepped;
+            (a_re, a_im, _, substepped) = one.step_lanes(
+                &lanes_one,
+                a_re,
+                a_im,
+                rho,
+                next,
+                z,
+                f64::NAN,
+                &mut mid,
+                &mut |_| {},
+            );
+            assert!(!substepped);
+            let substepped;
+            (b_re, b_im, _, substepped) = sub.step_lanes(
+                &lanes_sub,
+                b_re,
+                b_im,
+                rho,
+                next,
+                z,
+                f64::NAN,
+                &mut mid,
+                &mut |_| {},
+            );
+            assert!(substepped);
             rho = next;
         }
+        let array = |x: P| {
+            let mut a = [0.0; 8];
+            x.store(&mut a);
+            a
+        };
+        let (a_re, a_im, b_re, b_im) = (array(a_re), array(a_im), array(b_re), array(b_im));
         for m in 0..5 {
             let scale = a_re[m].abs().max(a_im[m].abs());
             assert!(scale > 0.0);

@@ -5,7 +5,7 @@
 
 pub mod adc;
 pub mod coupled;
-mod lanes8;
+mod lanes;
 pub mod modal;
 pub mod normals;
 pub mod plan;

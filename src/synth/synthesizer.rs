@@ -12,20 +12,10 @@ use rustfft::num_complex::Complex64;
 use super::adc::{AdcFilter, GRID_HISTORY, MID_HISTORY};
 use super::coupled::{CoupledKernel, CoupledTrace, SUBSTEPS};
 #[cfg(target_arch = "x86_64")]
-use super::lanes8::{Avx8, Avx512x8};
-use super::lanes8::{Lanes8, Portable8};
-use super::modal::lane_sum;
+use super::lanes::{Avx8, Avx512x8};
+use super::lanes::{Lanes, Portable};
 use super::normals::NormalSource;
 
-/// The lane-wise products `a[m]·b[m]` of the first `L` lanes.
-#[inline(always)]
-fn mul<const L: usize>(a: &[f64; MAX_MODES], b: &[f64; L]) -> [f64; L] {
-    let mut p = [0.0; L];
-    for m in 0..L {
-        p[m] = a[m] * b[m];
-    }
-    p
-}
 use super::plan::{SynthPlan, TURN};
 use super::pulse::PulseKernel;
 use crate::physics::beam::MAX_MODES;
@@ -225,7 +215,7 @@ impl SynthPlan {
             Build::Avx512 => unsafe { self.process_avx512(pulse, coupled, state, out) },
             #[cfg(target_arch = "x86_64")]
             Build::Avx2 => unsafe { self.process_avx2(pulse, coupled, state, out) },
-            _ => self.process_modes::<Portable8>(pulse, coupled, state, out),
+            _ => self.process_modes::<Portable<8>>(pulse, coupled, state, out),
         }
     }
 
@@ -259,9 +249,9 @@ impl SynthPlan {
         self.process_modes::<Avx8>(pulse, coupled, state, out);
     }
 
-    /// Up to eight modes: the loop on eight lanes of `V`; more: on arrays of all lanes.
+    /// Up to eight modes: the loop on eight lanes of `V`; more: on an array of all lanes.
     #[inline(always)]
-    fn process_modes<V: Lanes8>(
+    fn process_modes<V: Lanes>(
         &self,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
@@ -269,22 +259,17 @@ impl SynthPlan {
         out: &mut [f64],
     ) {
         if self.modes.len() <= 8 {
-            match (coupled, self.anti_alias.is_some()) {
-                (Some(c), true) => self.process_eight::<V, true, true>(None, Some(c), state, out),
-                (Some(c), false) => self.process_eight::<V, false, true>(None, Some(c), state, out),
-                (None, true) => self.process_eight::<V, true, false>(pulse, None, state, out),
-                (None, false) => self.process_eight::<V, false, false>(pulse, None, state, out),
-            }
+            self.process_engines::<V>(pulse, coupled, state, out);
         } else {
-            self.process_lanes::<MAX_MODES>(pulse, coupled, state, out);
+            self.process_engines::<Portable<MAX_MODES>>(pulse, coupled, state, out);
         }
     }
 
-    /// The loop over `L` mode lanes (a fixed count, so the per-mode arithmetic vectorises;
-    /// lanes past the plan's modes hold zeros and contribute nothing). `coupled` is a
-    /// loop-invariant choice, so each engine's loop is as if written alone.
+    /// The loop on lanes of `V` (lanes past the plan's modes hold zeros and contribute
+    /// nothing), for the engine and the filter: each combination's loop is compiled as if
+    /// written alone.
     #[inline(always)]
-    fn process_lanes<const L: usize>(
+    fn process_engines<V: Lanes>(
         &self,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
@@ -292,158 +277,20 @@ impl SynthPlan {
         out: &mut [f64],
     ) {
         match (coupled, self.anti_alias.is_some()) {
-            (Some(coupled), true) => {
-                self.process_engine::<L, true, true>(None, Some(coupled), state, out)
-            }
-            (Some(coupled), false) => {
-                self.process_engine::<L, false, true>(None, Some(coupled), state, out)
-            }
-            (None, true) => self.process_engine::<L, true, false>(pulse, None, state, out),
-            (None, false) => self.process_engine::<L, false, false>(pulse, None, state, out),
+            (Some(c), true) => self.process_lanes::<V, true, true>(None, Some(c), state, out),
+            (Some(c), false) => self.process_lanes::<V, false, true>(None, Some(c), state, out),
+            (None, true) => self.process_lanes::<V, true, false>(pulse, None, state, out),
+            (None, false) => self.process_lanes::<V, false, false>(pulse, None, state, out),
         }
     }
 
-    // Several lane arrays are read and written in lock-step by index; that is the form
-    // the compiler vectorises, and clearer than a five-way zip.
+    /// The per-sample loop on mode lanes of `V` held in registers. `MID`: with the ADC's
+    /// filter (the signal at the midpoints too); `COUPLED`: the coupled engine's contact,
+    /// else the paper engine's pulse. The samples where a pulse falls take arrays of the
+    /// lanes for its exact integrals.
     #[allow(clippy::needless_range_loop)]
     #[inline(always)]
-    fn process_engine<const L: usize, const MID: bool, const COUPLED: bool>(
-        &self,
-        pulse: Option<&PulseKernel>,
-        coupled: Option<&CoupledKernel>,
-        state: &mut SynthState,
-        out: &mut [f64],
-    ) {
-        let k = &self.lanes;
-        let step = Complex64::from_polar(
-            1.0,
-            self.frequency_word as f64 / TURN * std::f64::consts::TAU,
-        );
-        let mut re: [f64; L] = std::array::from_fn(|m| state.re[m]);
-        let mut im: [f64; L] = std::array::from_fn(|m| state.im[m]);
-        let mut mid_im = [0.0; L];
-        // The coupled engine's tip position at the next sample, once a step has found it.
-        let mut tip = f64::NAN;
-        let mut phase = state.phase;
-        let mut rho = state.rho;
-        let mut index = state.counters.samples;
-        let mut clipped = 0u64;
-        for chunk in out.chunks_mut(CHUNK) {
-            self.draw_normals(state, chunk.len());
-            let thermal = &state.thermal[..];
-            let n_modes = self.modes.len();
-            // With the filter the loop writes the signal at t_n and at t_n + h/2 behind the
-            // filter's histories, and the filter writes the chunk; without, the chunk.
-            let (grid, mids) = if MID {
-                let len = chunk.len();
-                (
-                    &mut state.adc.grid[GRID_HISTORY..GRID_HISTORY + len],
-                    &mut state.adc.mid[MID_HISTORY..MID_HISTORY + len],
-                )
-            } else {
-                (&mut chunk[..], &mut [][..])
-            };
-            for (i, out) in grid.iter_mut().enumerate() {
-                // A copy in registers: read through the slice, the compiler assembles the
-                // lanes one by one.
-                let z: [f64; L] = thermal[i * n_modes..i * n_modes + L]
-                    .try_into()
-                    .expect("the padding holds a sample's L lanes");
-                let z = &z;
-                if index.is_multiple_of(REANCHOR) {
-                    rho = Complex64::from_polar(1.0, phase_to_radians(phase));
-                }
-                let mut p = [0.0; L];
-                for m in 0..L {
-                    p[m] = k.lever[m] * im[m];
-                }
-                let lever = lane_sum(p);
-                *out = (self.drive_signal * rho).re + lever;
-                let overlap = match pulse {
-                    Some(pulse) if !COUPLED => pulse.overlap(phase, self.frequency_word),
-                    _ => None,
-                };
-                // The midpoint without force over the first half: where the coupled engine
-                // takes one step (clear of the surface) and where no pulse falls in it.
-                let mut mid = 0.0;
-                if MID {
-                    let mut p = [0.0; L];
-                    for m in 0..L {
-                        p[m] = k.mid_re[m] * re[m] + k.mid_im[m] * im[m] + k.mid_noise[m] * z[m];
-                    }
-                    mid = (self.drive_mid * rho).re + lane_sum(p);
-                }
-                let next = rho * step;
-                if COUPLED && let Some(coupled) = coupled {
-                    // The coupled engine: the tap force from the tip position.
-                    let substepped = coupled.step_recorded(
-                        &mut re,
-                        &mut im,
-                        rho,
-                        next,
-                        z,
-                        &mut mid_im,
-                        &mut tip,
-                        &mut |_| {},
-                    );
-                    if substepped && MID {
-                        mid = (self.drive_mid * rho).re + lane_sum(mul(&k.lever, &mid_im));
-                    }
-                } else {
-                    if MID && let (Some(pulse), Some(overlap)) = (pulse, &overlap) {
-                        let mut dre = [0.0; MAX_MODES];
-                        let mut dim = [0.0; MAX_MODES];
-                        let n = self.modes.len();
-                        pulse.apply_to_midpoint(overlap, &self.modes, &mut dre[..n], &mut dim[..n]);
-                        for m in 0..n {
-                            mid += k.lever[m] * dim[m];
-                        }
-                    }
-                    // Advance every mode to t_{n+1}: propagate, then add this interval's
-                    // inputs.
-                    for m in 0..L {
-                        let (r, i) = (re[m], im[m]);
-                        re[m] = k.a_re[m] * r - k.a_im[m] * i + k.noise_re[m] * z[m];
-                        im[m] = k.a_re[m] * i + k.a_im[m] * r + k.noise_im[m] * z[m];
-                    }
-                    if let (Some(pulse), Some(overlap)) = (pulse, &overlap) {
-                        pulse.apply(
-                            overlap,
-                            &self.modes,
-                            &mut re[..self.modes.len()],
-                            &mut im[..self.modes.len()],
-                        );
-                    }
-                }
-                if MID {
-                    mids[i] = mid;
-                }
-                phase = phase.wrapping_add(self.frequency_word);
-                rho = next;
-                index += 1;
-            }
-            if MID && let Some(taps) = &self.anti_alias {
-                state.adc.decimate(taps, chunk);
-            } else {
-                state.adc.remember(chunk);
-            }
-            clipped += self.detect_and_quantise(chunk, &state.detector);
-        }
-        state.re[..L].copy_from_slice(&re);
-        state.im[..L].copy_from_slice(&im);
-        state.phase = phase;
-        state.rho = rho;
-        state.counters.samples = index;
-        state.counters.clipped += clipped;
-    }
-
-    /// [`process_engine`](Self::process_engine) for up to eight modes, on eight lanes of
-    /// `V` held in registers: the same operations in the same order, so the same stream.
-    /// The samples where a pulse falls (paper engine) or the tip comes near the surface
-    /// (coupled engine) take the arrays' path of `process_engine`.
-    #[allow(clippy::needless_range_loop)]
-    #[inline(always)]
-    fn process_eight<V: Lanes8, const MID: bool, const COUPLED: bool>(
+    fn process_lanes<V: Lanes, const MID: bool, const COUPLED: bool>(
         &self,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
@@ -502,15 +349,24 @@ impl SynthPlan {
                 if COUPLED && let (Some(coupled), Some(lanes)) = (coupled, &coupled_lanes) {
                     let mut mid_im = re;
                     let substepped;
-                    (re, im, tip, substepped) =
-                        coupled.step_lanes(lanes, re, im, rho, next, z, tip, &mut mid_im);
+                    (re, im, tip, substepped) = coupled.step_lanes(
+                        lanes,
+                        re,
+                        im,
+                        rho,
+                        next,
+                        z,
+                        tip,
+                        &mut mid_im,
+                        &mut |_| {},
+                    );
                     if substepped && MID {
                         mid = (self.drive_mid * rho).re + lever.mul(mid_im).sum();
                     }
                 } else if let Some(overlap) =
                     pulse.and_then(|p| p.overlap(phase, self.frequency_word))
                 {
-                    // A pulse falls in this sample: the arrays' path of `process_engine`.
+                    // A pulse falls in this sample: its exact integrals, mode by mode.
                     let pulse = pulse.expect("an overlap has a pulse");
                     if MID {
                         let mut dre = [0.0; MAX_MODES];
@@ -527,7 +383,9 @@ impl SynthPlan {
                     }
                     let r1 = a_re.mul(re).sub(a_im.mul(im)).add(noise_re.mul(z));
                     let i1 = a_re.mul(im).add(a_im.mul(re)).add(noise_im.mul(z));
-                    let (mut r, mut i) = (r1.to_array(), i1.to_array());
+                    let (mut r, mut i) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
+                    r1.store(&mut r);
+                    i1.store(&mut i);
                     pulse.apply(&overlap, &self.modes, &mut r[..n], &mut i[..n]);
                     (re, im) = (V::load(&r), V::load(&i));
                 } else {
@@ -549,8 +407,8 @@ impl SynthPlan {
             }
             clipped += self.detect_and_quantise(chunk, &state.detector);
         }
-        state.re[..8].copy_from_slice(&re.to_array());
-        state.im[..8].copy_from_slice(&im.to_array());
+        re.store(&mut state.re);
+        im.store(&mut state.im);
         state.phase = phase;
         state.rho = rho;
         state.counters.samples = index;
@@ -571,30 +429,26 @@ impl SynthPlan {
             start_phase: state.phase,
             free_tip: coupled.free_tip,
         };
-        let z = [0.0; MAX_MODES];
-        let mut mid = [0.0; MAX_MODES];
-        let (mut re, mut im) = (state.re, state.im);
+        type All = Portable<MAX_MODES>;
+        let lanes = coupled.lanes::<All>();
+        let z = All::splat(0.0);
+        let (mut re, mut im) = (All::load(&state.re), All::load(&state.im));
+        let mut mid = im;
         for _ in 0..samples {
             let rho = Complex64::from_polar(1.0, phase_to_radians(state.phase));
             let next_phase = state.phase.wrapping_add(step);
             let next = Complex64::from_polar(1.0, phase_to_radians(next_phase));
-            let mut tip = coupled.tip_position(rho, &im);
+            let tip = coupled.tip_position(&lanes, rho, im);
             trace.tip.push(tip);
-            coupled.step_recorded(
-                &mut re,
-                &mut im,
-                rho,
-                next,
-                &z,
-                &mut mid,
-                &mut tip,
-                &mut |g| trace.force.push(g),
-            );
+            (re, im, _, _) =
+                coupled.step_lanes(&lanes, re, im, rho, next, z, tip, &mut mid, &mut |g| {
+                    trace.force.push(g)
+                });
             state.phase = next_phase;
             state.counters.samples += 1;
         }
-        state.re = re;
-        state.im = im;
+        re.store(&mut state.re);
+        im.store(&mut state.im);
         state.rho = Complex64::from_polar(1.0, phase_to_radians(state.phase));
         Some(trace)
     }
@@ -693,11 +547,11 @@ mod tests {
     use super::*;
     use crate::config::{Engine, default_settings};
 
-    /// The loop on eight lanes in registers and the loop on arrays of lanes (which runs
-    /// beyond eight modes) give the same stream, bit for bit: both engines, with noise,
-    /// the ADC's filter, adhesion, and hard tapping.
+    /// The loop on sixteen lanes (which runs beyond eight modes) gives the eight lanes'
+    /// stream for five modes, bit for bit: both engines, with noise, the ADC's filter,
+    /// adhesion, and hard tapping. The lanes past the modes add exact zeros.
     #[test]
-    fn the_eight_lanes_are_the_arrays_loop_bit_for_bit() {
+    fn sixteen_lanes_give_the_eight_lanes_stream() {
         for (engine, adhesion, distance) in [
             (Engine::Paper, false, 20e-9),
             (Engine::Coupled, false, 20e-9),
@@ -709,24 +563,21 @@ mod tests {
             settings.adhesion.enable = adhesion;
             settings.surface.distance = distance;
             let plan = SynthPlan::new(&settings).unwrap();
-            let mut lanes = SynthState::steady(&plan, 5);
-            let mut arrays = lanes.clone();
+            let mut eight = SynthState::steady(&plan, 5);
+            let mut sixteen = eight.clone();
             let (mut a, mut b) = (vec![0.0; 20_000], vec![0.0; 20_000]);
-            plan.process(&mut lanes, &mut a);
-            match &plan.coupled {
-                Some(c) => plan.process_engine::<8, true, true>(None, Some(c), &mut arrays, &mut b),
-                None => plan.process_engine::<8, true, false>(
-                    plan.pulse.as_ref(),
-                    None,
-                    &mut arrays,
-                    &mut b,
-                ),
-            }
+            plan.process(&mut eight, &mut a);
+            plan.process_engines::<Portable<MAX_MODES>>(
+                plan.pulse.as_ref(),
+                plan.coupled.as_ref(),
+                &mut sixteen,
+                &mut b,
+            );
             assert!(
                 a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()),
                 "{engine:?}, adhesion {adhesion}, A_set {distance:e}"
             );
-            assert_eq!(lanes.re, arrays.re);
+            assert_eq!(eight.re, sixteen.re);
         }
     }
 

@@ -1,44 +1,46 @@
-//! Eight `f64` mode lanes as one value, for the synthesiser's loop with up to eight modes:
-//! one AVX-512 register where the CPU has it ([`Avx512x8`]), two AVX2 registers where it
-//! has those ([`Avx8`]), an array otherwise ([`Portable8`]). Written out, the loop's lanes stay in registers; as arrays indexed in
-//! a large loop body the compiler assembled them lane by lane (about three times the
-//! instructions per sample).
+//! The mode lanes as one value, for the synthesiser's loop: with up to eight modes, one
+//! AVX-512 register where the CPU has it ([`Avx512x8`]), two AVX2 registers where it has
+//! those ([`Avx8`]), an array otherwise; with more modes, an array of all lanes
+//! ([`Portable`]). Written out, the loop's lanes stay in registers; as arrays indexed in a
+//! large loop body the compiler had assembled them lane by lane (about half as many
+//! instructions per sample again).
 //!
 //! All do the same IEEE operations in the same order, lane by lane, and reduce in the
-//! same tree as [`lane_sum`](super::modal::lane_sum) (lane m with m + 4, then with m + 2,
-//! then the two), so the two builds give the same bits.
+//! same tree as [`lane_sum`](super::modal::lane_sum) (for eight lanes: lane m with m + 4,
+//! then with m + 2, then the two), so every build gives the same bits.
 
-/// Eight lanes of `f64`.
-pub(crate) trait Lanes8: Copy {
-    /// The first eight values of `a` (at least eight long).
+/// A fixed number of `f64` lanes.
+pub(crate) trait Lanes: Copy {
+    /// The first lanes' worth of `a` (at least that long).
     fn load(a: &[f64]) -> Self;
-    /// The lanes as an array.
-    fn to_array(self) -> [f64; 8];
+    /// Writes the lanes to the first lanes' worth of `a`.
+    fn store(self, a: &mut [f64]);
     /// Every lane `x`.
     fn splat(x: f64) -> Self;
     fn add(self, other: Self) -> Self;
     fn sub(self, other: Self) -> Self;
     fn mul(self, other: Self) -> Self;
-    /// The sum: ((x0 + x4) + (x2 + x6)) + ((x1 + x5) + (x3 + x7)).
+    /// The sum, in [`lane_sum`](super::modal::lane_sum)'s tree.
     fn sum(self) -> f64;
 }
 
-/// Eight lanes in an array: for CPUs without AVX2.
+/// `L` lanes in an array (`L` a power of two): for CPUs without AVX2, and for more than
+/// eight modes.
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct Portable8([f64; 8]);
+pub(crate) struct Portable<const L: usize>([f64; L]);
 
-impl Lanes8 for Portable8 {
+impl<const L: usize> Lanes for Portable<L> {
     #[inline(always)]
     fn load(a: &[f64]) -> Self {
-        Self(a[..8].try_into().expect("eight lanes"))
+        Self(a[..L].try_into().expect("L lanes"))
     }
     #[inline(always)]
-    fn to_array(self) -> [f64; 8] {
-        self.0
+    fn store(self, a: &mut [f64]) {
+        a[..L].copy_from_slice(&self.0);
     }
     #[inline(always)]
     fn splat(x: f64) -> Self {
-        Self([x; 8])
+        Self([x; L])
     }
     #[inline(always)]
     fn add(self, o: Self) -> Self {
@@ -63,7 +65,7 @@ pub(crate) use avx::{Avx8, Avx512x8};
 
 #[cfg(target_arch = "x86_64")]
 mod avx {
-    use super::Lanes8;
+    use super::Lanes;
     use std::arch::x86_64::*;
 
     /// Eight lanes in two AVX registers: lanes 0–3 and 4–7. Only made inside code
@@ -73,8 +75,8 @@ mod avx {
     pub(crate) struct Avx8(__m256d, __m256d);
 
     // SAFETY (every `unsafe` below): an `Avx8` exists only on a CPU with AVX2 (see the
-    // type's documentation); loads read eight f64 that `load`'s bounds check guarantees.
-    impl Lanes8 for Avx8 {
+    // type's documentation); loads and stores touch eight f64 that their bounds checks guarantee.
+    impl Lanes for Avx8 {
         #[inline(always)]
         fn load(a: &[f64]) -> Self {
             let a = &a[..8];
@@ -86,13 +88,12 @@ mod avx {
             }
         }
         #[inline(always)]
-        fn to_array(self) -> [f64; 8] {
-            let mut a = [0.0; 8];
+        fn store(self, a: &mut [f64]) {
+            let a = &mut a[..8];
             unsafe {
                 _mm256_storeu_pd(a.as_mut_ptr(), self.0);
                 _mm256_storeu_pd(a.as_mut_ptr().add(4), self.1);
             }
-            a
         }
         #[inline(always)]
         fn splat(x: f64) -> Self {
@@ -126,18 +127,17 @@ mod avx {
     pub(crate) struct Avx512x8(__m512d);
 
     // SAFETY (every `unsafe` below): an `Avx512x8` exists only on a CPU with AVX-512F and
-    // AVX2; loads read eight f64 that `load`'s bounds check guarantees.
-    impl Lanes8 for Avx512x8 {
+    // AVX2; loads and stores touch eight f64 that their bounds checks guarantee.
+    impl Lanes for Avx512x8 {
         #[inline(always)]
         fn load(a: &[f64]) -> Self {
             let a = &a[..8];
             unsafe { Self(_mm512_loadu_pd(a.as_ptr())) }
         }
         #[inline(always)]
-        fn to_array(self) -> [f64; 8] {
-            let mut a = [0.0; 8];
+        fn store(self, a: &mut [f64]) {
+            let a = &mut a[..8];
             unsafe { _mm512_storeu_pd(a.as_mut_ptr(), self.0) };
-            a
         }
         #[inline(always)]
         fn splat(x: f64) -> Self {
@@ -173,16 +173,18 @@ mod avx {
 mod tests {
     use super::*;
 
+    fn array(x: impl Lanes) -> [f64; 8] {
+        let mut a = [0.0; 8];
+        x.store(&mut a);
+        a
+    }
+
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     fn avx_ops(a: &[f64], b: &[f64]) -> ([[f64; 8]; 3], f64) {
         let (x, y) = (Avx8::load(a), Avx8::load(b));
         (
-            [
-                x.add(y).to_array(),
-                x.sub(y).to_array(),
-                x.mul(y).to_array(),
-            ],
+            [array(x.add(y)), array(x.sub(y)), array(x.mul(y))],
             x.mul(y).add(Avx8::splat(0.1)).sum(),
         )
     }
@@ -192,11 +194,7 @@ mod tests {
     fn avx512_ops(a: &[f64], b: &[f64]) -> ([[f64; 8]; 3], f64) {
         let (x, y) = (Avx512x8::load(a), Avx512x8::load(b));
         (
-            [
-                x.add(y).to_array(),
-                x.sub(y).to_array(),
-                x.mul(y).to_array(),
-            ],
+            [array(x.add(y)), array(x.sub(y)), array(x.mul(y))],
             x.mul(y).add(Avx512x8::splat(0.1)).sum(),
         )
     }
@@ -208,14 +206,10 @@ mod tests {
             .map(|m| (m as f64 * 0.77 + 0.1).sin() * 1e-9)
             .collect();
         let b: Vec<f64> = (0..8).map(|m| (m as f64 * 1.31).cos() * 3e7).collect();
-        let (x, y) = (Portable8::load(&a), Portable8::load(&b));
+        let (x, y) = (Portable::<8>::load(&a), Portable::<8>::load(&b));
         let portable = (
-            [
-                x.add(y).to_array(),
-                x.sub(y).to_array(),
-                x.mul(y).to_array(),
-            ],
-            x.mul(y).add(Portable8::splat(0.1)).sum(),
+            [array(x.add(y)), array(x.sub(y)), array(x.mul(y))],
+            x.mul(y).add(Portable::<8>::splat(0.1)).sum(),
         );
         let p: [f64; 8] = std::array::from_fn(|m| a[m] * b[m] + 0.1);
         assert_eq!(
