@@ -283,9 +283,11 @@ impl Pipeline {
         let synth_plan = Box::new(SynthPlan::new(settings)?);
         let tap_tables = synth_plan.scan.as_ref().and_then(|s| s.tables.clone());
         let dsp_plan = Box::new(DspPlan::new(settings)?);
-        // Workers for the bank's shards beyond the DSP thread's own; every later plan is
-        // split the same way (`/dsp/threads` is fixed while running).
-        let team = DspTeam::spawn(dsp_plan.shards() - 1, settings.synth.realtime)
+        // Workers for the shards beyond the DSP thread's own, as many as `/dsp/threads` asks
+        // (fixed while running): a later plan with more demodulators enabled than this one
+        // may have more shards than this plan's, and its shards still get a thread each.
+        // A worker without a shard stays parked.
+        let team = DspTeam::spawn(dsp_plan::dsp_threads(settings) - 1, settings.synth.realtime)
             .map_err(|e| PipelineError::Thread("dsp worker", e))?;
         let state = SynthState::steady(&synth_plan, settings.synth.seed);
 
