@@ -24,13 +24,15 @@
 
 use serde::Serialize;
 
-use crate::config::{InversionMethod, Settings};
+use crate::config::{Engine, InversionMethod, Material, Settings};
 use crate::model;
 use crate::physics::inversion::{
-    CutCosineFit, CutCosinePrior, CutCosineStart, HarmonicSample, InversionOptions, LockInModel,
-    LowPassNoise, ModulusTable, NoiseModel, PulseMeasure, TableRange, cut_cosine_from_coefficients,
-    fit_cut_cosine, lockin_sigma, reconstruct_force_with, two_harmonic_prior,
+    ALIAS_HARMONICS, CutCosineFit, CutCosinePrior, CutCosineStart, HarmonicSample,
+    InversionOptions, LockInModel, LowPassNoise, ModulusTable, NoiseModel, PulseMeasure, TableNode,
+    TableRange, cut_cosine_from_coefficients, fit_cut_cosine, lockin_sigma, reconstruct_force_with,
+    two_harmonic_prior,
 };
+use crate::physics::{Cantilever, Continuation};
 use crate::pipeline::DemodFrame;
 use crate::timebase::PREDECIMATION;
 use rustfft::num_complex::Complex64;
@@ -100,18 +102,17 @@ struct DemodNoise {
 /// the modulus table takes about 0.1 s. [`Self::push`] keeps the running average of the
 /// live stream; [`Self::estimate_frame`] takes `&self` and estimates from any phasors.
 pub struct ForceEstimator {
-    model: LockInModel,
-    method: InversionMethod,
-    pair: (usize, usize),
+    fitter: Fitter,
     averaging: usize,
     points: usize,
     noise: NoiseModel,
     /// Per demodulator index (`None`: disabled).
     demods: Vec<Option<DemodNoise>>,
-    /// F(E) and τ(E) of the 1-DOF pulse. With the paper engine the tap force *is* the cut
-    /// cosine of the 1-DOF (F, τ), so both methods measure exactly these. (A coupled
-    /// engine's Hertz pulse would call for a table of what the fit reads off a real pulse:
-    /// `PulseMeasure::TwoHarmonic`.)
+    /// F(E) and τ(E) as the method measures them. With the paper engine the tap force *is*
+    /// the cut cosine of the 1-DOF (F, τ), so both methods measure exactly the 1-DOF pulse's
+    /// (`PulseMeasure::Shape`). The coupled engine's Hertz pulse is not a cut cosine: its
+    /// table holds what the method's fit reads off the coupled orbit's noise-free readings
+    /// (`PulseMeasure::CoupledFit`), and the pulse's own F and τ beside them.
     table: ModulusTable,
     /// Running sums of X + iY per demodulator for averaging.
     sum: Vec<Complex64>,
@@ -134,16 +135,6 @@ impl ForceEstimator {
                 .unwrap_or_else(|| "no two harmonics in band".to_owned())
         })?;
         let pair = (pair.0 as usize, pair.1 as usize);
-        let tip = model::elastic(settings.tip);
-        let table = ModulusTable::with_measure(
-            &oscillator,
-            tip,
-            settings.sample.poisson,
-            TABLE_RANGE,
-            TABLE_POINTS,
-            PulseMeasure::Shape,
-        )
-        .map_err(|e| e.to_string())?;
         let fs = settings.synth.sample_rate;
         let harmonics: Vec<usize> = (0..settings.demods.len())
             .filter(|&i| settings.demod_active(i))
@@ -174,7 +165,7 @@ impl ForceEstimator {
         };
         let averaging = inv.averaging.max(1) as usize;
         let decimated = fs / PREDECIMATION as f64;
-        let demods = settings
+        let demods: Vec<Option<DemodNoise>> = settings
             .demods
             .iter()
             .enumerate()
@@ -196,10 +187,32 @@ impl ForceEstimator {
                 })
             })
             .collect();
-        Ok(Some(Self {
+        let fitter = Fitter {
             model: lockin,
             method: inv.method,
             pair,
+        };
+        let table = match settings.synth.engine {
+            Engine::Paper => ModulusTable::with_measure(
+                &oscillator,
+                model::elastic(settings.tip),
+                settings.sample.poisson,
+                TABLE_RANGE,
+                TABLE_POINTS,
+                PulseMeasure::Shape,
+            )
+            .map_err(|e| e.to_string())?,
+            Engine::Coupled => {
+                let sigmas: Vec<(u32, f64)> = demods
+                    .iter()
+                    .flatten()
+                    .map(|d: &DemodNoise| (d.harmonic, lockin_sigma(d.density, d.bandwidth)))
+                    .collect();
+                coupled_table(settings, &cantilever, &fitter, &sigmas)?
+            }
+        };
+        Ok(Some(Self {
+            fitter,
             averaging,
             points: inv.points as usize,
             noise,
@@ -217,7 +230,7 @@ impl ForceEstimator {
 
     /// The forward model (transfer and aliases) the estimator fits.
     pub fn lockin_model(&self) -> &LockInModel {
-        &self.model
+        &self.fitter.model
     }
 
     /// The modulus table.
@@ -230,11 +243,9 @@ impl ForceEstimator {
     /// photodiode noise density there. For a boxcar average over T seconds (a scan pixel)
     /// B = 1/(2T).
     pub fn phasor_sigma(&self, harmonic: u32, bandwidth: f64) -> f64 {
-        let frequency = harmonic as f64 * self.model.drive_frequency();
-        lockin_sigma(
-            self.noise.density(self.model.cantilever(), frequency),
-            bandwidth,
-        )
+        let model = &self.fitter.model;
+        let frequency = harmonic as f64 * model.drive_frequency();
+        lockin_sigma(self.noise.density(model.cantilever(), frequency), bandwidth)
     }
 
     /// One-sided equivalent noise bandwidth (Hz) of one output of demodulator `index`
@@ -295,6 +306,162 @@ impl ForceEstimator {
         self.estimate(frame, &samples)
     }
 
+    /// The estimate from harmonics `samples` (two-sided S_k with σ per quadrature).
+    fn estimate(
+        &self,
+        frame: &DemodFrame,
+        samples: &[HarmonicSample],
+    ) -> Result<ForceEstimate, EstimateError> {
+        let maths = |e: &dyn std::fmt::Display| EstimateError::Maths(e.to_string());
+        let Fitted {
+            method,
+            tau,
+            sigma_tau,
+            force,
+            sigma_force,
+            covariance,
+            prior,
+        } = self.fitter.fit(samples, true)?;
+        let modulus = self
+            .table
+            .estimate_unbiased(force, tau, covariance)
+            .map_err(|e| maths(&e))?;
+        // From the cut cosine the method reads to the pulse's own peak and width (1 with
+        // the paper engine, whose pulse is that cut cosine).
+        let (to_force, to_tau) = self.table.pulse_ratios(modulus.youngs_modulus);
+        let options = InversionOptions {
+            min_snr: MIN_SNR,
+            pair: Some(self.fitter.pair),
+            grid_points: self.points,
+            transfer_minima: false,
+            ..InversionOptions::default()
+        };
+        let reconstruction =
+            reconstruct_force_with(&self.fitter.model, samples, &options, Some(prior))
+                .map_err(|e| maths(&e))?;
+        Ok(ForceEstimate {
+            sample_index: frame.sample_index,
+            t: frame.t,
+            t_synth_ns: frame.t_synth_ns,
+            method,
+            contact_time_ratio: tau * to_tau,
+            contact_time_ratio_sigma: sigma_tau * to_tau,
+            max_force: force * to_force,
+            max_force_sigma: sigma_force * to_force,
+            youngs_modulus: modulus.youngs_modulus,
+            youngs_modulus_sigma: modulus.uncertainty,
+            table_range: modulus.range,
+            pulse_phase: reconstruction.pulse_phase,
+            waveform: reconstruction.force,
+        })
+    }
+}
+
+/// Adds the lock-in reading `z` = X + iY at `harmonic` with σ per quadrature `sigma` (of a
+/// harmonic k ≥ 1, [`lockin_sigma`]) as a two-sided sample: S_k = z/2 with σ/2 for k ≥ 1;
+/// for k = 0 the mean itself, whose single quadrature has σ/√2 (mixing with 1 instead of
+/// 2e^{−ikθ}). A second demodulator at a harmonic already present is skipped (its noise is
+/// not independent of the first's).
+fn push_sample(samples: &mut Vec<HarmonicSample>, harmonic: u32, z: Complex64, sigma: f64) {
+    let k = harmonic as usize;
+    if samples.iter().any(|s| s.harmonic == k) {
+        return;
+    }
+    let (scale, sigma_scale) = if k == 0 {
+        (1.0, std::f64::consts::FRAC_1_SQRT_2)
+    } else {
+        (0.5, 0.5)
+    };
+    samples.push(HarmonicSample {
+        harmonic: k,
+        value: z * scale,
+        sigma: sigma * sigma_scale,
+    });
+}
+
+/// The method's reading of the pulse: τ and F of the cut cosine, from the harmonics.
+struct Fitter {
+    model: LockInModel,
+    method: InversionMethod,
+    pair: (usize, usize),
+}
+
+/// What [`Fitter::fit`] reads: (τ, F) of the cut cosine, their σ and covariance, and the
+/// cut cosine the waveform is completed with.
+struct Fitted {
+    method: &'static str,
+    tau: f64,
+    sigma_tau: f64,
+    force: f64,
+    sigma_force: f64,
+    covariance: [[f64; 2]; 2],
+    prior: CutCosinePrior,
+}
+
+impl Fitter {
+    /// (τ, F) of the cut cosine from harmonics `samples` (two-sided S_k with σ per
+    /// quadrature), by the configured method; with `debias`, less the estimate's
+    /// second-order bias under the samples' noise (for live readings; a table of noise-free
+    /// readings wants the plain fit).
+    fn fit(&self, samples: &[HarmonicSample], debias: bool) -> Result<Fitted, EstimateError> {
+        for k in [self.pair.0, self.pair.1] {
+            if !samples.iter().any(|s| s.harmonic == k) {
+                return Err(EstimateError::MissingHarmonic(k));
+            }
+        }
+        let maths = |e: &dyn std::fmt::Display| EstimateError::Maths(e.to_string());
+        let paired = two_harmonic_prior(&self.model, samples, Some(self.pair), MIN_SNR, false)
+            .map_err(|e| maths(&e))?;
+        Ok(match self.method {
+            InversionMethod::TwoHarmonic => {
+                let fit = paired.fit.as_ref().ok_or(EstimateError::Maths(
+                    "the two-harmonic fit is missing".into(),
+                ))?;
+                let (tau, force) = if debias {
+                    self.debiased_pair(fit, samples)
+                } else {
+                    (fit.tau, fit.max_force)
+                };
+                Fitted {
+                    method: "two_harmonic",
+                    tau,
+                    sigma_tau: fit.sigma_tau,
+                    force,
+                    sigma_force: fit.sigma_force,
+                    covariance: fit.force_tau_covariance(),
+                    prior: CutCosinePrior::new(tau, force, paired.pulse_phase),
+                }
+            }
+            InversionMethod::Full => {
+                let lsq = fit_cut_cosine(
+                    &self.model,
+                    samples,
+                    CutCosineStart {
+                        tau: paired.tau,
+                        max_force: paired.max_force,
+                        pulse_phase: paired.pulse_phase,
+                    },
+                )
+                .map_err(|e| maths(&e))?;
+                // Second-order bias removed (Box): tiny against σ, but E is steep in (F, τ).
+                let (tau, force) = if debias {
+                    (lsq.tau - lsq.bias[0], lsq.max_force - lsq.bias[1])
+                } else {
+                    (lsq.tau, lsq.max_force)
+                };
+                Fitted {
+                    method: "full",
+                    tau,
+                    sigma_tau: lsq.sigma_tau,
+                    force,
+                    sigma_force: lsq.sigma_force,
+                    covariance: lsq.force_tau_covariance(),
+                    prior: CutCosinePrior::new(tau, force, lsq.pulse_phase),
+                }
+            }
+        })
+    }
+
     /// (τ, F) of the two-harmonic fit less its second-order bias: the pair's solution is a
     /// curved function of the two force-coefficient magnitudes, so noise biases it (F by
     /// +0.2 % at the default 1 kHz noise). The mean over the sigma points |c_a| ± √2·σ_a,
@@ -327,110 +494,101 @@ impl ForceEstimator {
         }
         (2.0 * fit.tau - mean.0, 2.0 * fit.max_force - mean.1)
     }
-
-    /// The estimate from harmonics `samples` (two-sided S_k with σ per quadrature).
-    fn estimate(
-        &self,
-        frame: &DemodFrame,
-        samples: &[HarmonicSample],
-    ) -> Result<ForceEstimate, EstimateError> {
-        for k in [self.pair.0, self.pair.1] {
-            if !samples.iter().any(|s| s.harmonic == k) {
-                return Err(EstimateError::MissingHarmonic(k));
-            }
-        }
-        let maths = |e: &dyn std::fmt::Display| EstimateError::Maths(e.to_string());
-        let paired = two_harmonic_prior(&self.model, samples, Some(self.pair), MIN_SNR, false)
-            .map_err(|e| maths(&e))?;
-        let (method, tau, sigma_tau, force, sigma_force, covariance, prior) = match self.method {
-            InversionMethod::TwoHarmonic => {
-                let fit = paired.fit.as_ref().ok_or(EstimateError::Maths(
-                    "the two-harmonic fit is missing".into(),
-                ))?;
-                let (tau, force) = self.debiased_pair(fit, samples);
-                (
-                    "two_harmonic",
-                    tau,
-                    fit.sigma_tau,
-                    force,
-                    fit.sigma_force,
-                    fit.force_tau_covariance(),
-                    CutCosinePrior::new(tau, force, paired.pulse_phase),
-                )
-            }
-            InversionMethod::Full => {
-                let lsq = fit_cut_cosine(
-                    &self.model,
-                    samples,
-                    CutCosineStart {
-                        tau: paired.tau,
-                        max_force: paired.max_force,
-                        pulse_phase: paired.pulse_phase,
-                    },
-                )
-                .map_err(|e| maths(&e))?;
-                // Second-order bias removed (Box): tiny against σ, but E is steep in (F, τ).
-                let (tau, force) = (lsq.tau - lsq.bias[0], lsq.max_force - lsq.bias[1]);
-                (
-                    "full",
-                    tau,
-                    lsq.sigma_tau,
-                    force,
-                    lsq.sigma_force,
-                    lsq.force_tau_covariance(),
-                    CutCosinePrior::new(tau, force, lsq.pulse_phase),
-                )
-            }
-        };
-        let modulus = self
-            .table
-            .estimate_unbiased(force, tau, covariance)
-            .map_err(|e| maths(&e))?;
-        let options = InversionOptions {
-            min_snr: MIN_SNR,
-            pair: Some(self.pair),
-            grid_points: self.points,
-            transfer_minima: false,
-            ..InversionOptions::default()
-        };
-        let reconstruction = reconstruct_force_with(&self.model, samples, &options, Some(prior))
-            .map_err(|e| maths(&e))?;
-        Ok(ForceEstimate {
-            sample_index: frame.sample_index,
-            t: frame.t,
-            t_synth_ns: frame.t_synth_ns,
-            method,
-            contact_time_ratio: tau,
-            contact_time_ratio_sigma: sigma_tau,
-            max_force: force,
-            max_force_sigma: sigma_force,
-            youngs_modulus: modulus.youngs_modulus,
-            youngs_modulus_sigma: modulus.uncertainty,
-            table_range: modulus.range,
-            pulse_phase: reconstruction.pulse_phase,
-            waveform: reconstruction.force,
-        })
-    }
 }
 
-/// Adds the lock-in reading `z` = X + iY at `harmonic` with σ per quadrature `sigma` (of a
-/// harmonic k ≥ 1, [`lockin_sigma`]) as a two-sided sample: S_k = z/2 with σ/2 for k ≥ 1;
-/// for k = 0 the mean itself, whose single quadrature has σ/√2 (mixing with 1 instead of
-/// 2e^{−ikθ}). A second demodulator at a harmonic already present is skipped (its noise is
-/// not independent of the first's).
-fn push_sample(samples: &mut Vec<HarmonicSample>, harmonic: u32, z: Complex64, sigma: f64) {
-    let k = harmonic as usize;
-    if samples.iter().any(|s| s.harmonic == k) {
-        return;
-    }
-    let (scale, sigma_scale) = if k == 0 {
-        (1.0, std::f64::consts::FRAC_1_SQRT_2)
+/// Log-spaced nodes of the coupled engine's table over [`TABLE_RANGE`]: each is a coupled
+/// orbit (~0.05–0.2 s continued from its neighbour, 0.5 s for the first); F and τ are smooth
+/// in ln E, and the monotone cubic through 16 nodes reproduces orbits between them (tests).
+const COUPLED_TABLE_POINTS: usize = 16;
+
+/// The coupled engine's modulus table: at each node the coupled orbit (physics.md §6) of the
+/// settings with that modulus under the tip, the noise-free readings of every active
+/// demodulator through `fitter`'s lock-in model (aliases included), and what the method's
+/// fit reads off them, beside the pulse's own F and τ. `sigmas` are the demodulators'
+/// (harmonic, σ per quadrature of X and Y): they weight the full method's fit as they weight
+/// it live.
+fn coupled_table(
+    settings: &Settings,
+    cantilever: &Cantilever,
+    fitter: &Fitter,
+    sigmas: &[(u32, f64)],
+) -> Result<ModulusTable, String> {
+    let (lo, hi) = (TABLE_RANGE.0.ln(), TABLE_RANGE.1.ln());
+    let last = COUPLED_TABLE_POINTS - 1;
+    // The aliases reach far above the demodulated harmonics; without sampling, no further
+    // than the highest of them.
+    let harmonics = if fitter.model.sample_rate().is_some() {
+        ALIAS_HARMONICS
     } else {
-        (0.5, 0.5)
+        sigmas.iter().map(|&(k, _)| k as usize).max().unwrap_or(0)
     };
-    samples.push(HarmonicSample {
-        harmonic: k,
-        value: z * scale,
-        sigma: sigma * sigma_scale,
+    let modulus = |i: usize| (lo + (hi - lo) * i as f64 / last as f64).exp();
+    // One chain of nodes, each continued from the one before.
+    let chain = |indices: Vec<usize>| -> Result<Vec<TableNode>, String> {
+        let mut nodes = Vec::with_capacity(indices.len());
+        let mut from: Option<Continuation> = None;
+        for i in indices {
+            let youngs_modulus = modulus(i);
+            let material = Material {
+                youngs_modulus,
+                poisson: settings.sample.poisson,
+            };
+            let problem =
+                model::coupled_problem(settings, cantilever, material, settings.drive.frequency);
+            let solved = match &from {
+                // A failed continuation (a branch ending between nodes) starts afresh.
+                Some(c) => problem
+                    .solve_continued(harmonics, c)
+                    .or_else(|_| problem.solve_for_continuation(harmonics)),
+                None => problem.solve_for_continuation(harmonics),
+            };
+            let (orbit, next) = solved.map_err(|err| {
+                format!(
+                    "the coupled orbit at E = {youngs_modulus:.4e} Pa for the modulus table: {err}"
+                )
+            })?;
+            from = Some(next);
+            if orbit.max_force <= 0.0 {
+                return Err(format!(
+                    "the tip does not touch the sample at E = {youngs_modulus:.4e} Pa (coupled \
+                     engine)"
+                ));
+            }
+            let c = &orbit.force_coefficients;
+            let mut samples = Vec::with_capacity(sigmas.len());
+            for &(k, sigma) in sigmas {
+                let read = fitter
+                    .model
+                    .read(k as usize, |j| c.get(j).copied().unwrap_or_default())
+                    .unwrap_or_default();
+                // The lock-in's X + iY is twice S_k for k ≥ 1 and S_0 itself for k = 0.
+                let z = if k == 0 { read } else { 2.0 * read };
+                push_sample(&mut samples, k, z, sigma);
+            }
+            let fitted = fitter.fit(&samples, false).map_err(|err| {
+                format!("the fit to the coupled orbit at E = {youngs_modulus:.4e} Pa: {err}")
+            })?;
+            nodes.push(TableNode {
+                youngs_modulus,
+                force: fitted.force,
+                tau: fitted.tau,
+                pulse_force: orbit.max_force,
+                pulse_tau: orbit.contact_time_ratio,
+            });
+        }
+        Ok(nodes)
+    };
+    // Two chains from the middle outwards, on two threads (they inherit the builder's low
+    // priority): half the wait on two cores.
+    let middle = COUPLED_TABLE_POINTS / 2;
+    let (lower, upper) = std::thread::scope(|scope| {
+        let upper = scope.spawn(|| chain((middle..=last).collect()));
+        let lower = chain((0..middle).rev().collect());
+        (lower, upper.join())
     });
+    let upper = upper.map_err(|_| "the modulus table's thread panicked".to_owned())??;
+    let mut nodes = lower?;
+    nodes.reverse();
+    nodes.extend(upper);
+    ModulusTable::from_nodes(&nodes, PulseMeasure::CoupledFit).map_err(|e| e.to_string())
 }

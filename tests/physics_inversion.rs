@@ -8,7 +8,7 @@
 use std::f64::consts::PI;
 use std::sync::OnceLock;
 
-use ftafm::config::{InversionMethod, Material, Settings};
+use ftafm::config::{Engine, InversionMethod, Material, Settings};
 use ftafm::dsp::LockInBank;
 use ftafm::inversion::ForceEstimator;
 use ftafm::physics::inversion::{
@@ -1280,6 +1280,54 @@ fn the_estimator_at_1khz_without_noise_recovers_tau_force_and_modulus() {
             // What it actually achieves, so that a regression shows.
             assert!(dt.abs() < 1e-4 && df.abs() < 1e-4 && de.abs() < 1e-3);
             assert_eq!(r.waveform.len(), settings.inversion.points as usize);
+        }
+    }
+}
+
+#[test]
+fn on_the_coupled_engine_the_estimator_recovers_the_coupled_orbits_tau_force_and_modulus() {
+    // The coupled engine's Hertz pulse is not a cut cosine: read with the 1-DOF table the
+    // full method gave τ +3.4 %, F −1.5 % of the coupled orbit's own and E −14 %. Its table
+    // of what the fit reads off coupled orbits (and of the pulse's own F and τ beside it)
+    // must bring all three within the goals: τ and F within 1 % of `ftafm paper --engine
+    // coupled`, E within 2 %, across 50–200 GPa, noise off, through the real synthesiser and
+    // lock-in.
+    for modulus in [50e9, 129e9, 200e9] {
+        let mut settings = ftafm::config::default_settings();
+        settings.synth.engine = Engine::Coupled;
+        settings.noise.enable = false;
+        settings.sample.youngs_modulus = modulus;
+        let frames = chain_frames(&settings, 0.02, 0.01);
+        let coupled = &ftafm::cli::paper::compute_with(&settings, 1.0, Engine::Coupled)
+            .unwrap()
+            .materials[0];
+        for method in [InversionMethod::Full, InversionMethod::TwoHarmonic] {
+            settings.inversion.method = method;
+            let mut estimator = ForceEstimator::new(&settings).unwrap().unwrap();
+            assert_eq!(estimator.table().measure(), PulseMeasure::CoupledFit);
+            let mut last = None;
+            for f in &frames {
+                if let Some(r) = estimator.push(f) {
+                    last = Some(r.unwrap());
+                }
+            }
+            let r = last.unwrap();
+            let (dt, df, de) = (
+                r.contact_time_ratio / coupled.contact_time_ratio - 1.0,
+                r.max_force / coupled.max_force - 1.0,
+                r.youngs_modulus / modulus - 1.0,
+            );
+            println!(
+                "coupled, {method:?} at {:.0} GPa: τ {:+.4} %, F {:+.4} %, E {:+.4} %",
+                modulus / 1e9,
+                100.0 * dt,
+                100.0 * df,
+                100.0 * de
+            );
+            assert!(dt.abs() < 0.01 && df.abs() < 0.01 && de.abs() < 0.02);
+            // What it achieves (≤ 0.013 % and 0.12 % when written), so that a regression
+            // shows.
+            assert!(dt.abs() < 5e-4 && df.abs() < 5e-4 && de.abs() < 3e-3);
         }
     }
 }

@@ -120,6 +120,18 @@ const CONTACT_STEP_SHOOT: f64 = 1.0 / 20_000.0;
 /// Relative tolerance of the contact integration.
 const RTOL: f64 = 1e-11;
 
+/// Scaled residual at which [`CoupledProblem::solve_continued`] stops: below what the
+/// measurement resolves (a table node's F and τ move by ~1e-10 of themselves).
+const CONTINUED_RESIDUAL: f64 = 1e-10;
+
+/// Where a nearby problem's orbit search starts ([`CoupledProblem::solve_continued`]): the
+/// fixed point's modal deviations and the Jacobian of the one-period map there.
+#[derive(Clone, Debug)]
+pub struct Continuation {
+    h: Vec<f64>,
+    jacobian: Vec<Vec<f64>>,
+}
+
 /// What a period's integration reports (when measuring).
 #[derive(Default)]
 struct Record {
@@ -201,8 +213,120 @@ impl CoupledProblem {
         self.free_amplitude / per_base.norm()
     }
 
+    /// The orbit of a problem that differs little from the one `from` was found for (e.g.
+    /// the next node of a table in the sample's modulus), far cheaper than [`Self::solve`]:
+    /// no transient, and Newton's matrix is `from`'s until the residual stops falling by
+    /// half per iteration (a chord method; then it is recomputed here). Returns the orbit and
+    /// what the next problem can continue from.
+    ///
+    /// The orbit's Floquet fields come from the last Jacobian computed, which may be
+    /// `from`'s: `floquet_product` and `floquet_max` are NaN when it is, and `period_one`
+    /// then says only that the fixed point converged.
+    ///
+    /// # Errors
+    /// As [`Self::solve`]; also when the chord and Newton iterations do not converge from
+    /// `from`'s state (the problems are too far apart, or the branch ends between them).
+    pub fn solve_continued(
+        &self,
+        harmonics: usize,
+        from: &Continuation,
+    ) -> Result<(CoupledOrbit, Continuation), CoupledError> {
+        let map = PeriodMap::new(self);
+        let scale = map.scales();
+        let n2 = 2 * self.modes.len();
+        if from.h.len() != n2 {
+            return Err(CoupledError::Integration(
+                "the continuation is for another number of modes".into(),
+            ));
+        }
+        let residual_of = |h: &[f64], next: &[f64]| -> f64 {
+            h.iter()
+                .zip(next)
+                .zip(&scale)
+                .map(|((a, b), s)| ((b - a) / s).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        };
+        let mut h = from.h.clone();
+        let mut jacobian = from.jacobian.clone();
+        let mut fresh = false;
+        let mut next = map.period(&h, CONTACT_STEP_SHOOT, None)?;
+        let mut residual = residual_of(&h, &next);
+        let mut iterations = 0;
+        while residual >= CONTINUED_RESIDUAL && iterations < 40 {
+            iterations += 1;
+            let mut a = jacobian.clone();
+            for (i, row) in a.iter_mut().enumerate() {
+                row[i] -= 1.0;
+            }
+            let b: Vec<f64> = h.iter().zip(&next).map(|(x, y)| x - y).collect();
+            let delta = solve_linear(a, b)
+                .ok_or_else(|| CoupledError::Integration("singular Newton matrix".into()))?;
+            let trial: Vec<f64> = h.iter().zip(&delta).map(|(x, d)| x + d).collect();
+            let trial_next = map.period(&trial, CONTACT_STEP_SHOOT, None)?;
+            let r = residual_of(&trial, &trial_next);
+            if r < 0.5 * residual {
+                (h, next, residual) = (trial, trial_next, r);
+            } else if !fresh {
+                // The borrowed matrix no longer helps: Newton's own, here.
+                jacobian = map.jacobian(&h, &scale)?;
+                fresh = true;
+            } else if r < residual {
+                (h, next, residual) = (trial, trial_next, r);
+            } else {
+                break;
+            }
+        }
+        if residual >= CONTINUED_RESIDUAL {
+            return Err(CoupledError::NoConvergence {
+                residual,
+                iterations,
+            });
+        }
+        let (floquet_product, floquet_max) = if fresh {
+            (determinant(jacobian.clone()), spectral_radius(&jacobian))
+        } else {
+            (f64::NAN, f64::NAN)
+        };
+        let mut record = Record {
+            coefficients: vec![Complex64::new(0.0, 0.0); harmonics + 1],
+            ..Record::default()
+        };
+        map.period(&h, CONTACT_STEP_MEASURE, Some(&mut record))?;
+        let mut orbit = self.measure(
+            h.clone(),
+            record,
+            residual,
+            iterations,
+            floquet_product,
+            floquet_max,
+        );
+        if !fresh {
+            orbit.period_one = true;
+        }
+        Ok((orbit, Continuation { h, jacobian }))
+    }
+
+    /// [`Self::solve`], with what a nearby problem can continue from
+    /// ([`Self::solve_continued`]).
+    pub fn solve_for_continuation(
+        &self,
+        harmonics: usize,
+    ) -> Result<(CoupledOrbit, Continuation), CoupledError> {
+        let (orbit, jacobian) = self.solve_with_jacobian(harmonics)?;
+        let h = orbit.initial_state.clone();
+        Ok((orbit, Continuation { h, jacobian }))
+    }
+
     /// Finds the periodic orbit and measures it, with harmonics up to `harmonics`.
     pub fn solve(&self, harmonics: usize) -> Result<CoupledOrbit, CoupledError> {
+        self.solve_with_jacobian(harmonics).map(|(orbit, _)| orbit)
+    }
+
+    fn solve_with_jacobian(
+        &self,
+        harmonics: usize,
+    ) -> Result<(CoupledOrbit, Vec<Vec<f64>>), CoupledError> {
         let map = PeriodMap::new(self);
         let n2 = 2 * self.modes.len();
         // Let the transient decay from the free orbit (h = 0): a few mode-1 decay times,
@@ -272,14 +396,15 @@ impl CoupledProblem {
             ..Record::default()
         };
         map.period(&h, CONTACT_STEP_MEASURE, Some(&mut record))?;
-        Ok(self.measure(
+        let orbit = self.measure(
             h,
             record,
             residual,
             iterations,
             floquet_product,
             floquet_max,
-        ))
+        );
+        Ok((orbit, jacobian))
     }
 
     fn measure(
@@ -716,10 +841,22 @@ impl<'a> PeriodMap<'a> {
             r.base_contact_work += 0.5 * dt * (before.3 + now.3);
             if before.4 != 0.0 || now.4 != 0.0 {
                 let w = self.p.drive_omega;
+                // e^{−ikΩt} by powers of e^{−iΩt}, re-anchored every 64 harmonics: hundreds
+                // of harmonics (for the aliases) cost multiplications, not sines.
+                let (step0, step1) = (
+                    Complex64::from_polar(1.0, -w * t0),
+                    Complex64::from_polar(1.0, -w * t),
+                );
+                let (mut e0, mut e1) = (Complex64::new(1.0, 0.0), Complex64::new(1.0, 0.0));
+                let weight = 0.5 * dt / self.t_period;
                 for (k, c) in r.coefficients.iter_mut().enumerate() {
-                    let e0 = Complex64::from_polar(1.0, -(k as f64) * w * t0);
-                    let e1 = Complex64::from_polar(1.0, -(k as f64) * w * t);
-                    *c += 0.5 * dt / self.t_period * (before.4 * e0 + now.4 * e1);
+                    if k > 0 && k % 64 == 0 {
+                        e0 = Complex64::from_polar(1.0, -(k as f64) * w * t0);
+                        e1 = Complex64::from_polar(1.0, -(k as f64) * w * t);
+                    }
+                    *c += weight * (before.4 * e0 + now.4 * e1);
+                    e0 *= step0;
+                    e1 *= step1;
                 }
             }
         }

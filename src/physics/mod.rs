@@ -11,7 +11,7 @@ pub mod spectrum;
 
 pub use beam::{Cantilever, Mode};
 pub use contact::{Adhesion, Elastic, HertzContact};
-pub use coupled::{CoupledError, CoupledOrbit, CoupledProblem};
+pub use coupled::{Continuation, CoupledError, CoupledOrbit, CoupledProblem};
 pub use impact::{ImpactOscillator, ImpactSolution, SolveOptions};
 pub use sample_map::{Outline, Region, SampleMap};
 pub use spectrum::Harmonic;

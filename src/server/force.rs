@@ -226,8 +226,9 @@ pub(crate) fn lower_priority(nice: i32) {
 
 /// Whether a change of `path` changes the estimator (its cantilever, drive, setpoint, tip,
 /// sample Poisson ratio, demodulators, inversion settings, the noise it predicts for each
-/// harmonic or the sample rate that sets the aliases; not the sample's modulus, which is
-/// what it measures).
+/// harmonic, the sample rate and anti-alias filter that set the aliases, or the engine and
+/// adhesion its modulus table models; not the sample's modulus, which is what it
+/// measures).
 pub(crate) fn affects_estimator(path: &str) -> bool {
     [
         "/inversion",
@@ -239,6 +240,9 @@ pub(crate) fn affects_estimator(path: &str) -> bool {
         "/demods",
         "/noise",
         "/synth/sample_rate",
+        "/synth/anti_alias",
+        "/synth/engine",
+        "/adhesion",
     ]
     .iter()
     .any(|p| path.starts_with(p))

@@ -36,7 +36,7 @@ pub use noise::{BOLTZMANN, LowPassNoise, NoiseModel, lockin_sigma};
 
 pub use modulus::{
     DEFAULT_TABLE_POINTS, DEFAULT_TABLE_RANGE, ModulusError, ModulusEstimate, ModulusTable,
-    PulseMeasure, TableRange,
+    PulseMeasure, TableNode, TableRange,
 };
 pub use reconstruct::{
     CoefficientSource, CutCosinePrior, ForceCoefficient, ForceReconstruction, HarmonicSample,

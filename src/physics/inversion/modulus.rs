@@ -56,6 +56,10 @@ pub enum PulseMeasure {
     /// cosine, so for the paper's case this (F, τ) differs from [`Self::Shape`] by about
     /// −1.2 % and +2.8 %; a table of this kind removes that bias from the modulus.
     TwoHarmonic { low: usize, high: usize },
+    /// What the live estimator's fit reads off the noise-free lock-in readings of the
+    /// coupled orbit (physics.md §6), whose Hertz pulse is not a cut cosine: built by
+    /// the live force estimator with [`ModulusTable::from_nodes`].
+    CoupledFit,
 }
 
 /// Where the best-fitting modulus lies relative to the table.
@@ -101,15 +105,34 @@ pub struct ModulusEstimate {
 /// and setpoint.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ModulusTable {
-    oscillator: ImpactOscillator,
-    tip: Elastic,
-    sample_poisson: f64,
     measure: PulseMeasure,
     log_moduli: Vec<f64>,
     forces: Vec<f64>,
     taus: Vec<f64>,
     force_slopes: Vec<f64>,
     tau_slopes: Vec<f64>,
+    /// The pulse's own peak force and τ over the measured ones, per node, and their slopes
+    /// in ln E.
+    force_ratios: Vec<f64>,
+    tau_ratios: Vec<f64>,
+    force_ratio_slopes: Vec<f64>,
+    tau_ratio_slopes: Vec<f64>,
+}
+
+/// One node of a [`ModulusTable`]: at a Young's modulus, the (F, τ) a measurement reads and
+/// the pulse's own peak force and τ = 1.5·FWHM/T.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TableNode {
+    /// Young's modulus of the sample (Pa).
+    pub youngs_modulus: f64,
+    /// Peak force the measurement reads (N).
+    pub force: f64,
+    /// τ the measurement reads (1).
+    pub tau: f64,
+    /// The pulse's own peak force (N).
+    pub pulse_force: f64,
+    /// The pulse's own τ (1).
+    pub pulse_tau: f64,
 }
 
 impl ModulusTable {
@@ -161,10 +184,13 @@ impl ModulusTable {
         if points < 4 {
             return Err(ModulusError::InvalidTable("at least 4 nodes are needed"));
         }
+        if measure == PulseMeasure::CoupledFit {
+            return Err(ModulusError::InvalidTable(
+                "a coupled-orbit table is built from its nodes (ModulusTable::from_nodes)",
+            ));
+        }
         let (xlo, xhi) = (lo.ln(), hi.ln());
-        let mut log_moduli = Vec::with_capacity(points);
-        let mut forces = Vec::with_capacity(points);
-        let mut taus = Vec::with_capacity(points);
+        let mut nodes = Vec::with_capacity(points);
         for i in 0..points {
             let x = xlo + (xhi - xlo) * i as f64 / (points - 1) as f64;
             let e = x.exp();
@@ -194,24 +220,80 @@ impl ModulusTable {
                             })?;
                     (force, tau)
                 }
+                PulseMeasure::CoupledFit => unreachable!("refused above"),
             };
-            log_moduli.push(x);
-            forces.push(force);
-            taus.push(tau);
+            nodes.push(TableNode {
+                youngs_modulus: e,
+                force,
+                tau,
+                pulse_force: s.max_force,
+                pulse_tau: s.contact_time_ratio,
+            });
         }
-        let force_slopes = pchip_slopes(&log_moduli, &forces);
-        let tau_slopes = pchip_slopes(&log_moduli, &taus);
+        Self::from_nodes(&nodes, measure)
+    }
+
+    /// A table of `nodes` (at least 4, in increasing modulus) that hold the (F, τ) `measure`
+    /// names, e.g. computed from another model of the tap than the 1-DOF one.
+    ///
+    /// # Errors
+    /// [`ModulusError::InvalidTable`] for fewer than 4 nodes, moduli not strictly increasing
+    /// and positive, or a force or τ that is not positive and finite.
+    pub fn from_nodes(nodes: &[TableNode], measure: PulseMeasure) -> Result<Self, ModulusError> {
+        if nodes.len() < 4 {
+            return Err(ModulusError::InvalidTable("at least 4 nodes are needed"));
+        }
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !nodes.iter().all(|n| {
+            positive(n.youngs_modulus)
+                && positive(n.force)
+                && positive(n.tau)
+                && positive(n.pulse_force)
+                && positive(n.pulse_tau)
+        }) {
+            return Err(ModulusError::InvalidTable(
+                "every node's modulus, forces and τ must be positive and finite",
+            ));
+        }
+        if !nodes
+            .windows(2)
+            .all(|w| w[1].youngs_modulus > w[0].youngs_modulus)
+        {
+            return Err(ModulusError::InvalidTable(
+                "the nodes' moduli must increase strictly",
+            ));
+        }
+        let log_moduli: Vec<f64> = nodes.iter().map(|n| n.youngs_modulus.ln()).collect();
+        let forces: Vec<f64> = nodes.iter().map(|n| n.force).collect();
+        let taus: Vec<f64> = nodes.iter().map(|n| n.tau).collect();
+        let force_ratios: Vec<f64> = nodes.iter().map(|n| n.pulse_force / n.force).collect();
+        let tau_ratios: Vec<f64> = nodes.iter().map(|n| n.pulse_tau / n.tau).collect();
         Ok(Self {
-            oscillator: *oscillator,
-            tip,
-            sample_poisson,
             measure,
+            force_slopes: pchip_slopes(&log_moduli, &forces),
+            tau_slopes: pchip_slopes(&log_moduli, &taus),
+            force_ratio_slopes: pchip_slopes(&log_moduli, &force_ratios),
+            tau_ratio_slopes: pchip_slopes(&log_moduli, &tau_ratios),
             log_moduli,
             forces,
             taus,
-            force_slopes,
-            tau_slopes,
+            force_ratios,
+            tau_ratios,
         })
+    }
+
+    /// The pulse's own peak force and τ over what the measurement reads, (F_pulse/F,
+    /// τ_pulse/τ), interpolated at Young's modulus `youngs_modulus` (Pa; clamped to the
+    /// table): the factors that turn a measured (F, τ) into the pulse's. (1, 1) where the
+    /// measurement reads the pulse itself ([`PulseMeasure::Shape`]).
+    pub fn pulse_ratios(&self, youngs_modulus: f64) -> (f64, f64) {
+        let xs = &self.log_moduli;
+        let x = youngs_modulus.ln().clamp(xs[0], xs[xs.len() - 1]);
+        let i = xs.partition_point(|&v| v <= x).clamp(1, xs.len() - 1) - 1;
+        (
+            hermite(xs, &self.force_ratios, &self.force_ratio_slopes, i, x).0,
+            hermite(xs, &self.tau_ratios, &self.tau_ratio_slopes, i, x).0,
+        )
     }
 
     /// The nodes' Young's moduli (Pa).
@@ -229,19 +311,9 @@ impl ModulusTable {
         &self.taus
     }
 
-    /// The oscillator the table was built for.
-    pub fn oscillator(&self) -> &ImpactOscillator {
-        &self.oscillator
-    }
-
     /// Which (F, τ) the table holds.
     pub fn measure(&self) -> PulseMeasure {
         self.measure
-    }
-
-    /// The tip material and the samples' Poisson ratio.
-    pub fn materials(&self) -> (Elastic, f64) {
-        (self.tip, self.sample_poisson)
     }
 
     /// Interpolated (F, τ) at Young's modulus `youngs_modulus` (Pa); `None` outside the
