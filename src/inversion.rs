@@ -75,6 +75,13 @@ pub struct ForceEstimate {
     pub waveform: Vec<f64>,
 }
 
+/// The periodic orbits of a coupled engine's modulus table, node by node: where the next
+/// table's orbit searches start ([`ForceEstimator::seeded`]).
+#[derive(Clone, Debug)]
+pub struct TableSeed {
+    orbits: Vec<Continuation>,
+}
+
 /// Why no estimate came out of a frame (counted, not fatal).
 #[derive(Debug, thiserror::Error)]
 pub enum EstimateError {
@@ -103,6 +110,8 @@ struct DemodNoise {
 /// live stream; [`Self::estimate_frame`] takes `&self` and estimates from any phasors.
 pub struct ForceEstimator {
     fitter: Fitter,
+    /// The coupled table's orbits, for the next estimator to start from.
+    seed: Option<TableSeed>,
     averaging: usize,
     points: usize,
     noise: NoiseModel,
@@ -122,6 +131,18 @@ pub struct ForceEstimator {
 impl ForceEstimator {
     /// The estimator for `settings`; `None` when `/inversion/enable` is false.
     pub fn new(settings: &Settings) -> Result<Option<Self>, String> {
+        Self::seeded(settings, None)
+    }
+
+    /// [`Self::new`], starting the coupled engine's table from the orbits of `seed` (an
+    /// earlier estimator's [`Self::seed`], e.g. for the previous point of a sweep): each node
+    /// is continued from the same node of the earlier table, a few periods instead of a
+    /// transient when the settings moved a little, and solved afresh where that fails. The
+    /// table is the same to the orbits' tolerance whatever the seed.
+    ///
+    /// # Errors
+    /// As [`Self::new`].
+    pub fn seeded(settings: &Settings, seed: Option<&TableSeed>) -> Result<Option<Self>, String> {
         let inv = &settings.inversion;
         if !inv.enable {
             return Ok(None);
@@ -192,6 +213,7 @@ impl ForceEstimator {
             method: inv.method,
             pair,
         };
+        let mut seed_out = None;
         let table = match settings.synth.engine {
             Engine::Paper => ModulusTable::with_measure(
                 &oscillator,
@@ -208,11 +230,14 @@ impl ForceEstimator {
                     .flatten()
                     .map(|d: &DemodNoise| (d.harmonic, lockin_sigma(d.density, d.bandwidth)))
                     .collect();
-                coupled_table(settings, &cantilever, &fitter, &sigmas)?
+                let (table, orbits) = coupled_table(settings, &cantilever, &fitter, &sigmas, seed)?;
+                seed_out = Some(TableSeed { orbits });
+                table
             }
         };
         Ok(Some(Self {
             fitter,
+            seed: seed_out,
             averaging,
             points: inv.points as usize,
             noise,
@@ -221,6 +246,32 @@ impl ForceEstimator {
             sum: vec![Complex64::new(0.0, 0.0); settings.demods.len()],
             summed: 0,
         }))
+    }
+
+    /// What the next estimator can start its coupled table from ([`Self::seeded`]); `None`
+    /// on the paper engine.
+    pub fn seed(&self) -> Option<&TableSeed> {
+        self.seed.as_ref()
+    }
+
+    /// Whether the estimators of `a` and `b` are the same: every setting the estimator
+    /// models is equal (the cantilever, tip, sample Poisson ratio, drive, setpoint,
+    /// demodulators, inversion and noise settings, sample rate, anti-alias filter, engine and
+    /// adhesion). A caller that sees other settings change keeps its estimator: with the
+    /// coupled engine a build takes seconds.
+    pub fn same_model(a: &Settings, b: &Settings) -> bool {
+        a.cantilever == b.cantilever
+            && a.tip == b.tip
+            && a.sample.poisson == b.sample.poisson
+            && a.drive == b.drive
+            && a.surface == b.surface
+            && a.demods == b.demods
+            && a.inversion == b.inversion
+            && a.noise == b.noise
+            && a.synth.sample_rate == b.synth.sample_rate
+            && a.synth.anti_alias == b.synth.anti_alias
+            && a.synth.engine == b.synth.engine
+            && a.adhesion == b.adhesion
     }
 
     /// The noise model the estimator assumes.
@@ -512,7 +563,8 @@ fn coupled_table(
     cantilever: &Cantilever,
     fitter: &Fitter,
     sigmas: &[(u32, f64)],
-) -> Result<ModulusTable, String> {
+    seed: Option<&TableSeed>,
+) -> Result<(ModulusTable, Vec<Continuation>), String> {
     let (lo, hi) = (TABLE_RANGE.0.ln(), TABLE_RANGE.1.ln());
     let last = COUPLED_TABLE_POINTS - 1;
     // The aliases reach far above the demodulated harmonics; without sampling, no further
@@ -523,8 +575,9 @@ fn coupled_table(
         sigmas.iter().map(|&(k, _)| k as usize).max().unwrap_or(0)
     };
     let modulus = |i: usize| (lo + (hi - lo) * i as f64 / last as f64).exp();
-    // One chain of nodes, each continued from the one before.
-    let chain = |indices: Vec<usize>| -> Result<Vec<TableNode>, String> {
+    let seeded = |i: usize| seed.and_then(|s| s.orbits.get(i));
+    // One chain of nodes.
+    let chain = |indices: Vec<usize>| -> Result<Vec<(TableNode, Continuation)>, String> {
         let mut nodes = Vec::with_capacity(indices.len());
         let mut from: Option<Continuation> = None;
         for i in indices {
@@ -535,19 +588,23 @@ fn coupled_table(
             };
             let problem =
                 model::coupled_problem(settings, cantilever, material, settings.drive.frequency);
-            let solved = match &from {
-                // A failed continuation (a branch ending between nodes) starts afresh.
-                Some(c) => problem
-                    .solve_continued(harmonics, c)
-                    .or_else(|_| problem.solve_for_continuation(harmonics)),
-                None => problem.solve_for_continuation(harmonics),
+            // From the chain's previous node (the same settings, a nearby modulus), else from
+            // the seed's same node (the same modulus, earlier settings), else afresh: a
+            // failed continuation (too far apart, a branch ending between them) falls back
+            // to the next way.
+            let continued = |c: Option<&Continuation>| {
+                c.ok_or(())
+                    .and_then(|c| problem.solve_continued(harmonics, c).map_err(drop))
             };
+            let solved = continued(from.as_ref())
+                .or_else(|()| continued(seeded(i)))
+                .or_else(|()| problem.solve_for_continuation(harmonics));
             let (orbit, next) = solved.map_err(|err| {
                 format!(
                     "the coupled orbit at E = {youngs_modulus:.4e} Pa for the modulus table: {err}"
                 )
             })?;
-            from = Some(next);
+            from = Some(next.clone());
             if orbit.max_force <= 0.0 {
                 return Err(format!(
                     "the tip does not touch the sample at E = {youngs_modulus:.4e} Pa (coupled \
@@ -568,13 +625,16 @@ fn coupled_table(
             let fitted = fitter.fit(&samples, false).map_err(|err| {
                 format!("the fit to the coupled orbit at E = {youngs_modulus:.4e} Pa: {err}")
             })?;
-            nodes.push(TableNode {
-                youngs_modulus,
-                force: fitted.force,
-                tau: fitted.tau,
-                pulse_force: orbit.max_force,
-                pulse_tau: orbit.contact_time_ratio,
-            });
+            nodes.push((
+                TableNode {
+                    youngs_modulus,
+                    force: fitted.force,
+                    tau: fitted.tau,
+                    pulse_force: orbit.max_force,
+                    pulse_tau: orbit.contact_time_ratio,
+                },
+                next,
+            ));
         }
         Ok(nodes)
     };
@@ -590,5 +650,8 @@ fn coupled_table(
     let mut nodes = lower?;
     nodes.reverse();
     nodes.extend(upper);
-    ModulusTable::from_nodes(&nodes, PulseMeasure::CoupledFit).map_err(|e| e.to_string())
+    let (nodes, orbits): (Vec<TableNode>, Vec<Continuation>) = nodes.into_iter().unzip();
+    let table =
+        ModulusTable::from_nodes(&nodes, PulseMeasure::CoupledFit).map_err(|e| e.to_string())?;
+    Ok((table, orbits))
 }

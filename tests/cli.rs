@@ -52,7 +52,7 @@ fn stderr(o: &Output) -> String {
 
 #[test]
 fn paper_json_is_one_object_with_the_contract_schema_and_the_papers_numbers() {
-    let out = ftafm(&["paper", "--json"]);
+    let out = ftafm(&["paper", "--engine", "paper", "--json"]);
     assert!(out.status.success(), "{}", stderr(&out));
     let text = String::from_utf8(out.stdout).unwrap();
     assert_eq!(text.trim().lines().count(), 1, "exactly one line of JSON");

@@ -745,6 +745,14 @@ fn chain_frames(settings: &Settings, settle: f64, seconds: f64) -> Vec<DemodFram
     frames
 }
 
+/// The default settings on the paper engine, whose tap force is the 1-DOF pulse these tests
+/// take as the truth.
+fn paper_settings() -> Settings {
+    let mut settings = ftafm::config::default_settings();
+    settings.synth.engine = Engine::Paper;
+    settings
+}
+
 /// The 1-DOF pulse of the default configuration with `modulus` under the tip.
 fn default_pulse(settings: &Settings, modulus: f64) -> ImpactSolution {
     let cantilever = ftafm::model::cantilever(settings).unwrap();
@@ -762,7 +770,7 @@ fn without_the_anti_alias_filter_the_lock_in_reads_the_aliased_spectrum() {
     // Noise off, the default 10 MS/s chain with the photodiode sampled directly
     // (`/synth/anti_alias = false`): each demodulator reads its harmonic plus every
     // harmonic folded onto it.
-    let mut settings = ftafm::config::default_settings();
+    let mut settings = paper_settings();
     settings.noise.enable = false;
     settings.synth.anti_alias = false;
     let frames = chain_frames(&settings, 0.02, 0.005);
@@ -808,7 +816,7 @@ fn through_the_anti_alias_filter_the_lock_in_reads_the_unaliased_harmonics_to_0_
     // H18, below the detector's noise in a 1 kHz band) what still folds from ≥ 1.6·f_s
     // (sampled at 2·f_s) is a few % of them, 26 % on H29, but below 1e-4 of H18. The
     // forward model with the filter and those folds agrees to within its series' tail.
-    let mut settings = ftafm::config::default_settings();
+    let mut settings = paper_settings();
     settings.noise.enable = false;
     for (i, d) in settings.demods.iter_mut().enumerate() {
         d.harmonic = 9 + i as u32;
@@ -1043,7 +1051,7 @@ fn the_predicted_noise_matches_the_lock_in_scatter() {
     // Default noise, the default bank: each output's X and Y scatter as the noise model
     // and the filter's bandwidth predict (detector-dominated: 1.77 pm from H2 on; thermal
     // motion of mode 1 at H1), successive outputs are correlated as the filter says.
-    let settings = ftafm::config::default_settings();
+    let settings = paper_settings();
     let frames = chain_frames(&settings, 0.02, 3.0);
     let estimator = ForceEstimator::new(&settings).unwrap().unwrap();
     let bandwidth = estimator.frame_bandwidth(0).unwrap();
@@ -1105,7 +1113,7 @@ fn readings(settings: &Settings, model: &LockInModel, modulus: f64) -> Vec<Compl
 
 #[test]
 fn the_least_squares_fit_recovers_the_cut_cosine_from_every_harmonic() {
-    let settings = ftafm::config::default_settings();
+    let settings = paper_settings();
     let harmonics: Vec<usize> = (1..=32).collect();
     let beam = beam();
     let model = LockInModel::new(&beam, F1, Some(1e7), &harmonics).unwrap();
@@ -1247,7 +1255,7 @@ fn the_estimator_at_1khz_without_noise_recovers_tau_force_and_modulus() {
     // goals), for both methods across 50–200 GPa. Before the aliases were modelled the full
     // method read +1.6 % at 129 GPa and +3.5 % at 60 GPa.
     for modulus in [50e9, 60e9, 129e9, 200e9] {
-        let mut settings = ftafm::config::default_settings();
+        let mut settings = paper_settings();
         settings.noise.enable = false;
         settings.sample.youngs_modulus = modulus;
         let frames = chain_frames(&settings, 0.02, 0.01);
@@ -1369,7 +1377,7 @@ fn the_modulus_at_the_default_noise_is_cramer_rao_limited_and_unbiased() {
     // free pulse phase is σ_E ≥ 18.9 GPa on silicon (|ΔE| = 12.9 GPa ≈ 0.7σ). The full
     // method reaches it, without bias and with an honest σ; averaging 80 outputs (12.5 Hz)
     // brings the separation past 3σ.
-    let settings = ftafm::config::default_settings();
+    let settings = paper_settings();
     let cantilever = ftafm::model::cantilever(&settings).unwrap();
     let harmonics: Vec<usize> = (1..=32).collect();
     let model = LockInModel::new(&cantilever, F1, Some(1e7), &harmonics).unwrap();
@@ -1448,4 +1456,52 @@ fn the_modulus_at_the_default_noise_is_cramer_rao_limited_and_unbiased() {
             _ => assert!(separation > 1.5 && separation < 3.0, "{separation}"),
         }
     }
+}
+
+#[test]
+fn the_estimator_models_only_its_settings_and_a_seed_does_not_change_its_table() {
+    let a = ftafm::config::default_settings();
+    // What it measures or does not model leaves it as it is.
+    let mut same = a.clone();
+    same.sample.youngs_modulus = 60e9;
+    same.scan.pixels = 2 * a.scan.pixels;
+    assert!(ForceEstimator::same_model(&a, &same));
+    let changes: [fn(&mut Settings); 5] = [
+        |s| s.synth.engine = Engine::Paper,
+        |s| s.synth.anti_alias = false,
+        |s| s.adhesion.enable = true,
+        |s| s.surface.distance = 19e-9,
+        |s| s.tip.poisson = 0.2,
+    ];
+    for change in changes {
+        let mut b = a.clone();
+        change(&mut b);
+        assert!(!ForceEstimator::same_model(&a, &b), "{b:?}");
+    }
+    // The coupled table from a seed of other settings is the table built afresh.
+    let mut first = a.clone();
+    first.synth.engine = Engine::Coupled;
+    let mut second = first.clone();
+    second.surface.distance = 18e-9;
+    let earlier = ForceEstimator::new(&first).unwrap().unwrap();
+    let seed = earlier
+        .seed()
+        .expect("the coupled engine's table has orbits");
+    let seeded = ForceEstimator::seeded(&second, Some(seed))
+        .unwrap()
+        .unwrap();
+    let fresh = ForceEstimator::new(&second).unwrap().unwrap();
+    let (s, f) = (seeded.table(), fresh.table());
+    assert_eq!(s.moduli(), f.moduli());
+    for (x, y) in s.forces().iter().zip(f.forces()) {
+        assert!(rel(*x, *y) < 1e-7, "F {x:e} vs {y:e}");
+    }
+    for (x, y) in s.taus().iter().zip(f.taus()) {
+        assert!(rel(*x, *y) < 1e-7, "τ {x:e} vs {y:e}");
+    }
+    // The earlier table is another one (the setpoint moved).
+    assert!(rel(earlier.table().forces()[8], f.forces()[8]) > 1e-3);
+    // The paper engine has no orbits to pass on.
+    let paper = ForceEstimator::new(&paper_settings()).unwrap().unwrap();
+    assert!(paper.seed().is_none());
 }

@@ -3,7 +3,7 @@
 
 use std::time::{Duration, Instant};
 
-use ftafm::config::{Settings, default_settings};
+use ftafm::config::{Engine, Settings, default_settings};
 use ftafm::pipeline::BLOCK_SAMPLES;
 use ftafm::server::protocol::decode_header;
 use futures_util::{SinkExt, StreamExt};
@@ -506,8 +506,9 @@ async fn a_softer_sample_lowers_the_high_harmonics() {
         next_of(&mut ws, "demods").await;
     }
     let after = harmonic_amplitude(&mut ws, h17, 20).await;
-    // physics: the 10 % softer inhomogeneity lowers H17 by ≈ 2.7 % (`ftafm paper`).
-    let report = ftafm::cli::paper::compute(&settings, 0.9).unwrap();
+    // physics: the 10 % softer inhomogeneity lowers H17 by ≈ 3 % (`ftafm paper`, on the
+    // configured engine: the coupled one by default).
+    let report = ftafm::cli::paper::compute_with(&settings, 0.9, settings.synth.engine).unwrap();
     let (expect_before, expect_after) = (
         report.materials[0].spectrum[17].amplitude,
         report.materials[1].spectrum[17].amplitude,
@@ -711,7 +712,10 @@ async fn the_force_stream_recovers_contact_time_force_and_modulus() {
                 let e = force_mean(&mut ws, 10, "youngs_modulus").await;
                 let mut s = settings.clone();
                 s.sample.youngs_modulus = modulus;
-                let paper = &ftafm::cli::paper::compute(&s, 1.0).unwrap().materials[0];
+                // The configured engine's own pulse (the coupled orbit by default).
+                let paper = &ftafm::cli::paper::compute_with(&s, 1.0, s.synth.engine)
+                    .unwrap()
+                    .materials[0];
                 let (dt, df, de) = (
                     tau / paper.contact_time_ratio - 1.0,
                     force / paper.max_force - 1.0,
@@ -730,8 +734,14 @@ async fn the_force_stream_recovers_contact_time_force_and_modulus() {
                     paper.max_force
                 );
                 assert!(de.abs() < 0.02, "{at}: E {e:e}");
+                // The paper engine's pulse is the cut cosine the methods fit; the coupled
+                // engine's is read through its table of coupled orbits (docs/ft-afm.md).
+                let (tight_shape, tight_e) = match s.synth.engine {
+                    Engine::Paper => (1e-4, 1e-3),
+                    Engine::Coupled => (5e-4, 3e-3),
+                };
                 assert!(
-                    dt.abs() < 1e-4 && df.abs() < 1e-4 && de.abs() < 1e-3,
+                    dt.abs() < tight_shape && df.abs() < tight_shape && de.abs() < tight_e,
                     "{at}: τ {dt:+e}, F {df:+e}, E {de:+e}"
                 );
             }

@@ -5,6 +5,15 @@ use std::f64::consts::PI;
 
 use ftafm::cli::paper;
 use ftafm::config::{Engine, Settings, default_settings};
+
+/// The defaults on the paper engine, whose spectrum is exactly the 1-DOF model's (this file's
+/// reference; the coupled engine, the default, is tests/synth_coupled.rs's, and clear of the
+/// surface it is this engine's stream bit for bit).
+fn paper_defaults() -> Settings {
+    let mut s = default_settings();
+    s.synth.engine = Engine::Paper;
+    s
+}
 use ftafm::physics::spectrum::{cut_cosine_train, photodiode_transfer};
 use ftafm::synth::{BOLTZMANN, SynthPlan, SynthState};
 use rustfft::num_complex::Complex64;
@@ -111,21 +120,21 @@ fn check_against_paper(settings: &Settings, samples_per_window: usize, periods: 
 #[test]
 fn steady_state_harmonics_match_the_paper_spectrum() {
     // 100 samples per period; 200 whole periods.
-    check_against_paper(&quiet(default_settings()), 20_000, 200);
+    check_against_paper(&quiet(paper_defaults()), 20_000, 200);
 }
 
 #[test]
 fn the_pulse_is_placed_to_a_fraction_of_a_sample() {
     // 97.3 samples per period: the pulse (≈ 5 samples wide) lands at a different sub-sample
     // offset every period; 973 samples hold exactly 10 periods.
-    let mut s = quiet(default_settings());
+    let mut s = quiet(paper_defaults());
     s.synth.sample_rate = 9.73e6;
     check_against_paper(&s, 973 * 20, 200);
 }
 
 #[test]
 fn the_stream_starts_in_steady_state() {
-    let settings = quiet(default_settings());
+    let settings = quiet(paper_defaults());
     let plan = SynthPlan::new(&settings).unwrap();
     let mut state = SynthState::steady(&plan, 1);
     let first = run(&plan, &mut state, 100);
@@ -139,7 +148,7 @@ fn the_stream_starts_in_steady_state() {
 
 #[test]
 fn same_seed_same_stream_whatever_the_block_size() {
-    let settings = default_settings();
+    let settings = paper_defaults();
     let plan = SynthPlan::new(&settings).unwrap();
     let mut a = SynthState::steady(&plan, 7);
     let whole = run(&plan, &mut a, 10_000);
@@ -174,7 +183,7 @@ fn thermal_noise_obeys_equipartition() {
 fn equipartition(engine: Engine) {
     // No contact, no drive to speak of, thermal noise only. Each mode contributes
     // (light-lever factor)²·φn(L)²·k_B·T/Kn to the photodiode variance, on either engine.
-    let mut s = default_settings();
+    let mut s = paper_defaults();
     s.synth.engine = engine;
     s.surface.distance = 1e-6;
     s.drive.free_amplitude = 1e-15;
@@ -218,7 +227,7 @@ fn equipartition(engine: Engine) {
 
 #[test]
 fn a_live_change_is_a_physical_transient_not_a_jump() {
-    let silicon = quiet(default_settings());
+    let silicon = quiet(paper_defaults());
     let mut softer = silicon.clone();
     softer.sample.youngs_modulus = 60e9;
     let old = SynthPlan::new(&silicon).unwrap();
@@ -258,7 +267,7 @@ fn a_live_change_is_a_physical_transient_not_a_jump() {
 
 #[test]
 fn the_adc_quantises_clips_and_counts() {
-    let mut s = default_settings();
+    let mut s = paper_defaults();
     s.noise.enable = true;
     s.noise.temperature = 0.0;
     s.noise.detector_density = 0.0;
@@ -289,7 +298,7 @@ fn the_adc_quantises_clips_and_counts() {
 #[test]
 fn detector_noise_has_the_configured_density() {
     // White noise of one-sided density ρ over 0…f_s/2 has variance ρ²·f_s/2.
-    let mut s = default_settings();
+    let mut s = paper_defaults();
     s.surface.distance = 1e-6;
     s.drive.free_amplitude = 1e-15;
     s.noise.enable = true;
@@ -312,7 +321,7 @@ fn detector_noise_has_the_configured_density() {
 fn a_new_seed_restarts_the_noise_from_that_seed() {
     // Detector noise only (no thermal state carried in the modes), so after the reseed two
     // streams must agree to the bit.
-    let mut settings = default_settings();
+    let mut settings = paper_defaults();
     settings.noise.temperature = 0.0;
     let mut reseeded = settings.clone();
     reseeded.synth.seed = 99;
@@ -338,11 +347,11 @@ fn turning_the_anti_alias_filter_on_and_off_while_running_is_seamless() {
     // The filter's delay (14.5 samples) shifts the stream when it turns on or off, by at
     // most the signal's change over that time; it must not start from a stale history.
     let off = {
-        let mut s = quiet(default_settings());
+        let mut s = quiet(paper_defaults());
         s.synth.anti_alias = false;
         s
     };
-    let on = quiet(default_settings());
+    let on = quiet(paper_defaults());
     let (p_off, p_on) = (SynthPlan::new(&off).unwrap(), SynthPlan::new(&on).unwrap());
     let mut state = SynthState::steady(&p_off, 1);
     let before = run(&p_off, &mut state, 10_000);

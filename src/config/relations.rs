@@ -1023,6 +1023,7 @@ mod tests {
     #[test]
     fn adhesion_on_the_paper_engine_is_a_warning_on_its_nodes_and_in_status() {
         let mut s = default_settings();
+        s.synth.engine = Engine::Paper;
         assert!(s.warnings().is_empty());
         s.adhesion.enable = true;
         s.validate().unwrap();

@@ -74,6 +74,8 @@ pub struct Assembler {
     pixels: u32,
     sample_rate: f64,
     estimator: Option<ForceEstimator>,
+    /// The settings `estimator` was built for.
+    estimator_settings: Option<Settings>,
     topography: BTreeMap<(u32, u64), PixelTopography>,
     /// Newest topography key seen.
     latest_topography: Option<(u32, u64)>,
@@ -98,6 +100,7 @@ impl Assembler {
             pixels: 0,
             sample_rate: 0.0,
             estimator: None,
+            estimator_settings: None,
             topography: BTreeMap::new(),
             latest_topography: None,
             pending: VecDeque::new(),
@@ -119,7 +122,17 @@ impl Assembler {
         // One estimate per pixel, whatever the live stream averages.
         let mut s = settings.clone();
         s.inversion.averaging = 1;
-        self.estimator = ForceEstimator::new(&s).ok().flatten();
+        // A change of the scan or the sample keeps the estimator (a coupled engine's table
+        // takes seconds to build).
+        if self
+            .estimator_settings
+            .as_ref()
+            .is_none_or(|built| !ForceEstimator::same_model(built, &s))
+        {
+            let seed = self.estimator.as_ref().and_then(ForceEstimator::seed);
+            self.estimator = ForceEstimator::seeded(&s, seed).ok().flatten();
+            self.estimator_settings = Some(s);
+        }
     }
 
     /// Takes a pixel's topography.

@@ -216,7 +216,8 @@ impl CoupledProblem {
     /// The orbit of a problem that differs little from the one `from` was found for (e.g.
     /// the next node of a table in the sample's modulus), far cheaper than [`Self::solve`]:
     /// no transient, and Newton's matrix is `from`'s until the residual stops falling by
-    /// half per iteration (a chord method; then it is recomputed here). Returns the orbit and
+    /// half per iteration (a chord method; then it is recomputed at the current iterate,
+    /// whenever a step fails to halve the residual, up to 8 times). Returns the orbit and
     /// what the next problem can continue from.
     ///
     /// The orbit's Floquet fields come from the last Jacobian computed, which may be
@@ -249,11 +250,13 @@ impl CoupledProblem {
         };
         let mut h = from.h.clone();
         let mut jacobian = from.jacobian.clone();
-        let mut fresh = false;
+        // Whether a Jacobian was computed here, whether it is that of the current iterate,
+        // and how many were.
+        let (mut fresh, mut current, mut refreshes) = (false, false, 0);
         let mut next = map.period(&h, CONTACT_STEP_SHOOT, None)?;
         let mut residual = residual_of(&h, &next);
         let mut iterations = 0;
-        while residual >= CONTINUED_RESIDUAL && iterations < 40 {
+        while residual >= CONTINUED_RESIDUAL && iterations < 60 {
             iterations += 1;
             let mut a = jacobian.clone();
             for (i, row) in a.iter_mut().enumerate() {
@@ -267,12 +270,16 @@ impl CoupledProblem {
             let r = residual_of(&trial, &trial_next);
             if r < 0.5 * residual {
                 (h, next, residual) = (trial, trial_next, r);
-            } else if !fresh {
-                // The borrowed matrix no longer helps: Newton's own, here.
+                current = false;
+            } else if !current && refreshes < 8 {
+                // The matrix (borrowed, or from an earlier iterate) no longer helps:
+                // Newton's own, here.
                 jacobian = map.jacobian(&h, &scale)?;
-                fresh = true;
+                (fresh, current) = (true, true);
+                refreshes += 1;
             } else if r < residual {
                 (h, next, residual) = (trial, trial_next, r);
+                current = false;
             } else {
                 break;
             }

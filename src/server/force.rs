@@ -174,6 +174,9 @@ fn build_loop(
     worker: &SyncSender<Input>,
 ) {
     lower_priority(BUILDER_NICE);
+    // The last coupled table's orbits: the next build starts from them (a sweep's next
+    // point is a small change).
+    let mut seed = None;
     loop {
         let Some((settings, generation)) = pending.wait(Duration::from_secs(1)) else {
             if pending.is_closed() {
@@ -182,8 +185,13 @@ fn build_loop(
             continue;
         };
         let start = Instant::now();
-        let (next, why) = match ForceEstimator::new(&settings) {
-            Ok(Some(e)) => (Some(Box::new(e)), String::new()),
+        let (next, why) = match ForceEstimator::seeded(&settings, seed.as_ref()) {
+            Ok(Some(e)) => {
+                if let Some(s) = e.seed() {
+                    seed = Some(s.clone());
+                }
+                (Some(Box::new(e)), String::new())
+            }
             Ok(None) => (
                 None,
                 "the inversion is off (/inversion/enable = false)".into(),
