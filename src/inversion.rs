@@ -17,8 +17,10 @@
 //! - **full**: τ, F and the pulse phase of the cut cosine fitted to *every* demodulated
 //!   harmonic ≥ 2 by weighted least squares (maximum likelihood; [`fit_cut_cosine`]), which
 //!   for the default noise is the Cramér–Rao-efficient estimate (docs/ft-afm.md);
-//! - the modulus: (F, τ) with their covariance through a table of the 1-DOF Hertz model
-//!   ([`ModulusTable`]), built when the estimator is;
+//! - the modulus: (F, τ) with their covariance through a table ([`ModulusTable`]) built
+//!   when the estimator is: of the 1-DOF Hertz model on the paper engine, of what the
+//!   method reads off coupled orbits on the coupled engine; there the reported F and τ are
+//!   the pulse's own (the table's ratio at the estimated E);
 //! - the waveform: every harmonic whose expected signal is above 3σ divided by the transfer
 //!   function (Stark et al. 2002), the rest from the method's cut cosine.
 
@@ -106,7 +108,8 @@ struct DemodNoise {
 }
 
 /// Builds estimates from demodulator frames. Construct it off any latency-sensitive path:
-/// the modulus table takes about 0.1 s. [`Self::push`] keeps the running average of the
+/// the modulus table takes about 0.1 s on the paper engine, 1.3–2.8 s on the coupled one
+/// (docs/ft-afm.md). [`Self::push`] keeps the running average of the
 /// live stream; [`Self::estimate_frame`] takes `&self` and estimates from any phasors.
 pub struct ForceEstimator {
     fitter: Fitter,

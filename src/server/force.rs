@@ -71,7 +71,8 @@ impl Drop for ForceLink {
 }
 
 /// Nice value of the estimator builder: it yields the CPU to the real-time threads and the
-/// hub when they need it (a build is ~0.1 s of work that nothing waits on in real time).
+/// hub when they need it (a build is ~0.1 s of work on the paper engine, 1.3–2.8 s on the
+/// coupled one, that nothing waits on in real time).
 const BUILDER_NICE: i32 = 10;
 /// The builder spends at most this fraction of a core building, however many changes come:
 /// after a build of `d` it rests `d · (1/BUILD_DUTY − 1)` before the next.
@@ -152,7 +153,7 @@ impl ForceLink {
     }
 
     /// Asks for the estimator of `settings`, built off the request path (the modulus table
-    /// and the lock-in model take ~0.1 s); only the newest of the changes made meanwhile is
+    /// and the lock-in model take 0.1–3 s); only the newest of the changes made meanwhile is
     /// built.
     pub fn rebuild(&self, settings: Settings) {
         let generation = self.generation.fetch_add(1, Ordering::SeqCst) + 1;
