@@ -368,8 +368,8 @@ async fn an_approach_reports_the_force_estimates_and_mean_deflection_of_each_poi
         if model.in_contact() {
             assert!(force["estimates"].as_u64().unwrap() >= 1, "{force}");
             // The estimate agrees with the 1-DOF force within its own reported uncertainty
-            // (4σ) and 2 % (the coupled engine's force, the default, is within 1 % of the
-            // 1-DOF one here: docs/ft-afm.md).
+            // (4σ) and 2 % (the coupled engine's force is within 1 % of the 1-DOF one
+            // here: docs/ft-afm.md).
             let f = force["max_force"].as_f64().unwrap();
             let sigma = force["max_force_sigma"].as_f64().unwrap();
             assert!(sigma > 0.0 && sigma < 0.2 * f, "{force}");
