@@ -301,10 +301,11 @@ fn sigterm_with_1500_half_open_connections_exits_cleanly() {
 /// residual and period; the text shows both engines side by side.
 #[test]
 fn paper_reports_either_engine_and_both_side_by_side() {
-    let out = ftafm(&["paper", "--engine", "coupled", "--json"]);
+    // The configured engine by default: the coupled one.
+    let out = ftafm(&["paper", "--json"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let coupled: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    let out = ftafm(&["paper", "--json"]);
+    let out = ftafm(&["paper", "--engine", "paper", "--json"]);
     let paper: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(coupled["engine"], "coupled");
     assert_eq!(paper["engine"], "paper");

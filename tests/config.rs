@@ -46,7 +46,7 @@ fn default_is_the_papers_silicon_case() {
     assert_eq!(s.drive.free_amplitude, 30e-9);
     assert_eq!(s.surface.distance, 20e-9);
     assert_eq!(s.synth.sample_rate, 10e6);
-    assert_eq!(s.synth.engine, Engine::Paper);
+    assert_eq!(s.synth.engine, Engine::Coupled);
     assert_eq!(s.synth.seed, 1);
     assert!(s.synth.realtime);
     assert!(s.noise.enable);

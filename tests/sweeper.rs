@@ -334,8 +334,12 @@ async fn on_the_coupled_engine_the_approach_follows_the_periodic_orbit() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_approach_reports_the_force_estimates_and_mean_deflection_of_each_point() {
     // The default chain (10 MS/s, the inversion on), free-running, with demodulator 31
-    // measuring the mean (harmonic 0).
+    // measuring the mean (harmonic 0), on the paper engine: the reference is the 1-DOF
+    // model, and its estimator builds in 0.1 s. (The coupled engine's takes 1–2 s of CPU at
+    // nice 10, which a free-running chain on a busy 2-vCPU machine starves past the point's
+    // 60 s wait: docs/ft-afm.md.)
     let mut settings = ftafm::config::default_settings();
+    settings.synth.engine = ftafm::config::Engine::Paper;
     settings.synth.realtime = false;
     settings.demods[31].harmonic = 0;
     let d = Daemon::start(settings.clone()).await;
@@ -368,8 +372,7 @@ async fn an_approach_reports_the_force_estimates_and_mean_deflection_of_each_poi
         if model.in_contact() {
             assert!(force["estimates"].as_u64().unwrap() >= 1, "{force}");
             // The estimate agrees with the 1-DOF force within its own reported uncertainty
-            // (4σ) and 2 % (the coupled engine's force is within 1 % of the 1-DOF one
-            // here: docs/ft-afm.md).
+            // (4σ) and 2 %.
             let f = force["max_force"].as_f64().unwrap();
             let sigma = force["max_force_sigma"].as_f64().unwrap();
             assert!(sigma > 0.0 && sigma < 0.2 * f, "{force}");
