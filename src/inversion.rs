@@ -108,7 +108,7 @@ struct DemodNoise {
 }
 
 /// Builds estimates from demodulator frames. Construct it off any latency-sensitive path:
-/// the modulus table takes about 0.1 s on the paper engine, 1.3–2.8 s on the coupled one
+/// the modulus table takes about 0.1 s on the paper engine, 0.8–2.1 s on the coupled one
 /// (docs/ft-afm.md). [`Self::push`] keeps the running average of the
 /// live stream; [`Self::estimate_frame`] takes `&self` and estimates from any phasors.
 pub struct ForceEstimator {

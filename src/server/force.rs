@@ -71,7 +71,7 @@ impl Drop for ForceLink {
 }
 
 /// Nice value of the estimator builder: it yields the CPU to the real-time threads and the
-/// hub when they need it (a build is ~0.1 s of work on the paper engine, 1.3–2.8 s on the
+/// hub when they need it (a build is ~0.1 s of work on the paper engine, 0.8–2.1 s on the
 /// coupled one, that nothing waits on in real time).
 const BUILDER_NICE: i32 = 10;
 /// The builder spends at most this fraction of a core building, however many changes come:
