@@ -289,21 +289,13 @@ impl CoupledProblem {
                 "the continuation is for another number of modes".into(),
             ));
         }
-        let residual_of = |h: &[f64], next: &[f64]| -> f64 {
-            h.iter()
-                .zip(next)
-                .zip(&scale)
-                .map(|((a, b), s)| ((b - a) / s).powi(2))
-                .sum::<f64>()
-                .sqrt()
-        };
         let mut h = from.h.clone();
         let mut jacobian = from.jacobian.clone();
         // Whether a Jacobian was computed here, whether it is that of the current iterate,
         // and how many were.
         let (mut fresh, mut current, mut refreshes) = (false, false, 0);
         let mut next = map.period(&h, CONTACT_STEP_SHOOT, None)?;
-        let mut residual = residual_of(&h, &next);
+        let mut residual = map.residual(&h, &next);
         let mut iterations = 0;
         while residual >= CONTINUED_RESIDUAL && iterations < 60 {
             iterations += 1;
@@ -316,7 +308,7 @@ impl CoupledProblem {
                 .ok_or_else(|| CoupledError::Integration("singular Newton matrix".into()))?;
             let trial: Vec<f64> = h.iter().zip(&delta).map(|(x, d)| x + d).collect();
             let trial_next = map.period(&trial, CONTACT_STEP_SHOOT, None)?;
-            let r = residual_of(&trial, &trial_next);
+            let r = map.residual(&trial, &trial_next);
             if r < 0.5 * residual {
                 (h, next, residual) = (trial, trial_next, r);
                 current = false;
@@ -391,17 +383,9 @@ impl CoupledProblem {
         }
         // Newton on F(h) = Φ(h) − h, in scaled variables.
         let scale = map.scales();
-        let residual_of = |h: &[f64], next: &[f64]| -> f64 {
-            h.iter()
-                .zip(next)
-                .zip(&scale)
-                .map(|((a, b), s)| ((b - a) / s).powi(2))
-                .sum::<f64>()
-                .sqrt()
-        };
         let mut iterations = 0;
         let mut next = map.period(&h, CONTACT_STEP_SHOOT, None)?;
-        let mut residual = residual_of(&h, &next);
+        let mut residual = map.residual(&h, &next);
         let mut jacobian = vec![vec![0.0; n2]; n2];
         for _ in 0..30 {
             jacobian = map.jacobian(&h, &scale)?;
@@ -422,7 +406,7 @@ impl CoupledProblem {
             loop {
                 let trial: Vec<f64> = h.iter().zip(&delta).map(|(x, d)| x + step * d).collect();
                 let trial_next = map.period(&trial, CONTACT_STEP_SHOOT, None)?;
-                let r = residual_of(&trial, &trial_next);
+                let r = map.residual(&trial, &trial_next);
                 if r < residual || step < 1.0 / 64.0 {
                     h = trial;
                     next = trial_next;
@@ -631,6 +615,16 @@ impl<'a> PeriodMap<'a> {
                 [a, a * m.omega]
             })
             .collect()
+    }
+
+    /// Scaled distance |h(T) − h(0)| of `next` = Φ(`h`) from `h`: the fixed point's residual.
+    fn residual(&self, h: &[f64], next: &[f64]) -> f64 {
+        h.iter()
+            .zip(next)
+            .zip(&self.scale)
+            .map(|((a, b), s)| ((b - a) / s).powi(2))
+            .sum::<f64>()
+            .sqrt()
     }
 
     /// Base position and velocity at t.
