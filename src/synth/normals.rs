@@ -215,6 +215,7 @@ mod avx2 {
     /// The CPU must have AVX2.
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn fill_batches(s: &mut [[u64; LANES]; 4], out: &mut [f64]) {
+        crate::cpu::align_frame();
         let load = |w: &[u64; LANES], half: usize| {
             // SAFETY: four u64 in bounds; unaligned load.
             unsafe { _mm256_loadu_si256(w[4 * half..].as_ptr().cast()) }

@@ -231,6 +231,7 @@ impl SynthPlan {
         state: &mut SynthState,
         out: &mut [f64],
     ) {
+        crate::cpu::align_frame();
         self.process_modes::<Avx512x8>(pulse, coupled, state, out);
     }
 
@@ -246,6 +247,7 @@ impl SynthPlan {
         state: &mut SynthState,
         out: &mut [f64],
     ) {
+        crate::cpu::align_frame();
         self.process_modes::<Avx8>(pulse, coupled, state, out);
     }
 
