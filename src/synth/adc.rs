@@ -95,8 +95,32 @@ pub struct AdcFilter {
     pub(crate) grid: Vec<f64>,
     /// [`MID_HISTORY`] past midpoints, then the chunk's.
     pub(crate) mid: Vec<f64>,
-    /// Whether the CPU has AVX2 and FMA.
-    fma: bool,
+    /// The widest kernel the CPU runs.
+    kernel: Kernel,
+}
+
+/// The builds of [`AdcFilter::decimate`]. The fused ones give the same bits as each
+/// other (the same fused multiply-adds in the same order per output); the portable one's
+/// last bits differ from theirs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kernel {
+    Portable,
+    /// AVX2 and FMA: sixteen outputs in four registers, the taps streamed past them.
+    Avx2Fma,
+    /// AVX-512: thirty-two outputs in four registers.
+    Avx512,
+}
+
+impl Kernel {
+    fn detect() -> Self {
+        if crate::cpu::avx512_available() && crate::cpu::fma_available() {
+            Self::Avx512
+        } else if crate::cpu::fma_available() {
+            Self::Avx2Fma
+        } else {
+            Self::Portable
+        }
+    }
 }
 
 impl AdcFilter {
@@ -114,7 +138,7 @@ impl AdcFilter {
         Self {
             grid,
             mid,
-            fma: crate::cpu::fma_available(),
+            kernel: Kernel::detect(),
         }
     }
 
@@ -138,24 +162,98 @@ impl AdcFilter {
 
     /// Filters the `n` grid and midpoint samples written behind the histories into `out`
     /// (`out.len()` = n), then keeps the newest as history. Allocation-free. With AVX2 and
-    /// FMA (detected once, at construction) the taps are fused multiply-adds, four lanes
-    /// wide; the last bits then differ from the portable path's.
+    /// FMA (detected once, at construction) the taps are fused multiply-adds; the last
+    /// bits then differ from the portable path's.
     #[inline]
     pub(crate) fn decimate(&mut self, taps: &[f64; GRID_TAPS], out: &mut [f64]) {
-        #[cfg(target_arch = "x86_64")]
-        if self.fma {
-            // SAFETY: `fma` is true only where the CPU has AVX2 and FMA.
-            unsafe { self.decimate_avx2_fma(taps, out) };
-            return;
+        match self.kernel {
+            // SAFETY: `kernel` names an instruction set only where the CPU has it.
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx512 => unsafe { self.decimate_avx512(taps, out) },
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2Fma => unsafe { self.decimate_avx2_fma(taps, out) },
+            _ => self.decimate_with::<false>(taps, out),
         }
-        self.decimate_with::<false>(taps, out);
     }
 
     /// [`decimate`](Self::decimate) compiled for AVX2 and FMA. The CPU must have both.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     unsafe fn decimate_avx2_fma(&mut self, taps: &[f64; GRID_TAPS], out: &mut [f64]) {
-        self.decimate_with::<true>(taps, out);
+        use std::arch::x86_64::*;
+        crate::cpu::align_frame();
+        const W: usize = 4;
+        let n = out.len();
+        let blocks = n / (4 * W) * (4 * W);
+        let (grid, mid) = (&self.grid, &self.mid);
+        for i in (0..blocks).step_by(4 * W) {
+            // SAFETY: every load and store below is of four f64 within the slices: output
+            // i + 15 < n reads grid i + 15 + 2K + 1 < n + GRID_HISTORY and midpoint i + 15.
+            unsafe {
+                let load = |x: &[f64], at: usize| _mm256_loadu_pd(x[at..at + W].as_ptr());
+                let half = _mm256_set1_pd(0.5);
+                let mut y: [__m256d; 4] =
+                    std::array::from_fn(|b| _mm256_mul_pd(half, load(mid, i + b * W)));
+                for (t, &c) in taps.iter().rev().enumerate() {
+                    let c = _mm256_set1_pd(c);
+                    for (b, y) in y.iter_mut().enumerate() {
+                        *y = _mm256_fmadd_pd(c, load(grid, t + i + b * W), *y);
+                    }
+                }
+                for (b, y) in y.iter().enumerate() {
+                    _mm256_storeu_pd(out[i + b * W..i + b * W + W].as_mut_ptr(), *y);
+                }
+            }
+        }
+        self.decimate_tail(taps, out, blocks);
+    }
+
+    /// [`decimate`](Self::decimate) compiled for AVX-512. The CPU must have AVX-512F,
+    /// AVX2 and FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx2,fma")]
+    unsafe fn decimate_avx512(&mut self, taps: &[f64; GRID_TAPS], out: &mut [f64]) {
+        use std::arch::x86_64::*;
+        crate::cpu::align_frame();
+        const W: usize = 8;
+        let n = out.len();
+        let blocks = n / (4 * W) * (4 * W);
+        let (grid, mid) = (&self.grid, &self.mid);
+        for i in (0..blocks).step_by(4 * W) {
+            // SAFETY: as in `decimate_avx2_fma`, eight f64 at a time.
+            unsafe {
+                let load = |x: &[f64], at: usize| _mm512_loadu_pd(x[at..at + W].as_ptr());
+                let half = _mm512_set1_pd(0.5);
+                let mut y: [__m512d; 4] =
+                    std::array::from_fn(|b| _mm512_mul_pd(half, load(mid, i + b * W)));
+                for (t, &c) in taps.iter().rev().enumerate() {
+                    let c = _mm512_set1_pd(c);
+                    for (b, y) in y.iter_mut().enumerate() {
+                        *y = _mm512_fmadd_pd(c, load(grid, t + i + b * W), *y);
+                    }
+                }
+                for (b, y) in y.iter().enumerate() {
+                    _mm512_storeu_pd(out[i + b * W..i + b * W + W].as_mut_ptr(), *y);
+                }
+            }
+        }
+        self.decimate_tail(taps, out, blocks);
+    }
+
+    /// The fused kernels' outputs from `from` on, one at a time (the same fused
+    /// multiply-adds in the same order), then the histories kept. Inlined into them.
+    #[inline(always)]
+    fn decimate_tail(&mut self, taps: &[f64; GRID_TAPS], out: &mut [f64], from: usize) {
+        let n = out.len();
+        for (i, y) in out.iter_mut().enumerate().skip(from) {
+            let mut acc = 0.5 * self.mid[i];
+            for (t, &c) in taps.iter().rev().enumerate() {
+                acc = c.mul_add(self.grid[t + i], acc);
+            }
+            *y = acc;
+        }
+        self.grid.copy_within(n..n + GRID_HISTORY, 0);
+        self.mid.copy_within(n..n + MID_HISTORY, 0);
     }
 
     #[inline(always)]
@@ -242,6 +340,46 @@ mod tests {
         adc.remember(&before[..10]);
         adc.remember(&before[10..]);
         decimates_to_the_delayed_signal(&mut adc, &taps, x, 1e-3);
+    }
+
+    /// The register-blocked kernels give the bits of the tap-by-tap fused loop, for chunk
+    /// lengths with and without a tail.
+    #[test]
+    fn the_fused_kernels_are_the_tap_by_tap_fused_loop_bit_for_bit() {
+        let taps = grid_taps();
+        let x = |j: usize| ((j as f64) * 0.377).sin() * 1e-8 + ((j as f64) * 0.0123).cos() * 3e-8;
+        for kernel in [Kernel::Avx512, Kernel::Avx2Fma] {
+            if !match kernel {
+                Kernel::Avx512 => crate::cpu::avx512_available() && crate::cpu::fma_available(),
+                _ => crate::cpu::fma_available(),
+            } {
+                continue;
+            }
+            for len in [256, 255, 47, 32, 16, 5, 1] {
+                let mut fast = AdcFilter::new(256, |j| x(1000 + j));
+                fast.kernel = kernel;
+                let mut reference = fast.clone();
+                let mut a = vec![0.0; len];
+                let mut b = vec![0.0; len];
+                for round in 0..3 {
+                    for n in 0..len {
+                        let g = 2 * (round * len + n);
+                        fast.grid[GRID_HISTORY + n] = x(g);
+                        fast.mid[MID_HISTORY + n] = x(g + 1);
+                        reference.grid[GRID_HISTORY + n] = x(g);
+                        reference.mid[MID_HISTORY + n] = x(g + 1);
+                    }
+                    fast.decimate(&taps, &mut a);
+                    reference.decimate_with::<true>(&taps, &mut b);
+                    assert!(
+                        a.iter().zip(&b).all(|(p, q)| p.to_bits() == q.to_bits()),
+                        "{kernel:?}, {len} samples, round {round}"
+                    );
+                    assert_eq!(fast.grid, reference.grid);
+                    assert_eq!(fast.mid, reference.mid);
+                }
+            }
+        }
     }
 
     #[test]
