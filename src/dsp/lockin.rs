@@ -116,8 +116,11 @@ impl LockInSample {
 /// Sixteen lanes of one quantity.
 type Lanes = [f64; BLOCK];
 
-/// Constants of one block of lanes.
+/// Constants of one block of lanes. Aligned to a cache line, so that no vector load of
+/// its lanes splits across two (the heap gives 16 bytes otherwise: the bank's speed then
+/// depended on where its blocks happened to land).
 #[derive(Clone, Debug)]
+#[repr(align(64))]
 struct BlockConstants {
     /// `e^{−ikωD}`: the reference phasor's rotation per decimated sample.
     step_re: Lanes,
@@ -127,8 +130,10 @@ struct BlockConstants {
 }
 
 /// State of one block of lanes. One struct per block, so that the compiler sees one
-/// object and no aliasing between its arrays.
+/// object and no aliasing between its arrays; aligned to a cache line, as
+/// [`BlockConstants`].
 #[derive(Clone, Debug)]
+#[repr(align(64))]
 struct BlockState {
     /// `e^{−ikθ[m_c]}` for the next decimated sample.
     rot_re: Lanes,
