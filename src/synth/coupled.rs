@@ -234,7 +234,14 @@ impl CoupledKernel {
     pub(crate) fn force(&self, gap: f64) -> f64 {
         if gap < 0.0 {
             let delta = -gap;
-            self.stiffness * delta * delta.sqrt() - self.pull_off
+            let hertz = self.stiffness * delta * delta.sqrt();
+            // x − 0 is x, bit for bit: without adhesion the subtraction would only lengthen
+            // the sub-steps' chain from one force to the next.
+            if self.pull_off != 0.0 {
+                hertz - self.pull_off
+            } else {
+                hertz
+            }
         } else if self.strength != 0.0 {
             let d = self.a0 + gap;
             -self.strength / (d * d)
