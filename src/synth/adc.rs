@@ -123,6 +123,78 @@ impl Kernel {
     }
 }
 
+/// A vector of f64 for the fused kernels. Its functions are for code compiled with the
+/// vector's instructions, on a CPU that has them.
+#[cfg(target_arch = "x86_64")]
+trait FusedVector: Copy {
+    /// Lanes.
+    const WIDTH: usize;
+    /// The first `WIDTH` of `x` (at least that long).
+    unsafe fn load(x: &[f64]) -> Self;
+    /// Writes the lanes to the first `WIDTH` of `x` (at least that long).
+    unsafe fn store(self, x: &mut [f64]);
+    unsafe fn splat(c: f64) -> Self;
+    unsafe fn mul(self, o: Self) -> Self;
+    /// `self·a + b`, rounded once.
+    unsafe fn mul_add(self, a: Self, b: Self) -> Self;
+}
+
+#[cfg(target_arch = "x86_64")]
+mod fused {
+    use super::FusedVector;
+    use std::arch::x86_64::*;
+
+    // SAFETY (all): the slices are sliced to WIDTH first (bounds-checked); the CPU's
+    // instructions are the caller's promise (the trait's documentation).
+    impl FusedVector for __m256d {
+        const WIDTH: usize = 4;
+        #[inline(always)]
+        unsafe fn load(x: &[f64]) -> Self {
+            unsafe { _mm256_loadu_pd(x[..4].as_ptr()) }
+        }
+        #[inline(always)]
+        unsafe fn store(self, x: &mut [f64]) {
+            unsafe { _mm256_storeu_pd(x[..4].as_mut_ptr(), self) }
+        }
+        #[inline(always)]
+        unsafe fn splat(c: f64) -> Self {
+            unsafe { _mm256_set1_pd(c) }
+        }
+        #[inline(always)]
+        unsafe fn mul(self, o: Self) -> Self {
+            unsafe { _mm256_mul_pd(self, o) }
+        }
+        #[inline(always)]
+        unsafe fn mul_add(self, a: Self, b: Self) -> Self {
+            unsafe { _mm256_fmadd_pd(self, a, b) }
+        }
+    }
+
+    impl FusedVector for __m512d {
+        const WIDTH: usize = 8;
+        #[inline(always)]
+        unsafe fn load(x: &[f64]) -> Self {
+            unsafe { _mm512_loadu_pd(x[..8].as_ptr()) }
+        }
+        #[inline(always)]
+        unsafe fn store(self, x: &mut [f64]) {
+            unsafe { _mm512_storeu_pd(x[..8].as_mut_ptr(), self) }
+        }
+        #[inline(always)]
+        unsafe fn splat(c: f64) -> Self {
+            unsafe { _mm512_set1_pd(c) }
+        }
+        #[inline(always)]
+        unsafe fn mul(self, o: Self) -> Self {
+            unsafe { _mm512_mul_pd(self, o) }
+        }
+        #[inline(always)]
+        unsafe fn mul_add(self, a: Self, b: Self) -> Self {
+            unsafe { _mm512_fmadd_pd(self, a, b) }
+        }
+    }
+}
+
 impl AdcFilter {
     /// A filter for chunks of up to `chunk` samples, its history filled by `past(j)`,
     /// the signal j half samples before the first output (j = 1, 2, …).
@@ -180,32 +252,8 @@ impl AdcFilter {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     unsafe fn decimate_avx2_fma(&mut self, taps: &[f64; GRID_TAPS], out: &mut [f64]) {
-        use std::arch::x86_64::*;
-        crate::cpu::align_frame();
-        const W: usize = 4;
-        let n = out.len();
-        let blocks = n / (4 * W) * (4 * W);
-        let (grid, mid) = (&self.grid, &self.mid);
-        for i in (0..blocks).step_by(4 * W) {
-            // SAFETY: every load and store below is of four f64 within the slices: output
-            // i + 15 < n reads grid i + 15 + 2K + 1 < n + GRID_HISTORY and midpoint i + 15.
-            unsafe {
-                let load = |x: &[f64], at: usize| _mm256_loadu_pd(x[at..at + W].as_ptr());
-                let half = _mm256_set1_pd(0.5);
-                let mut y: [__m256d; 4] =
-                    std::array::from_fn(|b| _mm256_mul_pd(half, load(mid, i + b * W)));
-                for (t, &c) in taps.iter().rev().enumerate() {
-                    let c = _mm256_set1_pd(c);
-                    for (b, y) in y.iter_mut().enumerate() {
-                        *y = _mm256_fmadd_pd(c, load(grid, t + i + b * W), *y);
-                    }
-                }
-                for (b, y) in y.iter().enumerate() {
-                    _mm256_storeu_pd(out[i + b * W..i + b * W + W].as_mut_ptr(), *y);
-                }
-            }
-        }
-        self.decimate_tail(taps, out, blocks);
+        // SAFETY: the caller guarantees AVX2 and FMA, which `__m256d`'s kernel needs.
+        unsafe { self.decimate_fused::<std::arch::x86_64::__m256d>(taps, out) };
     }
 
     /// [`decimate`](Self::decimate) compiled for AVX-512. The CPU must have AVX-512F,
@@ -213,27 +261,38 @@ impl AdcFilter {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f,avx2,fma")]
     unsafe fn decimate_avx512(&mut self, taps: &[f64; GRID_TAPS], out: &mut [f64]) {
-        use std::arch::x86_64::*;
+        // SAFETY: the caller guarantees AVX-512F and FMA, which `__m512d`'s kernel needs.
+        unsafe { self.decimate_fused::<std::arch::x86_64::__m512d>(taps, out) };
+    }
+
+    /// The fused kernels: four registers of `V` hold 4·W outputs while the taps stream
+    /// past them, then the rest one at a time. Inlined into the functions that carry the
+    /// target features.
+    ///
+    /// # Safety
+    /// The CPU must have `V`'s instructions.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn decimate_fused<V: FusedVector>(&mut self, taps: &[f64; GRID_TAPS], out: &mut [f64]) {
         crate::cpu::align_frame();
-        const W: usize = 8;
-        let n = out.len();
-        let blocks = n / (4 * W) * (4 * W);
+        let w = V::WIDTH;
+        let blocks = out.len() / (4 * w) * (4 * w);
         let (grid, mid) = (&self.grid, &self.mid);
-        for i in (0..blocks).step_by(4 * W) {
-            // SAFETY: as in `decimate_avx2_fma`, eight f64 at a time.
+        for i in (0..blocks).step_by(4 * w) {
+            // SAFETY: the CPU has V's instructions (the caller); every load and store is
+            // of `w` f64 inside its slice (bounds-checked): output i + 4w − 1 < n reads
+            // grid samples up to i + 4w − 1 + 2K + 1 < n + GRID_HISTORY and that midpoint.
             unsafe {
-                let load = |x: &[f64], at: usize| _mm512_loadu_pd(x[at..at + W].as_ptr());
-                let half = _mm512_set1_pd(0.5);
-                let mut y: [__m512d; 4] =
-                    std::array::from_fn(|b| _mm512_mul_pd(half, load(mid, i + b * W)));
+                let half = V::splat(0.5);
+                let mut y: [V; 4] = std::array::from_fn(|b| half.mul(V::load(&mid[i + b * w..])));
                 for (t, &c) in taps.iter().rev().enumerate() {
-                    let c = _mm512_set1_pd(c);
+                    let c = V::splat(c);
                     for (b, y) in y.iter_mut().enumerate() {
-                        *y = _mm512_fmadd_pd(c, load(grid, t + i + b * W), *y);
+                        *y = c.mul_add(V::load(&grid[t + i + b * w..]), *y);
                     }
                 }
                 for (b, y) in y.iter().enumerate() {
-                    _mm512_storeu_pd(out[i + b * W..i + b * W + W].as_mut_ptr(), *y);
+                    y.store(&mut out[i + b * w..]);
                 }
             }
         }
