@@ -444,6 +444,59 @@ fn scope_traces_are_the_synthesised_samples_with_their_drive_phase() {
 }
 
 #[test]
+fn with_noise_the_chain_streams_the_offline_synthesis_whoever_draws_the_deviates() {
+    use ftafm::synth::noise_pages::PAGE;
+    use ftafm::synth::{SynthPlan, SynthState};
+    // Noise on: the DSP thread draws pages of deviates ahead, the synthesiser the ones it
+    // finds missing; the stream must be the offline synthesiser's bit for bit either way.
+    let mut settings = default_settings();
+    settings.synth.realtime = false;
+    settings.synth.seed = 12345;
+    settings.scope.length = 500;
+    settings.scope.decimation = 1;
+    settings.scope.rate = 100.0;
+    let (pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    let mut traces = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while traces.len() < 4 || pipeline.counters().noise_pages_taken < 2 {
+        output.demods.skip(usize::MAX);
+        while let Some(b) = output.spectra.try_pop() {
+            output.recycle(b);
+        }
+        while let Some(t) = output.scopes.try_pop() {
+            traces.push(t);
+        }
+        assert!(Instant::now() < deadline, "{:?}", pipeline.counters());
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let c = pipeline.stop();
+    assert_eq!(
+        c.noise_pages_taken + c.noise_pages_drawn_inline,
+        c.samples_synthesized / PAGE as u64,
+        "every block's page was taken or drawn in place: {c:?}"
+    );
+    assert!(
+        c.noise_pages_drawn_ahead >= c.noise_pages_taken + c.noise_pages_discarded,
+        "{c:?}"
+    );
+    let plan = SynthPlan::new(&settings).unwrap();
+    let mut state = SynthState::steady(&plan, settings.synth.seed);
+    let last = traces.last().unwrap().sample_index as usize;
+    let mut stream = vec![0.0; last + 1];
+    plan.process(&mut state, &mut stream);
+    assert_eq!(
+        state.noise_pages().drawn,
+        (last as u64 + 1).div_ceil(PAGE as u64)
+    );
+    for t in &traces {
+        let first = t.sample_index as usize - 499;
+        for (j, &s) in t.samples.iter().enumerate() {
+            assert_eq!(s, stream[first + j] as f32, "trace at {first}, sample {j}");
+        }
+    }
+}
+
+#[test]
 fn a_live_change_of_spectrum_size_gives_whole_spectra() {
     let mut settings = free_running_quiet();
     settings.spectrum.size = 1024;

@@ -91,11 +91,14 @@ fn realtime_threads_do_not_allocate_or_free_on(threads: u32) {
     }
     let before = REALTIME_ALLOCATIONS.load(Ordering::SeqCst);
     let processed = pipeline.counters().samples_processed;
+    let pages_taken = pipeline.counters().noise_pages_taken;
     for step in 0..6 {
         let mut next = settings.clone();
         next.sample.youngs_modulus = 100e9 + step as f64 * 5e9;
         next.demods[3].harmonic = 5 + step;
         next.drive.frequency = 100e3 + step as f64 * 10.0;
+        // A new seed makes the pages of noise drawn ahead stale: thrown away, not freed.
+        next.synth.seed = 1 + step as u64 / 2;
         pipeline.apply(&next).unwrap();
         for _ in 0..50 {
             output.drain();
@@ -117,6 +120,10 @@ fn realtime_threads_do_not_allocate_or_free_on(threads: u32) {
         "the chain ran: {c:?}"
     );
     assert_eq!((c.synth_plans_applied, c.dsp_plans_applied), (6, 6));
+    assert!(
+        c.noise_pages_taken > pages_taken,
+        "the DSP thread drew pages of noise ahead and the synthesiser took them: {c:?}"
+    );
     assert_eq!(
         after - before,
         0,

@@ -41,6 +41,10 @@ pub struct Counters {
     pub(crate) topography_pixels_dropped: AtomicU64,
     pub(crate) pixels: AtomicU64,
     pub(crate) pixels_dropped: AtomicU64,
+    pub(crate) noise_pages_drawn_ahead: AtomicU64,
+    pub(crate) noise_pages_taken: AtomicU64,
+    pub(crate) noise_pages_drawn_inline: AtomicU64,
+    pub(crate) noise_pages_discarded: AtomicU64,
     pub(crate) synth_beat_ns: AtomicU64,
     pub(crate) dsp_beat_ns: AtomicU64,
 }
@@ -83,6 +87,10 @@ impl Counters {
             topography_pixels_dropped: r(&self.topography_pixels_dropped),
             pixels: r(&self.pixels),
             pixels_dropped: r(&self.pixels_dropped),
+            noise_pages_drawn_ahead: r(&self.noise_pages_drawn_ahead),
+            noise_pages_taken: r(&self.noise_pages_taken),
+            noise_pages_drawn_inline: r(&self.noise_pages_drawn_inline),
+            noise_pages_discarded: r(&self.noise_pages_discarded),
             synth_idle_ns: idle(&self.synth_beat_ns),
             dsp_idle_ns: idle(&self.dsp_beat_ns),
         }
@@ -139,6 +147,16 @@ pub struct CountersSnapshot {
     /// Scan pixels the DSP lost: cut or skipped by a gap in the stream (an overrun), left
     /// without a single decimated sample, or not taken in time.
     pub pixels_dropped: u64,
+    /// Pages of noise deviates (4096 samples each) the DSP thread drew ahead while it
+    /// waited for blocks.
+    pub noise_pages_drawn_ahead: u64,
+    /// Pages the synthesiser took from those drawn ahead.
+    pub noise_pages_taken: u64,
+    /// Pages the synthesiser drew itself, none being ready (the DSP thread was busy).
+    pub noise_pages_drawn_inline: u64,
+    /// Pages drawn ahead and thrown away: drawn for samples already past (the DSP thread
+    /// fell behind) or for a seed or number of modes that changed.
+    pub noise_pages_discarded: u64,
     /// Time since the synthesiser last finished a block (ns; 0 before its first).
     pub synth_idle_ns: u64,
     /// Time since the DSP thread last finished a block (ns; 0 before its first): grows

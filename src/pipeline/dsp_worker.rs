@@ -12,11 +12,17 @@ use super::block::{BlockHeader, unix_ns};
 use super::counters::{Counters, monotonic_ns};
 use super::dsp_plan::{DspPlan, DspSink};
 use super::dsp_team::DspTeam;
+use crate::synth::noise_pages::PageFactory;
+
 use super::frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
 
 /// Longest the DSP thread sleeps when the ring is empty. The synthesiser wakes it as each
 /// block lands, so this only bounds how late it notices a stop or a new plan.
 const IDLE: Duration = Duration::from_millis(1);
+
+/// Samples waiting in the ring above which this thread is behind and leaves the noise
+/// deviates to the synthesiser: two blocks.
+const NOISE_BACKLOG: usize = 2 * super::BLOCK_SAMPLES;
 
 pub(crate) struct DspWorker {
     pub plan: Box<DspPlan>,
@@ -59,6 +65,9 @@ pub(crate) struct DspWorker {
     pub epochs: Arc<super::Epochs>,
     /// Worker threads for the lock-in bank's shards; stopped and joined with this thread.
     pub team: DspTeam,
+    /// Draws the synthesiser's pages of noise deviates ahead while this thread waits for
+    /// blocks, which balances the two threads' work.
+    pub noise: PageFactory,
 }
 
 /// Stream samples `lo..hi` of a block held in the ring as two slices.
@@ -97,7 +106,11 @@ impl DspWorker {
                 continue;
             }
             let Some(header) = self.headers.try_pop() else {
-                std::thread::park_timeout(IDLE);
+                // Nothing to process: draw the synthesiser's next page of deviates, if it
+                // needs one, else sleep until a block lands.
+                if !self.draw_noise() {
+                    std::thread::park_timeout(IDLE);
+                }
                 continue;
             };
             // Plans of this block's epoch (or earlier) take over from this block on. The
@@ -300,7 +313,27 @@ impl DspWorker {
             Counters::add(&self.counters.dsp_busy_ns, busy.elapsed().as_nanos() as u64);
             Counters::add(&self.counters.samples_processed, len as u64);
             expected = Some(header.index + len as u64);
+            self.draw_noise();
         }
+    }
+
+    /// Draws the synthesiser's next pages of noise deviates, as many as it lacks, unless
+    /// this thread is behind (then the synthesiser draws them itself, which is the same
+    /// bits). Returns whether it drew any.
+    fn draw_noise(&mut self) -> bool {
+        let drawing = Instant::now();
+        let mut drawn = 0;
+        while self.samples.occupied_len() <= NOISE_BACKLOG && self.noise.work() {
+            drawn += 1;
+        }
+        if drawn > 0 {
+            Counters::add(&self.counters.noise_pages_drawn_ahead, drawn);
+            Counters::add(
+                &self.counters.dsp_busy_ns,
+                drawing.elapsed().as_nanos() as u64,
+            );
+        }
+        drawn > 0
     }
 }
 

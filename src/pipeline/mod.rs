@@ -289,7 +289,9 @@ impl Pipeline {
         // A worker without a shard stays parked.
         let team = DspTeam::spawn(dsp_plan::dsp_threads(settings) - 1, settings.synth.realtime)
             .map_err(|e| PipelineError::Thread("dsp worker", e))?;
-        let state = SynthState::steady(&synth_plan, settings.synth.seed);
+        let mut state = SynthState::steady(&synth_plan, settings.synth.seed);
+        let (noise_supply, noise_factory) = crate::synth::noise_pages::page_queue();
+        state.attach_noise_supply(noise_supply);
 
         let (samples_in, samples_out) = HeapRb::<f64>::new(SAMPLE_RING).split();
         let (headers_in, headers_out) =
@@ -363,6 +365,7 @@ impl Pipeline {
             pending: None,
             epochs: epochs.clone(),
             team,
+            noise: noise_factory,
         };
         let mut pipeline = Self {
             settings: settings.clone(),

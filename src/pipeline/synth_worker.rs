@@ -92,6 +92,7 @@ impl SynthWorker {
             // synthesis by the ADC filter's delay, so the lock-in sees no shift from it.
             let phase = self.plan.output_phase(self.state.phase());
             let clipped_before = self.state.counters.clipped;
+            let pages_before = self.state.noise_pages();
             let busy = Instant::now();
             if self.plan.scan.is_some() {
                 let (out, counters) = (&mut self.topography, &self.counters);
@@ -113,6 +114,19 @@ impl SynthWorker {
             Counters::add(
                 &self.counters.clipped_samples,
                 self.state.counters.clipped - clipped_before,
+            );
+            let pages = self.state.noise_pages();
+            Counters::add(
+                &self.counters.noise_pages_taken,
+                pages.taken - pages_before.taken,
+            );
+            Counters::add(
+                &self.counters.noise_pages_drawn_inline,
+                pages.drawn - pages_before.drawn,
+            );
+            Counters::add(
+                &self.counters.noise_pages_discarded,
+                pages.discarded - pages_before.discarded,
             );
             Counters::add(&self.counters.samples_synthesized, BLOCK_SAMPLES as u64);
             self.counters

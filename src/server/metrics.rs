@@ -72,6 +72,27 @@ pub(crate) fn render(state: &AppState) -> String {
         &one(counters.clipped_samples),
     );
     metric(
+        "noise_pages_total",
+        "counter",
+        "Pages of noise deviates (4096 samples) the synthesiser used, by the thread that drew them: the DSP thread ahead, or the synthesiser itself when none was ready.",
+        &[
+            (
+                "{drawn_by=\"dsp\"}".into(),
+                counters.noise_pages_taken as f64,
+            ),
+            (
+                "{drawn_by=\"synth\"}".into(),
+                counters.noise_pages_drawn_inline as f64,
+            ),
+        ],
+    );
+    metric(
+        "noise_pages_discarded_total",
+        "counter",
+        "Pages of noise deviates drawn ahead and not used (the synthesiser had passed them, or the seed or the number of modes changed).",
+        &one(counters.noise_pages_discarded),
+    );
+    metric(
         "ring_fill_samples",
         "gauge",
         "Samples waiting in the ring.",

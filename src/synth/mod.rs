@@ -7,6 +7,7 @@ pub mod adc;
 pub mod coupled;
 mod lanes;
 pub mod modal;
+pub mod noise_pages;
 pub mod normals;
 pub mod plan;
 pub mod pulse;

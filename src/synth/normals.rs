@@ -75,6 +75,27 @@ impl NormalSource {
         }
     }
 
+    /// A source whose 32 state words (four per stream) are SplitMix64 outputs `first`,
+    /// `first` + 1, … of `seed`: cheap to make (no jumps), so that every page of deviates
+    /// can have sources of its own ([`super::noise_pages`]). SplitMix64 is a bijection of
+    /// its counter, so sources made from disjoint ranges of outputs never share a state.
+    /// Allocation-free.
+    pub fn splitmix_range(seed: u64, first: u64) -> Self {
+        let mut split = seed.wrapping_add(first.wrapping_mul(SPLITMIX_GAMMA));
+        let mut s = [[0; LANES]; 4];
+        for lane in 0..LANES {
+            for word in s.iter_mut() {
+                word[lane] = splitmix64(&mut split);
+            }
+        }
+        Self {
+            s,
+            batch: [0.0; BATCH],
+            used: BATCH,
+            avx2: crate::cpu::avx2_available(),
+        }
+    }
+
     /// Fills `out` with the next standard normal deviates. Allocation-free. Where the CPU
     /// has AVX2 (detected once, at construction) the batches are drawn with its
     /// instructions; the deviates are the same bits either way.
@@ -339,9 +360,12 @@ mod avx2 {
     }
 }
 
+/// SplitMix64's increment (the golden ratio in 64 bits).
+const SPLITMIX_GAMMA: u64 = 0x9e37_79b9_7f4a_7c15;
+
 /// SplitMix64: the seeding generator xoshiro's authors recommend.
 fn splitmix64(x: &mut u64) -> u64 {
-    *x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    *x = x.wrapping_add(SPLITMIX_GAMMA);
     let mut z = *x;
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);

@@ -14,6 +14,7 @@ use super::coupled::{CoupledKernel, CoupledTrace, SUBSTEPS};
 #[cfg(target_arch = "x86_64")]
 use super::lanes::{Avx8, Avx512x8};
 use super::lanes::{Lanes, Portable};
+use super::noise_pages::{NoisePages, PAGE, PageCounts, PageKey, PageSupply};
 use super::normals::NormalSource;
 
 use super::plan::{SynthPlan, TURN};
@@ -56,13 +57,9 @@ pub struct SynthCounters {
     pub clipped: u64,
 }
 
-/// Samples per chunk of pre-drawn normal deviates: they are drawn many at a time in
-/// vector registers ([`NormalSource`]), then read by the oscillator loop.
+/// Samples per chunk: the loop writes a chunk's grid and midpoint samples, then the ADC
+/// filter decimates them. A chunk never straddles two pages of deviates.
 const CHUNK: usize = 256;
-
-/// Thermal deviates a chunk may hold: one per mode and sample, and the padding that the
-/// last sample's lanes read past its modes.
-const THERMAL_LEN: usize = (CHUNK + 1) * MAX_MODES;
 
 /// Mutable state of the synthesiser. Build it off the real-time thread.
 #[derive(Clone, Debug)]
@@ -72,16 +69,14 @@ pub struct SynthState {
     im: [f64; MAX_MODES],
     phase: u64,
     rho: Complex64,
-    /// The modes' thermal deviates and the detector's: two sources of one seed.
-    thermal_source: NormalSource,
-    detector_source: NormalSource,
-    /// Pre-drawn standard normals for one chunk: per sample one per mode, densely, and
-    /// the detector's. A sample's `L` lanes are read from its first mode's deviate on, so
-    /// lanes past the plan's modes read the next samples' deviates (or the padding at the
-    /// end), which their zero coefficients ignore. Allocated once here, reused by every
-    /// `process`.
-    thermal: Vec<f64>,
-    detector: Vec<f64>,
+    /// Seed of the noise sources.
+    seed: u64,
+    /// The thermal and detector deviates, a page of samples at a time, keyed by the
+    /// absolute sample index ([`super::noise_pages`]): drawn here or, with a page queue
+    /// attached, ahead by another thread. A sample's `L` lanes are read from its first
+    /// mode's deviate on, so lanes past the plan's modes read the next samples' deviates
+    /// (or the page's zero padding), which their zero coefficients ignore.
+    noise: NoisePages,
     /// The ADC filter's histories and the chunk's grid and midpoint samples.
     adc: AdcFilter,
     /// The widest vector instructions the CPU has (the loop is compiled for them).
@@ -130,10 +125,8 @@ impl SynthState {
             im: q.map(|q| q.im),
             phase: 0,
             rho: Complex64::new(1.0, 0.0),
-            thermal_source: NormalSource::set(seed, 0),
-            detector_source: NormalSource::set(seed, 1),
-            thermal: vec![0.0; THERMAL_LEN],
-            detector: vec![0.0; CHUNK],
+            seed,
+            noise: NoisePages::new(),
             adc,
             build: Build::detect(),
             counters: SynthCounters::default(),
@@ -149,6 +142,17 @@ impl SynthState {
         self.im[m] = q.im;
     }
 
+    /// Takes the pages of deviates from `supply` from now on, where another thread draws
+    /// them ahead ([`super::noise_pages::PageFactory`]); the stream is the same bits.
+    pub fn attach_noise_supply(&mut self, supply: PageSupply) {
+        self.noise.attach(supply);
+    }
+
+    /// Where the pages of deviates came from so far.
+    pub fn noise_pages(&self) -> PageCounts {
+        self.noise.counts
+    }
+
     /// Index of the next sample.
     pub fn sample_index(&self) -> u64 {
         self.counters.samples
@@ -162,11 +166,10 @@ impl SynthState {
     /// Moves from `old` to `new` without a jump: the modal displacements and velocities
     /// stay continuous, so a change of drive, sample or cantilever shows as a physical
     /// transient. Modes that `new` adds start at rest; modes it drops are gone. A new seed
-    /// restarts the noise generator from it (the stream from then on is that seed's).
+    /// takes over the noise: from then on the deviates are that seed's at those samples.
     pub fn retarget(&mut self, old: &SynthPlan, new: &SynthPlan) {
         if new.seed != old.seed {
-            self.thermal_source = NormalSource::set(new.seed, 0);
-            self.detector_source = NormalSource::set(new.seed, 1);
+            self.seed = new.seed;
         }
         let theta = phase_to_radians(self.phase);
         let rho = Complex64::from_polar(1.0, theta);
@@ -322,9 +325,14 @@ impl SynthPlan {
         let mut rho = state.rho;
         let mut index = state.counters.samples;
         let mut clipped = 0u64;
-        for chunk in out.chunks_mut(CHUNK) {
-            self.draw_normals(state, chunk.len());
-            let thermal = &state.thermal[..];
+        let mut rest = out;
+        while !rest.is_empty() {
+            let within = index as usize % PAGE;
+            let len = rest.len().min(CHUNK).min(PAGE - within);
+            let (chunk, later) = std::mem::take(&mut rest).split_at_mut(len);
+            rest = later;
+            self.prepare_noise(state, index);
+            let thermal = state.noise.page().thermal(within, n);
             let (grid, mids) = if MID {
                 let len = chunk.len();
                 (
@@ -407,7 +415,7 @@ impl SynthPlan {
             } else {
                 state.adc.remember(chunk);
             }
-            clipped += self.detect_and_quantise(chunk, &state.detector);
+            clipped += self.detect_and_quantise(chunk, state.noise.page().detector(within));
         }
         re.store(&mut state.re);
         im.store(&mut state.im);
@@ -478,10 +486,8 @@ impl SynthPlan {
             im: [0.0; MAX_MODES],
             phase: start,
             rho: Complex64::from_polar(1.0, phase_to_radians(start)),
-            thermal_source: NormalSource::set(0, 0),
-            detector_source: NormalSource::set(0, 1),
-            thermal: vec![0.0; THERMAL_LEN],
-            detector: vec![0.0; CHUNK],
+            seed: 0,
+            noise: NoisePages::new(),
             adc: AdcFilter::new(CHUNK, |_| 0.0),
             build: Build::detect(),
             counters: SynthCounters::default(),
@@ -500,18 +506,21 @@ impl SynthPlan {
         (std::array::from_fn(|m| temp.q(m)), temp.adc)
     }
 
-    /// Draws the standard normals of the next `len` samples: one per mode and sample into
-    /// `state.thermal` if any mode has thermal noise, one per sample into
-    /// `state.detector` if the detector has. Each source's order of drawing is its order
-    /// of use, whatever the block size. Slots not drawn are multiplied by zero.
+    /// Makes the page of deviates that holds sample `index` current, if the plan has noise.
     #[inline(always)]
-    fn draw_normals(&self, state: &mut SynthState, len: usize) {
-        if self.detector_sigma > 0.0 {
-            state.detector_source.fill(&mut state.detector[..len]);
-        }
-        if self.thermal_sigma.iter().any(|&s| s > 0.0) {
-            let n = self.modes.len();
-            state.thermal_source.fill(&mut state.thermal[..len * n]);
+    fn prepare_noise(&self, state: &mut SynthState, index: u64) {
+        let key = PageKey {
+            seed: state.seed,
+            page: index / PAGE as u64,
+            modes: if self.thermal_sigma.iter().any(|&s| s > 0.0) {
+                self.modes.len() as u8
+            } else {
+                0
+            },
+            detector: self.detector_sigma > 0.0,
+        };
+        if key.needs_deviates() {
+            state.noise.prepare(key);
         }
     }
 
