@@ -13,6 +13,8 @@
 pub(crate) trait Lanes: Copy {
     /// The first lanes' worth of `a` (at least that long).
     fn load(a: &[f64]) -> Self;
+    /// The first lanes' worth of `a`, widened to `f64` (exact).
+    fn load_f32(a: &[f32]) -> Self;
     /// Writes the lanes to the first lanes' worth of `a`.
     fn store(self, a: &mut [f64]);
     /// Every lane `x`.
@@ -33,6 +35,11 @@ impl<const L: usize> Lanes for Portable<L> {
     #[inline(always)]
     fn load(a: &[f64]) -> Self {
         Self(a[..L].try_into().expect("L lanes"))
+    }
+    #[inline(always)]
+    fn load_f32(a: &[f32]) -> Self {
+        let a = &a[..L];
+        Self(std::array::from_fn(|m| f64::from(a[m])))
     }
     #[inline(always)]
     fn store(self, a: &mut [f64]) {
@@ -75,7 +82,8 @@ mod avx {
     pub(crate) struct Avx8(__m256d, __m256d);
 
     // SAFETY (every `unsafe` below): an `Avx8` exists only on a CPU with AVX2 (see the
-    // type's documentation); loads and stores touch eight f64 that their bounds checks guarantee.
+    // type's documentation); loads and stores touch eight f64 (or f32) that their bounds
+    // checks guarantee.
     impl Lanes for Avx8 {
         #[inline(always)]
         fn load(a: &[f64]) -> Self {
@@ -84,6 +92,17 @@ mod avx {
                 Self(
                     _mm256_loadu_pd(a.as_ptr()),
                     _mm256_loadu_pd(a.as_ptr().add(4)),
+                )
+            }
+        }
+        #[inline(always)]
+        fn load_f32(a: &[f32]) -> Self {
+            let a = &a[..8];
+            unsafe {
+                let x = _mm256_loadu_ps(a.as_ptr());
+                Self(
+                    _mm256_cvtps_pd(_mm256_castps256_ps128(x)),
+                    _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(x)),
                 )
             }
         }
@@ -127,12 +146,17 @@ mod avx {
     pub(crate) struct Avx512x8(__m512d);
 
     // SAFETY (every `unsafe` below): an `Avx512x8` exists only on a CPU with AVX-512F and
-    // AVX2; loads and stores touch eight f64 that their bounds checks guarantee.
+    // AVX2; loads and stores touch eight f64 (or f32) that their bounds checks guarantee.
     impl Lanes for Avx512x8 {
         #[inline(always)]
         fn load(a: &[f64]) -> Self {
             let a = &a[..8];
             unsafe { Self(_mm512_loadu_pd(a.as_ptr())) }
+        }
+        #[inline(always)]
+        fn load_f32(a: &[f32]) -> Self {
+            let a = &a[..8];
+            unsafe { Self(_mm512_cvtps_pd(_mm256_loadu_ps(a.as_ptr()))) }
         }
         #[inline(always)]
         fn store(self, a: &mut [f64]) {

@@ -72,12 +72,14 @@ impl PageKey {
     }
 }
 
-/// One page of deviates. Its buffers are allocated once ([`NoisePage::new`]) and refilled
-/// for every key.
+/// One page of deviates, in single precision: they are drawn in it
+/// ([`super::normals`]), and half the bytes of `f64` is half the traffic between the thread
+/// that draws a page and the one that reads it. Its buffers are allocated once
+/// ([`NoisePage::new`]) and refilled for every key.
 pub struct NoisePage {
     key: Option<PageKey>,
-    thermal: Box<[f64]>,
-    detector: Box<[f64]>,
+    thermal: Box<[f32]>,
+    detector: Box<[f32]>,
 }
 
 impl std::fmt::Debug for NoisePage {
@@ -132,12 +134,12 @@ impl NoisePage {
 
     /// The thermal deviates of page samples `from` … `from + len − 1` for `modes` modes,
     /// with the padding the last sample's lanes read after them.
-    pub fn thermal(&self, from: usize, modes: usize) -> &[f64] {
+    pub fn thermal(&self, from: usize, modes: usize) -> &[f32] {
         &self.thermal[from * modes..]
     }
 
     /// The detector's deviates of page samples `from` … .
-    pub fn detector(&self, from: usize) -> &[f64] {
+    pub fn detector(&self, from: usize) -> &[f32] {
         &self.detector[from..]
     }
 }
@@ -171,7 +173,7 @@ pub struct PageFactory {
 }
 
 /// A page queue with [`AHEAD`] + 1 pages in it besides the synthesiser's own (allocates
-/// them: 0.56 MB each, sized for [`MAX_MODES`] modes).
+/// them: 0.28 MB each, sized for [`MAX_MODES`] modes).
 pub fn page_queue() -> (PageSupply, PageFactory) {
     let pages = AHEAD as usize + 1;
     // Room for every page in either queue, the synthesiser's own included, so a push

@@ -96,17 +96,18 @@ impl NormalSource {
         }
     }
 
-    /// Fills `out` with the next standard normal deviates. Allocation-free. Where the CPU
-    /// has AVX2 (detected once, at construction) the batches are drawn with its
+    /// Fills `out` with the next standard normal deviates, as `f64` or as `f32` (they are
+    /// drawn in single precision, so both hold the same values). Allocation-free. Where the
+    /// CPU has AVX2 (detected once, at construction) the batches are drawn with its
     /// instructions; the deviates are the same bits either way.
     #[inline]
-    pub fn fill(&mut self, out: &mut [f64]) {
+    pub fn fill<T: Deviate>(&mut self, out: &mut [T]) {
         let mut out = out;
         if self.used < BATCH {
             let n = out.len().min(BATCH - self.used);
             let (head, rest) = out.split_at_mut(n);
             for (o, b) in head.iter_mut().zip(&self.batch[self.used..]) {
-                *o = f64::from(*b);
+                *o = T::from_f32(*b);
             }
             self.used += n;
             out = rest;
@@ -123,23 +124,55 @@ impl NormalSource {
         #[cfg(not(target_arch = "x86_64"))]
         self.fill_batches(body);
         if !tail.is_empty() {
-            let mut batch = [0.0; BATCH];
+            let mut batch = [0.0f32; BATCH];
             self.fill_batches(&mut batch);
-            self.batch = batch.map(|b| b as f32);
-            tail.copy_from_slice(&batch[..tail.len()]);
+            self.batch = batch;
+            for (o, b) in tail.iter_mut().zip(&batch) {
+                *o = T::from_f32(*b);
+            }
             self.used = tail.len();
         }
     }
 
     /// Fills `out`, a whole number of batches, by the portable lane arithmetic.
-    fn fill_batches(&mut self, out: &mut [f64]) {
+    fn fill_batches<T: Deviate>(&mut self, out: &mut [T]) {
         for o in out.chunks_exact_mut(BATCH) {
             let b = next_batch(&mut self.s);
             for (o, b) in o.iter_mut().zip(b) {
-                *o = f64::from(b);
+                *o = T::from_f32(b);
             }
         }
     }
+}
+
+/// The types a [`NormalSource`] fills: `f64` and `f32`.
+pub trait Deviate: Copy + sealed::Sealed {
+    /// Whether the type is `f32` (the vector code stores it without widening).
+    const SINGLE: bool;
+    /// The deviate, exactly.
+    fn from_f32(x: f32) -> Self;
+}
+
+impl Deviate for f64 {
+    const SINGLE: bool = false;
+    #[inline(always)]
+    fn from_f32(x: f32) -> Self {
+        f64::from(x)
+    }
+}
+
+impl Deviate for f32 {
+    const SINGLE: bool = true;
+    #[inline(always)]
+    fn from_f32(x: f32) -> Self {
+        x
+    }
+}
+
+mod sealed {
+    pub trait Sealed {}
+    impl Sealed for f64 {}
+    impl Sealed for f32 {}
 }
 
 /// Stream j of the interleaved order in which the vector code pairs the words of the two
@@ -235,7 +268,7 @@ mod avx2 {
     /// # Safety
     /// The CPU must have AVX2.
     #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn fill_batches(s: &mut [[u64; LANES]; 4], out: &mut [f64]) {
+    pub(super) unsafe fn fill_batches<T: super::Deviate>(s: &mut [[u64; LANES]; 4], out: &mut [T]) {
         crate::cpu::align_frame();
         let load = |w: &[u64; LANES], half: usize| {
             // SAFETY: four u64 in bounds; unaligned load.
@@ -340,13 +373,20 @@ mod avx2 {
             let cos = _mm256_xor_ps(cos, _mm256_castsi256_ps(_mm256_and_si256(lo, sign)));
             let sin_sign = _mm256_and_si256(_mm256_slli_epi32::<1>(lo), sign);
             let sin = _mm256_xor_ps(sin, _mm256_castsi256_ps(sin_sign));
-            // SAFETY: `o` holds BATCH = 16 f64; unaligned stores.
+            // SAFETY: `o` holds BATCH = 16 deviates of type T, which is f32 if `SINGLE`
+            // and f64 if not (the trait is sealed); unaligned stores.
             unsafe {
-                let p = o.as_mut_ptr();
-                _mm256_storeu_pd(p, _mm256_cvtps_pd(_mm256_castps256_ps128(cos)));
-                _mm256_storeu_pd(p.add(4), _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(cos)));
-                _mm256_storeu_pd(p.add(8), _mm256_cvtps_pd(_mm256_castps256_ps128(sin)));
-                _mm256_storeu_pd(p.add(12), _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(sin)));
+                if T::SINGLE {
+                    let p = o.as_mut_ptr().cast::<f32>();
+                    _mm256_storeu_ps(p, cos);
+                    _mm256_storeu_ps(p.add(8), sin);
+                } else {
+                    let p = o.as_mut_ptr().cast::<f64>();
+                    _mm256_storeu_pd(p, _mm256_cvtps_pd(_mm256_castps256_ps128(cos)));
+                    _mm256_storeu_pd(p.add(4), _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(cos)));
+                    _mm256_storeu_pd(p.add(8), _mm256_cvtps_pd(_mm256_castps256_ps128(sin)));
+                    _mm256_storeu_pd(p.add(12), _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(sin)));
+                }
             }
         }
         let store = |w: &mut [u64; LANES], half: usize, v: __m256i| {
@@ -530,11 +570,26 @@ mod tests {
         }
         let mut portable = fast.clone();
         portable.avx2 = false;
-        let (mut a, mut b) = (vec![0.0; 1 << 16], vec![0.0; 1 << 16]);
+        let (mut single_fast, mut single_portable) = (fast.clone(), portable.clone());
+        let (mut a, mut b) = (vec![0.0f64; 1 << 16], vec![0.0f64; 1 << 16]);
         fast.fill(&mut a);
         portable.fill(&mut b);
         assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
         assert_eq!(fast.s, portable.s);
+        // In single precision, both builds: the same deviates, not widened.
+        let (mut c, mut d) = (vec![0.0f32; 1 << 16], vec![0.0f32; 1 << 16]);
+        single_fast.fill(&mut c[..5]);
+        single_fast.fill(&mut c[5..]);
+        single_portable.fill(&mut d);
+        for (single, double) in [(&c, &a), (&d, &a)] {
+            assert!(
+                single
+                    .iter()
+                    .zip(double)
+                    .all(|(x, y)| f64::from(*x).to_bits() == y.to_bits())
+            );
+        }
+        assert_eq!(single_fast.s, fast.s);
     }
 
     #[test]

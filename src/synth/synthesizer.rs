@@ -345,7 +345,7 @@ impl SynthPlan {
             for (i, out) in grid.iter_mut().enumerate() {
                 // Lanes past the plan's modes read the next samples' deviates (zero
                 // coefficients).
-                let z = V::load(&thermal[i * n..]);
+                let z = V::load_f32(&thermal[i * n..]);
                 if index.is_multiple_of(REANCHOR) {
                     rho = Complex64::from_polar(1.0, phase_to_radians(phase));
                 }
@@ -526,10 +526,10 @@ impl SynthPlan {
 
     /// The detector noise and the ADC, which act on the signal only, not on the modes: a
     /// separate branch-free pass over the chunk. Returns the samples clipped.
-    fn detect_and_quantise(&self, chunk: &mut [f64], detector: &[f64]) -> u64 {
+    fn detect_and_quantise(&self, chunk: &mut [f64], detector: &[f32]) -> u64 {
         if self.detector_sigma > 0.0 {
             for (out, z) in chunk.iter_mut().zip(detector) {
-                *out += self.detector_sigma * z;
+                *out += self.detector_sigma * f64::from(*z);
             }
         }
         let mut clipped = 0;

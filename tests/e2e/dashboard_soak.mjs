@@ -6,6 +6,9 @@
 //   cargo build --release
 //   node tests/e2e/dashboard_soak.mjs --seconds 600 -- --preset tap300 --config my.toml
 //
+// `--query off=ScopePanel,SpectrumPanel` opens the page with that query (web/app.js: panels
+// not drawn), to see what the page's drawing costs the chain.
+//
 // Exit status 0 if the daemon overran nothing and skipped no signal time (late blocks),
 // 1 otherwise. Not a test (node --test does not pick it up): it measures the machine.
 
@@ -17,10 +20,12 @@ const split = args.indexOf("--");
 const own = split < 0 ? args : args.slice(0, split);
 const daemonFlags = split < 0 ? [] : args.slice(split + 1);
 let seconds = 60;
+let query = "";
 for (let i = 0; i < own.length; i++) {
   if (own[i] === "--seconds" && i + 1 < own.length) seconds = Number(own[++i]);
+  else if (own[i] === "--query" && i + 1 < own.length) query = own[++i];
   else {
-    console.error(`unknown argument ${own[i]}; usage: dashboard_soak.mjs [--seconds S] [-- DAEMON FLAGS]`);
+    console.error(`unknown argument ${own[i]}; usage: dashboard_soak.mjs [--seconds S] [--query PAGE_QUERY] [-- DAEMON FLAGS]`);
     process.exit(2);
   }
 }
@@ -52,7 +57,7 @@ const browser = await chromium.launch({
 let ok = false;
 try {
   const page = await browser.newPage({ viewport: { width: 1600, height: 1360 } });
-  await page.goto(daemon.url);
+  await page.goto(query ? `${daemon.url}?${query}` : daemon.url);
   await page.waitForSelector('#conn[data-state="open"]');
   const before = await counters(daemon.url);
   const start = Date.now();
