@@ -12,9 +12,8 @@ use super::block::{BlockHeader, unix_ns};
 use super::counters::{Counters, monotonic_ns};
 use super::dsp_plan::{DspPlan, DspSink};
 use super::dsp_team::DspTeam;
-use crate::synth::noise_pages::PageFactory;
-
 use super::frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
+use crate::synth::noise_pages::PageFactory;
 
 /// Longest the DSP thread sleeps when the ring is empty. The synthesiser wakes it as each
 /// block lands, so this only bounds how late it notices a stop or a new plan.
