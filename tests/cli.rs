@@ -311,6 +311,15 @@ fn bench_json_reports_throughputs_and_the_realtime_factor() {
     }
     let chain = v["chain_samples_per_s"].as_f64().unwrap();
     assert!((v["realtime_factor"].as_f64().unwrap() - chain / 8e6).abs() < 1e-9);
+    // Where the pages of noise deviates came from is reported (their accounting against
+    // the samples is tested on a stopped pipeline, tests/pipeline.rs).
+    let c = &v["counters"];
+    let pages = |k: &str| c[k].as_u64().unwrap_or_else(|| panic!("{k}: {c}"));
+    assert!(
+        pages("noise_pages_taken") + pages("noise_pages_drawn_inline") > 0,
+        "{c}"
+    );
+    pages("noise_pages_discarded");
     assert_eq!(
         v["counters"]["overrun_samples"].as_u64(),
         Some(0),

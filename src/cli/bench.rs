@@ -113,6 +113,7 @@ pub fn render_text(r: &BenchReport) -> String {
          synth  {:>8.1} MS/s per core (load {:.0} %)\n\
          dsp    {:>8.1} MS/s per core (load {:.0} %)\n\
          chain  {:>8.1} MS/s   realtime_factor {:.2}\n\
+         noise  {} pages of deviates drawn ahead by the DSP thread, {} by the synthesiser, {} in vain\n\
          frames {:.0}/s demod; overruns {} samples in {} blocks; dropped frames {} demod, {} spectrum; ring max {} samples\n",
         r.seconds.round(),
         if r.realtime {
@@ -128,6 +129,9 @@ pub fn render_text(r: &BenchReport) -> String {
         r.dsp_load * 100.0,
         ms(r.chain_samples_per_s),
         r.realtime_factor,
+        c.noise_pages_taken,
+        c.noise_pages_drawn_inline,
+        c.noise_pages_discarded,
         r.demod_frames_per_s,
         c.overrun_samples,
         c.overrun_blocks,
