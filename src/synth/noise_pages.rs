@@ -2,8 +2,8 @@
 //! seed, its number and its shape only, so that any thread can draw it ahead.
 //!
 //! Why: the deviates are a quarter of the synthesiser's work, and they do not depend on
-//! the stream. The DSP thread, idle while it waits for the next block, draws the pages
-//! the synthesiser will need next ([`PageFactory::work`]) and hands them over through a
+//! the stream. The DSP thread, after each block and while it waits for the next, draws the
+//! pages the synthesiser will need next ([`PageFactory::work`]) and hands them over through a
 //! lock-free queue; the synthesiser takes a page from the queue if it is there, and draws
 //! it itself if not ([`NoisePages::prepare`]). Either way the page holds the same bits,
 //! so the stream does not depend on who drew it, on timing, or on the block sizes.
