@@ -4,7 +4,8 @@ use std::time::{Duration, Instant};
 
 use ftafm::cli::paper;
 use ftafm::config::{Settings, default_settings};
-use ftafm::pipeline::{DemodFrame, Pipeline, PipelineOutput};
+use ftafm::pipeline::{DemodFrame, Pipeline, PipelineOutput, ScopeBuffer};
+use ftafm::synth::{SynthPlan, SynthState};
 use ringbuf::traits::Consumer;
 
 /// The defaults, noise off, free-running, on the paper engine: its spectrum is exactly the
@@ -390,17 +391,15 @@ fn an_overrun_is_counted_and_nothing_is_lost_silently() {
     );
 }
 
-#[test]
-fn scope_traces_are_the_synthesised_samples_with_their_drive_phase() {
-    use ftafm::synth::{SynthPlan, SynthState};
-    let mut settings = free_running_quiet();
-    settings.scope.length = 500;
-    settings.scope.decimation = 3;
-    settings.scope.rate = 100.0;
-    let (pipeline, mut output) = Pipeline::start(&settings).unwrap();
+/// Scope traces of a running pipeline, the other outputs drained, until `done` (60 s at most).
+fn collect_traces(
+    pipeline: &Pipeline,
+    output: &mut PipelineOutput,
+    mut done: impl FnMut(&[ScopeBuffer]) -> bool,
+) -> Vec<ScopeBuffer> {
     let mut traces = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while traces.len() < 5 {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !done(&traces) {
         output.demods.skip(usize::MAX);
         while let Some(b) = output.spectra.try_pop() {
             output.recycle(b);
@@ -408,16 +407,37 @@ fn scope_traces_are_the_synthesised_samples_with_their_drive_phase() {
         while let Some(t) = output.scopes.try_pop() {
             traces.push(t);
         }
-        assert!(Instant::now() < deadline);
+        assert!(Instant::now() < deadline, "{:?}", pipeline.counters());
         std::thread::sleep(Duration::from_millis(1));
     }
-    pipeline.stop();
-    // The same stream, synthesised here: noise off, so it is the same whatever the seed.
-    let plan = SynthPlan::new(&settings).unwrap();
+    traces
+}
+
+/// The stream of `settings` up to the last trace's newest sample, synthesised here, with
+/// the plan and the state it ends in.
+fn offline_stream(
+    settings: &Settings,
+    traces: &[ScopeBuffer],
+) -> (SynthPlan, SynthState, Vec<f64>) {
+    let plan = SynthPlan::new(settings).unwrap();
     let mut state = SynthState::steady(&plan, settings.synth.seed);
     let last = traces.last().unwrap().sample_index as usize;
     let mut stream = vec![0.0; last + 1];
     plan.process(&mut state, &mut stream);
+    (plan, state, stream)
+}
+
+#[test]
+fn scope_traces_are_the_synthesised_samples_with_their_drive_phase() {
+    let mut settings = free_running_quiet();
+    settings.scope.length = 500;
+    settings.scope.decimation = 3;
+    settings.scope.rate = 100.0;
+    let (pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    let traces = collect_traces(&pipeline, &mut output, |t| t.len() >= 5);
+    pipeline.stop();
+    // The same stream, synthesised here: noise off, so it is the same whatever the seed.
+    let (plan, _, stream) = offline_stream(&settings, &traces);
     for t in &traces {
         assert_eq!(t.samples.len(), 500);
         assert_eq!(t.dt, 3.0 / settings.synth.sample_rate);
@@ -446,7 +466,6 @@ fn scope_traces_are_the_synthesised_samples_with_their_drive_phase() {
 #[test]
 fn with_noise_the_chain_streams_the_offline_synthesis_whoever_draws_the_deviates() {
     use ftafm::synth::noise_pages::PAGE;
-    use ftafm::synth::{SynthPlan, SynthState};
     // Noise on: the DSP thread draws pages of deviates ahead, the synthesiser the ones it
     // finds missing; the stream must be the offline synthesiser's bit for bit either way.
     let mut settings = default_settings();
@@ -456,19 +475,9 @@ fn with_noise_the_chain_streams_the_offline_synthesis_whoever_draws_the_deviates
     settings.scope.decimation = 1;
     settings.scope.rate = 100.0;
     let (pipeline, mut output) = Pipeline::start(&settings).unwrap();
-    let mut traces = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while traces.len() < 4 || pipeline.counters().noise_pages_taken < 2 {
-        output.demods.skip(usize::MAX);
-        while let Some(b) = output.spectra.try_pop() {
-            output.recycle(b);
-        }
-        while let Some(t) = output.scopes.try_pop() {
-            traces.push(t);
-        }
-        assert!(Instant::now() < deadline, "{:?}", pipeline.counters());
-        std::thread::sleep(Duration::from_millis(1));
-    }
+    let traces = collect_traces(&pipeline, &mut output, |t| {
+        t.len() >= 4 && pipeline.counters().noise_pages_taken >= 2
+    });
     let c = pipeline.stop();
     assert_eq!(
         c.noise_pages_taken + c.noise_pages_drawn_inline,
@@ -479,14 +488,11 @@ fn with_noise_the_chain_streams_the_offline_synthesis_whoever_draws_the_deviates
         c.noise_pages_drawn_ahead >= c.noise_pages_taken + c.noise_pages_discarded,
         "{c:?}"
     );
-    let plan = SynthPlan::new(&settings).unwrap();
-    let mut state = SynthState::steady(&plan, settings.synth.seed);
-    let last = traces.last().unwrap().sample_index as usize;
-    let mut stream = vec![0.0; last + 1];
-    plan.process(&mut state, &mut stream);
+    let (_, state, stream) = offline_stream(&settings, &traces);
+    // Alone, the synthesiser draws every page itself.
     assert_eq!(
         state.noise_pages().drawn,
-        (last as u64 + 1).div_ceil(PAGE as u64)
+        (stream.len() as u64).div_ceil(PAGE as u64)
     );
     for t in &traces {
         let first = t.sample_index as usize - 499;

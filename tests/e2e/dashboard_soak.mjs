@@ -12,27 +12,9 @@
 // Exit status 0 if the daemon overran nothing and skipped no signal time (late blocks),
 // 1 otherwise. Not a test (node --test does not pick it up): it measures the machine.
 
-import { chromium } from "playwright-core";
-import { startDaemon, stopDaemon } from "./daemon.mjs";
+import { measureArgs, openDashboard } from "./measure.mjs";
 
-const args = process.argv.slice(2);
-const split = args.indexOf("--");
-const own = split < 0 ? args : args.slice(0, split);
-const daemonFlags = split < 0 ? [] : args.slice(split + 1);
-let seconds = 60;
-let query = "";
-for (let i = 0; i < own.length; i++) {
-  if (own[i] === "--seconds" && i + 1 < own.length) seconds = Number(own[++i]);
-  else if (own[i] === "--query" && i + 1 < own.length) query = own[++i];
-  else {
-    console.error(`unknown argument ${own[i]}; usage: dashboard_soak.mjs [--seconds S] [--query PAGE_QUERY] [-- DAEMON FLAGS]`);
-    process.exit(2);
-  }
-}
-if (!(seconds > 0)) {
-  console.error("--seconds must be a positive number");
-  process.exit(2);
-}
+const { seconds, query, daemonFlags } = measureArgs("dashboard_soak.mjs", 60);
 
 /** The daemon's Prometheus counters of interest, summed over their labels. */
 async function counters(url) {
@@ -49,16 +31,9 @@ async function counters(url) {
   return out;
 }
 
-const daemon = await startDaemon("127.0.0.1:0", daemonFlags);
-const browser = await chromium.launch({
-  executablePath: process.env.CHROMIUM ?? "/usr/bin/chromium",
-  args: ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"],
-});
+const { daemon, page, close } = await openDashboard(daemonFlags, query);
 let ok = false;
 try {
-  const page = await browser.newPage({ viewport: { width: 1600, height: 1360 } });
-  await page.goto(query ? `${daemon.url}?${query}` : daemon.url);
-  await page.waitForSelector('#conn[data-state="open"]');
   const before = await counters(daemon.url);
   const start = Date.now();
   while (Date.now() - start < seconds * 1000) {
@@ -73,7 +48,6 @@ try {
   ok = (delta.ftafm_overrun_samples_total ?? 0) === 0 && (delta.ftafm_late_blocks_total ?? 0) === 0;
   console.log(JSON.stringify({ seconds, daemon_flags: daemonFlags, daemon: delta, page_lost, status }));
 } finally {
-  await browser.close();
-  await stopDaemon(daemon);
+  await close();
 }
 process.exit(ok ? 0 : 1);

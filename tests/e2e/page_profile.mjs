@@ -8,37 +8,11 @@
 //
 // Not a test (node --test does not pick it up): it measures the machine.
 
-import { chromium } from "playwright-core";
-import { startDaemon, stopDaemon } from "./daemon.mjs";
+import { measureArgs, openDashboard } from "./measure.mjs";
 
-const args = process.argv.slice(2);
-const split = args.indexOf("--");
-const own = split < 0 ? args : args.slice(0, split);
-const daemonFlags = split < 0 ? [] : args.slice(split + 1);
-let seconds = 10;
-let query = "";
-for (let i = 0; i < own.length; i++) {
-  if (own[i] === "--seconds" && i + 1 < own.length) seconds = Number(own[++i]);
-  else if (own[i] === "--query" && i + 1 < own.length) query = own[++i];
-  else {
-    console.error(`unknown argument ${own[i]}; usage: page_profile.mjs [--seconds S] [--query PAGE_QUERY] [-- DAEMON FLAGS]`);
-    process.exit(2);
-  }
-}
-if (!(seconds > 0)) {
-  console.error("--seconds must be a positive number");
-  process.exit(2);
-}
-
-const daemon = await startDaemon("127.0.0.1:0", daemonFlags);
-const browser = await chromium.launch({
-  executablePath: process.env.CHROMIUM ?? "/usr/bin/chromium",
-  args: ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"],
-});
+const { seconds, query, daemonFlags } = measureArgs("page_profile.mjs", 10);
+const { page, close } = await openDashboard(daemonFlags, query);
 try {
-  const page = await browser.newPage({ viewport: { width: 1600, height: 1360 } });
-  await page.goto(query ? `${daemon.url}?${query}` : daemon.url);
-  await page.waitForSelector('#conn[data-state="open"]');
   await page.waitForTimeout(3000);
   const cdp = await page.context().newCDPSession(page);
   await cdp.send("Performance.enable");
@@ -72,6 +46,5 @@ try {
     profiled_ms_per_s: +(total / 1e3 / seconds).toFixed(1),
   }, null, 1));
 } finally {
-  await browser.close();
-  await stopDaemon(daemon);
+  await close();
 }
