@@ -309,7 +309,8 @@ fn every_op_parses() {
             Op::Subscribe {
                 stream,
                 format: Format::Json,
-                every: 1
+                every: 1,
+                batch: 1
             }
         );
         for format in [Format::Json, Format::Binary] {
@@ -319,7 +320,8 @@ fn every_op_parses() {
                 Op::Subscribe {
                     stream,
                     format,
-                    every: 1
+                    every: 1,
+                    batch: 1
                 }
             );
         }
@@ -329,7 +331,8 @@ fn every_op_parses() {
             Op::Subscribe {
                 stream,
                 format: Format::Json,
-                every: 1
+                every: 1,
+                batch: 1
             }
         );
         let text = format!(r#"{{"op":"subscribe","stream":"{stream}","every":20}}"#);
@@ -338,9 +341,41 @@ fn every_op_parses() {
             Op::Subscribe {
                 stream,
                 format: Format::Json,
-                every: 20
+                every: 20,
+                batch: 1
             }
         );
+        let text =
+            format!(r#"{{"op":"subscribe","stream":"{stream}","format":"binary","batch":20}}"#);
+        if stream == StreamKind::Demods {
+            assert_eq!(
+                parse_ok(&text).op,
+                Op::Subscribe {
+                    stream,
+                    format: Format::Binary,
+                    every: 1,
+                    batch: 20
+                }
+            );
+            for bad in ["0", "1.5", "\"2\"", "1001"] {
+                let text = format!(
+                    r#"{{"op":"subscribe","stream":"demods","format":"binary","batch":{bad}}}"#
+                );
+                assert_error(
+                    &text,
+                    ErrorCode::BadRequest,
+                    Value::Null,
+                    &["field \"batch\" must be an integer 1 … 1000"],
+                );
+            }
+        } else {
+            assert_error(
+                &text,
+                ErrorCode::BadRequest,
+                Value::Null,
+                &["field \"batch\" above 1 is for the stream \"demods\""],
+            );
+        }
         for bad in ["0", "-1", "1.5", "\"2\"", "1000001", "true"] {
             let text = format!(r#"{{"op":"subscribe","stream":"{stream}","every":{bad}}}"#);
             assert_error(

@@ -277,3 +277,176 @@ async fn a_subscription_can_take_every_nth_message_and_still_sees_its_losses_as_
     );
     d.shutdown().await;
 }
+
+/// Next binary data message, within 10 s (a guard against a hang, not a measure of speed).
+async fn next_binary(ws: &mut Ws) -> Vec<u8> {
+    use futures_util::StreamExt;
+    use tokio_tungstenite::tungstenite::Message;
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    loop {
+        let msg = tokio::time::timeout_at(deadline.into(), ws.next())
+            .await
+            .expect("data in time")
+            .unwrap()
+            .unwrap();
+        if let Message::Binary(b) = msg {
+            return b.to_vec();
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn batched_demods_carry_every_point_of_the_stream_byte_for_byte() {
+    use ftafm::server::protocol::{BINARY_HEADER_BYTES, batched_points, decode_header};
+    use std::collections::BTreeMap;
+
+    let d = Daemon::start(light()).await;
+    // One client takes the stream point by point, the other 7 points a message.
+    let mut single = connect(d.addr).await;
+    let mut batched = connect(d.addr).await;
+    let r = call(
+        &mut single,
+        json!({"id": 1, "op": "subscribe", "stream": "demods", "format": "binary"}),
+    )
+    .await;
+    assert_eq!(r["ok"], true, "{r}");
+    assert_eq!(r["batch"], 1, "{r}");
+    let r = call(
+        &mut batched,
+        json!({"id": 1, "op": "subscribe", "stream": "demods", "format": "binary", "batch": 7}),
+    )
+    .await;
+    assert_eq!(r["ok"], true, "{r}");
+    assert_eq!(r["batch"], 7, "{r}");
+
+    let mut points: BTreeMap<u64, (f64, u64, Vec<u8>)> = BTreeMap::new();
+    let mut counts = Vec::new();
+    while points.len() < 60 {
+        let bytes = next_binary(&mut batched).await;
+        let header = decode_header(&bytes).expect("a header");
+        assert_eq!(header.batched_records, Some(32), "32 demodulators a point");
+        let p = batched_points(&bytes).expect("the announced length");
+        assert_eq!(p.len(), header.count as usize);
+        assert!((1..=7).contains(&p.len()), "{} points", p.len());
+        // The header speaks for the newest point.
+        let newest = p.last().unwrap();
+        assert_eq!(
+            (header.seq, header.t, header.t_synth_ns),
+            (newest.seq, newest.t, newest.t_synth_ns)
+        );
+        counts.push(p.len());
+        for q in p {
+            points.insert(q.seq, (q.t, q.t_synth_ns, q.records.to_vec()));
+        }
+    }
+    // No point is missing between the first and the last.
+    let (first, last) = (
+        *points.keys().next().unwrap(),
+        *points.keys().last().unwrap(),
+    );
+    assert_eq!(last - first + 1, points.len() as u64, "consecutive seqs");
+    assert!(
+        counts.iter().filter(|&&n| n == 7).count() >= 5,
+        "{counts:?}"
+    );
+    // Each point is what the unbatched message of the same seq holds, byte for byte.
+    let mut compared = 0;
+    while compared < 20 {
+        let bytes = next_binary(&mut single).await;
+        let header = decode_header(&bytes).unwrap();
+        assert_eq!(header.batched_records, None);
+        if let Some((t, t_synth_ns, records)) = points.get(&header.seq) {
+            assert_eq!((header.t, header.t_synth_ns), (*t, *t_synth_ns));
+            assert_eq!(
+                &bytes[BINARY_HEADER_BYTES..],
+                &records[..],
+                "seq {}",
+                header.seq
+            );
+            compared += 1;
+        } else {
+            assert!(
+                header.seq < first,
+                "seq {} not in {first}…{last}",
+                header.seq
+            );
+        }
+    }
+
+    // Back to one point a message: what was gathered comes first, and no point is lost.
+    let mut next = last + 1;
+    let r = call(
+        &mut batched,
+        json!({"id": 2, "op": "subscribe", "stream": "demods", "format": "binary"}),
+    )
+    .await;
+    assert_eq!(r["ok"], true, "{r}");
+    let mut unbatched = 0;
+    while unbatched < 10 {
+        let bytes = next_binary(&mut batched).await;
+        let header = decode_header(&bytes).unwrap();
+        let seqs: Vec<u64> = match batched_points(&bytes) {
+            Some(p) => {
+                assert_eq!(unbatched, 0, "no batch after an unbatched message");
+                p.iter().map(|q| q.seq).collect()
+            }
+            None => {
+                unbatched += 1;
+                vec![header.seq]
+            }
+        };
+        for seq in seqs {
+            assert_eq!(seq, next, "no gap across the change");
+            next += 1;
+        }
+    }
+
+    // A batch that does not fill goes out 0.1 s after its first point: at 200 points a
+    // second, 1000 would take 5 s.
+    call(
+        &mut batched,
+        json!({"id": 3, "op": "subscribe", "stream": "demods", "format": "binary", "batch": 1000}),
+    )
+    .await;
+    let mut sizes = Vec::new();
+    while sizes.len() < 5 {
+        if let Some(p) = batched_points(&next_binary(&mut batched).await) {
+            sizes.push(p.len());
+        }
+    }
+    assert!(sizes.iter().all(|&n| n < 1000), "{sizes:?}");
+
+    // Bad values change nothing and name the field and what it allows.
+    for (request, expect) in [
+        (
+            json!({"id": 4, "op": "subscribe", "stream": "demods", "format": "binary", "batch": 0}),
+            "\"batch\" must be an integer 1 … 1000",
+        ),
+        (
+            json!({"id": 5, "op": "subscribe", "stream": "demods", "format": "binary", "batch": 1001}),
+            "\"batch\" must be an integer 1 … 1000",
+        ),
+        (
+            json!({"id": 6, "op": "subscribe", "stream": "demods", "batch": 5}),
+            "\"batch\" above 1 is for the stream \"demods\" in \"format\": \"binary\" only",
+        ),
+        (
+            json!({"id": 7, "op": "subscribe", "stream": "spectrum", "format": "binary", "batch": 5}),
+            "(got stream \"spectrum\", format \"binary\")",
+        ),
+    ] {
+        let bad = call(&mut batched, request).await;
+        assert_eq!(bad["ok"], false, "{bad}");
+        assert_eq!(bad["error"]["code"], "bad_request", "{bad}");
+        let message = bad["error"]["message"].as_str().unwrap();
+        assert!(message.contains(expect), "{message}");
+    }
+    // Still 1000 a message, not JSON, after the refused requests.
+    let mut seen = 0;
+    while seen < 2 {
+        let bytes = next_binary(&mut batched).await;
+        assert!(batched_points(&bytes).is_some(), "still batched");
+        seen += 1;
+    }
+    d.shutdown().await;
+}

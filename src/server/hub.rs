@@ -15,7 +15,7 @@ use tokio::sync::mpsc::error::TrySendError;
 use super::latency::Latency;
 use super::memory::release_freed_memory;
 use super::protocol::{self, Format, StreamKind};
-use super::state::{AppState, Stamps, stream_index};
+use super::state::{AppState, ClientHandle, PendingBatch, Stamps, stream_index};
 use super::status::StatusReport;
 use crate::pipeline::{CountersSnapshot, FrameSignal, PipelineOutput, SAMPLE_RING, unix_ns};
 
@@ -36,9 +36,29 @@ const STATUS_PERIOD: Duration = Duration::from_millis(500);
 pub(crate) fn distribute(
     state: &AppState,
     stream: StreamKind,
+    stamps: (u64, u64),
+    json: impl FnOnce(u64) -> String,
+    binary: impl FnOnce(u64) -> Vec<u8>,
+) {
+    distribute_points(
+        state,
+        stream,
+        stamps,
+        json,
+        binary,
+        None::<fn(u64) -> Vec<u8>>,
+    );
+}
+
+/// [`distribute`], with `point` building the message's time point for the clients that
+/// take `demods` batched ([`protocol::demods_point`]), at most once.
+fn distribute_points(
+    state: &AppState,
+    stream: StreamKind,
     (t_synth_ns, t_dsp_ns): (u64, u64),
     json: impl FnOnce(u64) -> String,
     binary: impl FnOnce(u64) -> Vec<u8>,
+    point: Option<impl FnOnce(u64) -> Vec<u8>>,
 ) {
     let s = stream_index(stream);
     let seq = state.streams[s].produced.fetch_add(1, Ordering::Relaxed);
@@ -51,7 +71,7 @@ pub(crate) fn distribute(
         t_synth_ns,
         t_dsp_ns,
     };
-    let (mut json, mut binary) = (Some(json), Some(binary));
+    let (mut json, mut binary, mut point) = (Some(json), Some(binary), point);
     let max_bytes = state.queue_bytes.load(Ordering::Relaxed);
     // Scan lines, status and sweep points are small and rare: they take the lane, never
     // lost behind bulk; so do force estimates for a client that paces them (`every`), as the
@@ -62,6 +82,7 @@ pub(crate) fn distribute(
     );
     let paced_lane = stream == StreamKind::Force;
     let (mut text_msg, mut bin_msg): (Option<Message>, Option<Message>) = (None, None);
+    let mut point_bytes: Option<Vec<u8>> = None;
     for client in clients.iter() {
         let Some(format) = client.format(s) else {
             continue;
@@ -69,6 +90,23 @@ pub(crate) fn distribute(
         if !client.takes(s, seq) {
             // Skipped at the client's request (`every`), not lost: no gap, no drop.
             continue;
+        }
+        // Batched demods: held while the point is added, so that a change of the
+        // subscription (which flushes under the same lock) is seen whole.
+        let mut pending = match (&point, format) {
+            (Some(_), Format::Binary) => client.pending.lock().ok(),
+            _ => None,
+        };
+        if let Some(pending) = pending.as_mut() {
+            let batch = client.batch();
+            if batch > 1 {
+                let bytes = point_bytes
+                    .get_or_insert_with(|| point.take().map(|f| f(seq)).unwrap_or_default());
+                add_point(state, client, pending, bytes, stamps, batch, max_bytes);
+                continue;
+            }
+            // Unbatched now: what was gathered before goes first.
+            flush_batch(state, client, pending, max_bytes);
         }
         let msg = match format {
             Format::Json => text_msg
@@ -85,15 +123,93 @@ pub(crate) fn distribute(
                 .clone(),
         };
         let lane = lane || (paced_lane && client.paced(s));
-        match client.data.offer(msg, stamps, max_bytes, lane) {
-            Ok(()) => {
-                state.streams[s].sent.fetch_add(1, Ordering::Relaxed);
-            }
-            Err(TrySendError::Full(_)) => {
-                client.dropped.fetch_add(1, Ordering::Relaxed);
-                state.streams[s].dropped.fetch_add(1, Ordering::Relaxed);
-            }
-            Err(TrySendError::Closed(_)) => {}
+        offer(state, client, s, msg, stamps, max_bytes, lane);
+    }
+}
+
+/// Queues `msg` for `client`, counting it as sent or dropped.
+fn offer(
+    state: &AppState,
+    client: &ClientHandle,
+    stream: usize,
+    msg: Message,
+    stamps: Stamps,
+    max_bytes: usize,
+    lane: bool,
+) {
+    match client.data.offer(msg, stamps, max_bytes, lane) {
+        Ok(()) => {
+            state.streams[stream].sent.fetch_add(1, Ordering::Relaxed);
+        }
+        Err(TrySendError::Full(_)) => {
+            client.dropped.fetch_add(1, Ordering::Relaxed);
+            state.streams[stream]
+                .dropped
+                .fetch_add(1, Ordering::Relaxed);
+        }
+        Err(TrySendError::Closed(_)) => {}
+    }
+}
+
+/// Adds a time point to the client's batched `demods` message, and queues the message once
+/// it holds `batch` points. A point with another number of records than those gathered
+/// (a demodulator was switched) sends those first.
+fn add_point(
+    state: &AppState,
+    client: &ClientHandle,
+    pending: &mut PendingBatch,
+    point: &[u8],
+    stamps: Stamps,
+    batch: u32,
+    max_bytes: usize,
+) {
+    let records =
+        ((point.len() - protocol::POINT_HEADER_BYTES) / protocol::DEMOD_RECORD_BYTES) as u32;
+    if pending.batch.points() > 0 && pending.batch.records() != records {
+        flush_batch(state, client, pending, max_bytes);
+    }
+    if pending.batch.points() == 0 {
+        pending.since = Some(Instant::now());
+    }
+    pending.batch.push(point);
+    pending.stamps = stamps;
+    if pending.batch.points() >= batch {
+        flush_batch(state, client, pending, max_bytes);
+    }
+}
+
+/// Queues what the client's batched `demods` message holds, if anything. The message's
+/// stamps are its newest point's.
+pub(crate) fn flush_batch(
+    state: &AppState,
+    client: &ClientHandle,
+    pending: &mut PendingBatch,
+    max_bytes: usize,
+) {
+    pending.since = None;
+    if let Some(bytes) = pending.batch.take() {
+        let s = stream_index(StreamKind::Demods);
+        let msg = Message::Binary(Bytes::from(bytes));
+        offer(state, client, s, msg, pending.stamps, max_bytes, false);
+    }
+}
+
+/// How long a batched `demods` message waits for its points at most, from its first.
+pub(crate) const BATCH_WAIT: Duration = Duration::from_millis(100);
+
+/// Queues every batched `demods` message whose first point has waited [`BATCH_WAIT`].
+fn flush_aged_batches(state: &AppState, now: Instant) {
+    let Ok(clients) = state.clients.lock() else {
+        return;
+    };
+    let max_bytes = state.queue_bytes.load(Ordering::Relaxed);
+    for client in clients.iter() {
+        if let Ok(mut pending) = client.pending.lock()
+            && pending
+                .since
+                .is_some_and(|since| now.duration_since(since) >= BATCH_WAIT)
+        {
+            flush_batch(state, client, &mut pending, max_bytes);
         }
     }
 }
@@ -177,15 +293,17 @@ pub(crate) async fn run(
                 state.force.offer(&frame);
             }
             synth_to_dsp.record(frame.t_dsp_ns as i64 - frame.t_synth_ns as i64);
-            distribute(
+            distribute_points(
                 &state,
                 StreamKind::Demods,
                 (frame.t_synth_ns, frame.t_dsp_ns),
                 |seq| protocol::demods_json(seq, &frame),
                 |seq| protocol::demods_binary(seq, &frame),
+                Some(|seq| protocol::demods_point(seq, &frame)),
             );
             synth_to_send.record(unix_ns() as i64 - frame.t_synth_ns as i64);
         }
+        flush_aged_batches(&state, Instant::now());
         if newest.is_some()
             && let Ok(mut latest) = state.latest_demods.lock()
         {

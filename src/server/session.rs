@@ -13,7 +13,7 @@ use futures_util::{SinkExt, StreamExt};
 use serde_json::{Map, Value, json};
 use tokio::sync::mpsc;
 
-use super::protocol::{self, ErrorCode, Op, ProtocolError, Request};
+use super::protocol::{self, ErrorCode, Op, ProtocolError, Request, StreamKind};
 use super::state::{AppState, ClientHandle, Control, DataQueue, DataReceiver};
 use crate::pipeline::unix_ns;
 
@@ -419,17 +419,38 @@ async fn respond(
             stream,
             format,
             every,
+            batch,
         } => {
-            client.subscribe(stream, format, every);
+            if stream == StreamKind::Demods {
+                // Points gathered under the old subscription go out first, in its layout.
+                if let Ok(mut pending) = client.pending.lock() {
+                    let max_bytes = state.queue_bytes.load(Ordering::Relaxed);
+                    super::hub::flush_batch(state, client, &mut pending, max_bytes);
+                    client.subscribe(stream, format, every, batch);
+                }
+            } else {
+                client.subscribe(stream, format, every, batch);
+            }
             let next_seq = state.streams[super::state::stream_index(stream)]
                 .produced
                 .load(Ordering::Relaxed);
-            Ok(fields(
-                json!({ "stream": stream.name(), "next_seq": next_seq, "every": every }),
-            ))
+            Ok(fields(json!({
+                "stream": stream.name(),
+                "next_seq": next_seq,
+                "every": every,
+                "batch": batch,
+            })))
         }
         Op::Unsubscribe { stream } => {
-            client.unsubscribe(stream);
+            if stream == StreamKind::Demods {
+                if let Ok(mut pending) = client.pending.lock() {
+                    let max_bytes = state.queue_bytes.load(Ordering::Relaxed);
+                    super::hub::flush_batch(state, client, &mut pending, max_bytes);
+                    client.unsubscribe(stream);
+                }
+            } else {
+                client.unsubscribe(stream);
+            }
             Ok(fields(json!({ "stream": stream.name() })))
         }
     }

@@ -126,6 +126,16 @@ pub(crate) struct Stamps {
     pub t_dsp_ns: u64,
 }
 
+/// A client's batched `demods` message being gathered (see [`ClientHandle::pending`]).
+#[derive(Debug, Default)]
+pub(crate) struct PendingBatch {
+    pub batch: super::protocol::DemodBatch,
+    /// When its first point was offered.
+    pub since: Option<Instant>,
+    /// Its newest point's stamps.
+    pub stamps: Stamps,
+}
+
 /// A data message queued for one client, with its stamps and size.
 pub(crate) struct Outgoing {
     pub msg: Message,
@@ -279,6 +289,12 @@ pub(crate) struct ClientHandle {
     subs: [AtomicU8; STREAMS],
     /// Per stream: deliver only messages whose seq is a multiple of this (0 or 1: all).
     every: [AtomicU32; STREAMS],
+    /// Time points per `demods` message (0 or 1: one per message; more only in binary).
+    batch: AtomicU32,
+    /// The batched `demods` message being gathered, and when its first point came and the
+    /// stamps of its newest. Held while points are added and while the subscription
+    /// changes, so that a change sends what was gathered under the old one first.
+    pub pending: Mutex<PendingBatch>,
     /// Data messages for this client (bounded: a slow client loses its own).
     pub data: DataQueue,
     /// Messages dropped for this client.
@@ -295,6 +311,8 @@ impl ClientHandle {
             id,
             subs: Default::default(),
             every: Default::default(),
+            batch: AtomicU32::new(1),
+            pending: Mutex::default(),
             data,
             dropped: AtomicU64::new(0),
             written: AtomicU64::new(0),
@@ -351,14 +369,24 @@ impl ClientHandle {
         }
     }
 
-    /// Receive `stream` in `format`, only the messages whose seq is a multiple of `every`.
-    pub fn subscribe(&self, stream: StreamKind, format: Format, every: u32) {
+    /// Receive `stream` in `format`, only the messages whose seq is a multiple of `every`,
+    /// `batch` time points a message (`demods` in binary only). Call with
+    /// [`Self::pending`] held and flushed, so no point gathered before changes its batch.
+    pub fn subscribe(&self, stream: StreamKind, format: Format, every: u32, batch: u32) {
         let v = match format {
             Format::Json => 1,
             Format::Binary => 2,
         };
+        if stream == StreamKind::Demods {
+            self.batch.store(batch.max(1), Ordering::Relaxed);
+        }
         self.every[stream_index(stream)].store(every.max(1), Ordering::Relaxed);
         self.subs[stream_index(stream)].store(v, Ordering::Relaxed);
+    }
+
+    /// Time points per `demods` message (1: unbatched).
+    pub fn batch(&self) -> u32 {
+        self.batch.load(Ordering::Relaxed).max(1)
     }
 
     /// Whether this client's subscription to `stream` is paced (`every` > 1).

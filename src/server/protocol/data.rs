@@ -20,6 +20,13 @@ pub const BINARY_HEADER_BYTES: usize = 40;
 /// Size of one demodulator record in a binary `demods` message (bytes).
 pub const DEMOD_RECORD_BYTES: usize = 40;
 
+/// Size of a time point's own header in a batched `demods` message: seq u64, t f64,
+/// t_synth_ns u64 (bytes).
+pub const POINT_HEADER_BYTES: usize = 24;
+
+/// Byte 7 of the header: the payload's layout. 0: the stream's own; 1: batched `demods`.
+const LAYOUT_BATCHED: u8 = 1;
+
 /// A decoded binary header.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BinaryHeader {
@@ -33,14 +40,21 @@ pub struct BinaryHeader {
     pub t: f64,
     /// Unix time (ns) at which that sample was synthesised.
     pub t_synth_ns: u64,
-    /// Records (demods), magnitudes (spectrum), samples (scope) or JSON bytes (status).
+    /// Records (demods), magnitudes (spectrum), samples (scope) or JSON bytes (status);
+    /// time points in a batched `demods` message.
     pub count: u32,
+    /// For a batched `demods` message (a subscription with `batch` > 1): the records of
+    /// each time point. `None` in every other message.
+    pub batched_records: Option<u32>,
 }
 
 impl BinaryHeader {
     /// Payload size (bytes after the header) this header announces.
     pub fn payload_bytes(&self) -> usize {
         let count = self.count as usize;
+        if let Some(records) = self.batched_records {
+            return count * (POINT_HEADER_BYTES + records as usize * DEMOD_RECORD_BYTES);
+        }
         match self.stream {
             StreamKind::Demods => count * DEMOD_RECORD_BYTES,
             StreamKind::Spectrum => 8 + 4 * count,
@@ -53,6 +67,9 @@ impl BinaryHeader {
 /// Reads the header of a binary message: `None` when it is shorter than
 /// [`BINARY_HEADER_BYTES`], the magic is wrong or the stream code unknown. The version is
 /// returned as found (check it); reserved bytes are ignored.
+///
+/// A batched `demods` message (byte 7 = 1) has `batched_records`; read its points with
+/// [`batched_points`].
 pub fn decode_header(bytes: &[u8]) -> Option<BinaryHeader> {
     let header = bytes.get(..BINARY_HEADER_BYTES)?;
     if header[..4] != BINARY_MAGIC {
@@ -80,7 +97,46 @@ pub fn decode_header(bytes: &[u8]) -> Option<BinaryHeader> {
         t: f64::from_bits(u64_at(16)),
         t_synth_ns: u64_at(24),
         count: u32_at(32),
+        batched_records: (header[7] == LAYOUT_BATCHED).then(|| u32_at(36)),
     })
+}
+
+/// One time point of a batched `demods` message.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BatchedPoint<'a> {
+    /// The point's own `seq` in the stream.
+    pub seq: u64,
+    /// Simulated time of the point (s).
+    pub t: f64,
+    /// Unix time (ns) at which its newest sample was synthesised.
+    pub t_synth_ns: u64,
+    /// Its demodulator records, [`DEMOD_RECORD_BYTES`] each, as in an unbatched message.
+    pub records: &'a [u8],
+}
+
+/// The time points of a batched `demods` message, oldest first; `None` when `bytes` is
+/// not one or its length is not what the header announces.
+pub fn batched_points(bytes: &[u8]) -> Option<Vec<BatchedPoint<'_>>> {
+    let header = decode_header(bytes)?;
+    let records = header.batched_records? as usize;
+    if header.stream != StreamKind::Demods
+        || bytes.len() != BINARY_HEADER_BYTES + header.payload_bytes()
+    {
+        return None;
+    }
+    let size = POINT_HEADER_BYTES + records * DEMOD_RECORD_BYTES;
+    let u64_at = |p: &[u8], i: usize| u64::from_le_bytes(p[i..i + 8].try_into().expect("8 bytes"));
+    Some(
+        bytes[BINARY_HEADER_BYTES..]
+            .chunks_exact(size)
+            .map(|p| BatchedPoint {
+                seq: u64_at(p, 0),
+                t: f64::from_bits(u64_at(p, 8)),
+                t_synth_ns: u64_at(p, 16),
+                records: &p[POINT_HEADER_BYTES..],
+            })
+            .collect(),
+    )
 }
 
 /// `{"stream":"demods","seq":n,"t":s,"t_synth_ns":ns,"demods":[{"index":0,"harmonic":1,
@@ -115,10 +171,8 @@ pub fn demods_json(seq: u64, frame: &DemodFrame) -> String {
 
 /// Header, then per demodulator: index u32, harmonic u32, x, y, r, phase as f64.
 pub fn demods_binary(seq: u64, frame: &DemodFrame) -> Vec<u8> {
-    let values = frame.values();
-    let count = count_of(values.len());
-    let values = &values[..count as usize];
-    let mut out = Vec::with_capacity(BINARY_HEADER_BYTES + values.len() * DEMOD_RECORD_BYTES);
+    let count = count_of(frame.values().len());
+    let mut out = Vec::with_capacity(BINARY_HEADER_BYTES + count as usize * DEMOD_RECORD_BYTES);
     binary_header(
         &mut out,
         StreamKind::Demods,
@@ -127,14 +181,92 @@ pub fn demods_binary(seq: u64, frame: &DemodFrame) -> Vec<u8> {
         frame.t_synth_ns,
         count,
     );
-    for v in values {
+    demod_records(&mut out, frame);
+    out
+}
+
+/// The records of one demods frame, as in [`demods_binary`].
+fn demod_records(out: &mut Vec<u8>, frame: &DemodFrame) {
+    let values = frame.values();
+    for v in &values[..count_of(values.len()) as usize] {
         out.extend_from_slice(&u32::from(v.index).to_le_bytes());
         out.extend_from_slice(&v.harmonic.to_le_bytes());
         for x in [v.x, v.y, v.r(), v.phase()] {
             out.extend_from_slice(&x.to_le_bytes());
         }
     }
+}
+
+/// One time point of a batched `demods` message: seq, t and t_synth_ns, then the records
+/// as in [`demods_binary`]. [`DemodBatch`] gathers them into a message.
+pub fn demods_point(seq: u64, frame: &DemodFrame) -> Vec<u8> {
+    let mut out =
+        Vec::with_capacity(POINT_HEADER_BYTES + frame.values().len() * DEMOD_RECORD_BYTES);
+    out.extend_from_slice(&seq.to_le_bytes());
+    out.extend_from_slice(&frame.t.to_le_bytes());
+    out.extend_from_slice(&frame.t_synth_ns.to_le_bytes());
+    demod_records(&mut out, frame);
     out
+}
+
+/// A batched `demods` message being gathered for one client: time points with the same
+/// number of records, behind room for the header.
+#[derive(Debug, Default)]
+pub struct DemodBatch {
+    bytes: Vec<u8>,
+    points: u32,
+    records: u32,
+    last: (u64, f64, u64),
+}
+
+impl DemodBatch {
+    /// Time points gathered.
+    pub fn points(&self) -> u32 {
+        self.points
+    }
+
+    /// Records per point of the points gathered (0 when empty).
+    pub fn records(&self) -> u32 {
+        self.records
+    }
+
+    /// Adds a point made by [`demods_point`].
+    pub fn push(&mut self, point: &[u8]) {
+        let records = ((point.len() - POINT_HEADER_BYTES) / DEMOD_RECORD_BYTES) as u32;
+        if self.points == 0 {
+            self.bytes.clear();
+            self.bytes.resize(BINARY_HEADER_BYTES, 0);
+            self.records = records;
+        }
+        debug_assert_eq!(records, self.records, "a batch's points have equal records");
+        let u64_at = |i: usize| u64::from_le_bytes(point[i..i + 8].try_into().expect("8 bytes"));
+        self.last = (u64_at(0), f64::from_bits(u64_at(8)), u64_at(16));
+        self.bytes.extend_from_slice(point);
+        self.points += 1;
+    }
+
+    /// The message of the points gathered (the header's seq, t and t_synth_ns are the
+    /// newest point's), leaving the batch empty; `None` if it was.
+    pub fn take(&mut self) -> Option<Vec<u8>> {
+        if self.points == 0 {
+            return None;
+        }
+        let (seq, t, t_synth_ns) = self.last;
+        let mut header = Vec::with_capacity(BINARY_HEADER_BYTES);
+        binary_header(
+            &mut header,
+            StreamKind::Demods,
+            seq,
+            t,
+            t_synth_ns,
+            self.points,
+        );
+        header[7] = LAYOUT_BATCHED;
+        header[36..40].copy_from_slice(&self.records.to_le_bytes());
+        self.bytes[..BINARY_HEADER_BYTES].copy_from_slice(&header);
+        self.points = 0;
+        Some(std::mem::take(&mut self.bytes))
+    }
 }
 
 /// `{"stream":"spectrum","seq":n,"t":s,"t_synth_ns":ns,"bin_width":Hz,"magnitudes":[…]}`.

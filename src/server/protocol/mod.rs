@@ -19,8 +19,9 @@ use std::fmt;
 use crate::config::NodeError;
 
 pub use data::{
-    BINARY_HEADER_BYTES, BINARY_MAGIC, BINARY_VERSION, BinaryHeader, DEMOD_RECORD_BYTES,
-    decode_header, demods_binary, demods_json, force_binary, force_json, image_binary, image_json,
+    BINARY_HEADER_BYTES, BINARY_MAGIC, BINARY_VERSION, BatchedPoint, BinaryHeader,
+    DEMOD_RECORD_BYTES, DemodBatch, POINT_HEADER_BYTES, batched_points, decode_header,
+    demods_binary, demods_json, demods_point, force_binary, force_json, image_binary, image_json,
     json_binary, scope_binary, scope_json, spectrum_binary, spectrum_json, status_binary,
     status_json,
 };

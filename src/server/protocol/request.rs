@@ -47,6 +47,9 @@ pub enum Op {
         /// Only every n-th message of the stream: those whose `seq` is a multiple of n
         /// (1, the default: all of them).
         every: u32,
+        /// Output time points per message (1, the default: one message per point). More
+        /// than one only for `demods` in binary frames: the batched layout.
+        batch: u32,
     },
     /// The presets (real cantilevers and samples) the instrument can load.
     Presets,
@@ -266,11 +269,15 @@ fn parse_op(fields: &Map<String, Value>) -> Result<Op, ProtocolError> {
                     .to_owned(),
             )),
         },
-        "subscribe" => Ok(Op::Subscribe {
-            stream: stream(fields, op)?,
-            format: format(fields)?,
-            every: every(fields)?,
-        }),
+        "subscribe" => {
+            let (stream, format) = (stream(fields, op)?, format(fields)?);
+            Ok(Op::Subscribe {
+                stream,
+                format,
+                every: every(fields)?,
+                batch: batch(fields, stream, format)?,
+            })
+        }
         "unsubscribe" => Ok(Op::Unsubscribe {
             stream: stream(fields, op)?,
         }),
@@ -415,6 +422,41 @@ fn every(fields: &Map<String, Value>) -> Result<u32, ProtocolError> {
             describe(other)
         ))),
     }
+}
+
+/// Most output time points one batched `demods` message holds.
+pub const MAX_POINTS: u32 = 1000;
+
+fn batch(
+    fields: &Map<String, Value>,
+    stream: StreamKind,
+    format: Format,
+) -> Result<u32, ProtocolError> {
+    let allowed =
+        format!("must be an integer 1 … {MAX_POINTS} (1, the default: one time point per message)");
+    let n = match fields.get("batch") {
+        None | Some(Value::Null) => return Ok(1),
+        Some(Value::Number(n)) => n
+            .as_u64()
+            .filter(|&n| (1..=u64::from(MAX_POINTS)).contains(&n))
+            .map(|n| n as u32)
+            .ok_or_else(|| bad(format!("field \"batch\" {allowed}, got {n}")))?,
+        Some(other) => {
+            return Err(bad(format!(
+                "field \"batch\" {allowed}, got {}",
+                describe(other)
+            )));
+        }
+    };
+    if n > 1 && (stream != StreamKind::Demods || format != Format::Binary) {
+        return Err(bad(format!(
+            "field \"batch\" above 1 is for the stream \"demods\" in \"format\": \"binary\" \
+             only (got stream {}, format {})",
+            quote(stream.name()),
+            quote(format.name())
+        )));
+    }
+    Ok(n)
 }
 
 fn bad(message: String) -> ProtocolError {
