@@ -21,18 +21,23 @@ import { si } from "./units.js";
 
 const STREAMS = ["demods", "spectrum", "scope", "status", "force", "image", "sweep"];
 const FORMATS = { demods: "binary", spectrum: "binary", scope: "binary", status: "json", force: "binary", image: "json", sweep: "json" };
+// The lock-in's time points (1 kHz by default) come 20 to a binary message: the page then
+// handles about 50 messages a second instead of 1000, every point still in the history.
+// (The daemon sends a batch when full or 0.1 s after its first point, whichever is first.)
+const SUBSCRIBE_EXTRA = { demods: { batch: 20 } };
 // subscribed by their panels, only while on screen
 const ON_DEMAND = new Set(["force", "image"]);
 const zero = () => Object.fromEntries(STREAMS.map((s) => [s, 0]));
 
 const stats = {
-  messages: zero(), // data messages received per stream, since the page loaded
-  gaps: zero(), // messages lost (seq gaps) per stream
+  messages: zero(), // data messages received per stream, since the page loaded (demods: time points)
+  gaps: zero(), // messages lost (seq gaps) per stream (demods: time points)
+  frames: zero(), // WebSocket messages received per stream (a batched demods message holds many points)
   draws: { harmonics: 0, contrast: 0, scope: 0, spectrum: 0, force: 0, image: 0, sweep: 0 },
   connects: 0,
   state: "connecting",
   fps: 0, // redraws per second of the time plot (the page's animation rate)
-  rafFps: 0, // animation frames per second offered by the browser
+  rafFps: 0, // animation frames per second the page took (it asks for about every second one)
   latency: new Float64Array(1000), // ms, synthesis → this page, of the last demods messages (a ring)
   latencyCount: 0,
   framesSkipped: 0, // animation frames not drawn because the page was behind its messages
@@ -158,7 +163,7 @@ async function onOpen(conn) {
   try {
     // `force` (1 kHz) and `image` only while their panels are on screen: the panels subscribe
     // and unsubscribe
-    const subs = Promise.all(STREAMS.filter((s) => !ON_DEMAND.has(s)).map((stream) => conn.request("subscribe", { stream, format: FORMATS[stream] })));
+    const subs = Promise.all(STREAMS.filter((s) => !ON_DEMAND.has(s)).map((stream) => conn.request("subscribe", { stream, format: FORMATS[stream], ...SUBSCRIBE_EXTRA[stream] })));
     force.onOpen(conn);
     image.onOpen(conn);
     sweeper.onOpen(conn);
@@ -176,8 +181,15 @@ async function onOpen(conn) {
 }
 
 function onData(m, recvMs) {
+  if (!(m.stream in stats.messages)) return;
+  stats.frames[m.stream]++;
+  if (m.points) for (const p of m.points) onMessage(p, recvMs);
+  else onMessage(m, recvMs);
+}
+
+/** One data message, or one time point of a batched demods message. */
+function onMessage(m, recvMs) {
   const s = m.stream;
-  if (!(s in stats.messages)) return;
   stats.messages[s]++;
   const prev = lastSeq[s];
   const step = every[s] ?? 1; // a stream taken every n-th message advances by n
@@ -217,7 +229,7 @@ let fpsT0 = performance.now(), fpsDraws = 0, fpsFrames = 0, factsT = 0;
 // to the next one (the canvases are rasterised after the callback returns), and the page
 // waits four such costs between draws.
 let lastDraw = -Infinity, drawCost = 0, drew = false;
-const BEHIND_MS = 500, SLOW_DRAW_MS = 500;
+const BEHIND_MS = 500, SLOW_DRAW_MS = 500, FRAME_MS = 26;
 function frame(now) {
   fpsFrames++;
   if (drew) {
@@ -225,6 +237,15 @@ function frame(now) {
     drew = false;
   }
   stats.behind = backlog.behind(performance.timeOrigin + now, BEHIND_MS);
+  // Every panel draws in the same frames, at most ~30 a second (every second frame of a 60 Hz
+  // display): each frame that changes a canvas costs the browser a composited frame, so
+  // panels drawing in frames of their own would cost up to twice as many.
+  if (now - lastDraw < FRAME_MS) {
+    // Not asking for every frame lets the browser skip the frames in between (an animation
+    // frame requested is a frame produced, drawn into or not).
+    setTimeout(() => requestAnimationFrame(frame), Math.max(0, FRAME_MS - (now - lastDraw) - 8));
+    return;
+  }
   if (stats.behind && now - lastDraw < Math.max(SLOW_DRAW_MS, 4 * drawCost)) {
     stats.framesSkipped++;
     requestAnimationFrame(frame);
@@ -257,7 +278,8 @@ function frame(now) {
       (h ? `<span>${esc(h.server)} ${esc(h.version)} · protocol ${esc(h.protocol)}</span><span>f<sub>s</sub> <b>${si(h.sample_rate, "Hz", 3)}</b></span>` : "") +
       `<span title="simulated time of the newest lock-in output">t <b>${isFinite(t) ? t.toFixed(2) + " s" : "–"}</b></span>`;
   }
-  requestAnimationFrame(frame);
+  // The next draw is due in FRAME_MS: ask for the frame after the one in between.
+  setTimeout(() => requestAnimationFrame(frame), FRAME_MS - 10);
 }
 requestAnimationFrame(frame);
 setInterval(refreshParams, 3000);

@@ -28,22 +28,28 @@ export function decodeBinary(buf) {
     t_synth_ns: dv.getBigUint64(24, true),
   };
   const count = dv.getUint32(32, true);
-  switch (stream) {
-    case "demods": {
-      const d = new Array(count);
-      for (let i = 0, o = 40; i < count; i++, o += 40) {
-        d[i] = {
-          index: dv.getUint32(o, true),
-          harmonic: dv.getUint32(o + 4, true),
-          x: dv.getFloat64(o + 8, true),
-          y: dv.getFloat64(o + 16, true),
-          r: dv.getFloat64(o + 24, true),
-          phase: dv.getFloat64(o + 32, true),
-        };
-      }
-      m.demods = d;
-      break;
+  if (stream === "demods" && dv.getUint8(7) === 1) {
+    // batched: `count` time points of `records` records each, every point with its own
+    // seq, t and t_synth_ns (24 bytes) before its records
+    const records = dv.getUint32(36, true);
+    const size = 24 + 40 * records;
+    if (buf.byteLength !== 40 + count * size) throw new Error("batched demods frame of the wrong length");
+    m.points = new Array(count);
+    for (let i = 0, o = 40; i < count; i++, o += size) {
+      m.points[i] = {
+        stream,
+        seq: Number(dv.getBigUint64(o, true)),
+        t: dv.getFloat64(o + 8, true),
+        t_synth_ns: dv.getBigUint64(o + 16, true),
+        demods: demodRecords(dv, o + 24, records),
+      };
     }
+    return m;
+  }
+  switch (stream) {
+    case "demods":
+      m.demods = demodRecords(dv, 40, count);
+      break;
     case "spectrum":
       m.bin_width = dv.getFloat64(40, true);
       m.magnitudes = new Float32Array(buf, 48, count);
@@ -62,6 +68,22 @@ export function decodeBinary(buf) {
       throw new Error(`binary frame of unknown stream code ${dv.getUint8(6)}`);
   }
   return m;
+}
+
+/** `count` demodulator records of 40 bytes from byte `at`. */
+function demodRecords(dv, at, count) {
+  const d = new Array(count);
+  for (let i = 0, o = at; i < count; i++, o += 40) {
+    d[i] = {
+      index: dv.getUint32(o, true),
+      harmonic: dv.getUint32(o + 4, true),
+      x: dv.getFloat64(o + 8, true),
+      y: dv.getFloat64(o + 16, true),
+      r: dv.getFloat64(o + 24, true),
+      phase: dv.getFloat64(o + 32, true),
+    };
+  }
+  return d;
 }
 
 const WAVEFORM = ',"waveform":';

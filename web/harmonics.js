@@ -5,6 +5,7 @@
 import { COLORS, Plot, decadeRange } from "./plot.js";
 import { si } from "./units.js";
 import { DEMODS } from "./history.js";
+import { Strip } from "./strip.js";
 
 const DEFAULT_HARMONICS = [1, 6, 17, 18];
 // ~30 fps: every second frame of a 60 Hz display (a little under 33 ms, so frame-time jitter
@@ -17,6 +18,7 @@ export class HarmonicsPanel {
     this.app = app;
     this.hist = app.history;
     this.selected = new Map(); // demod index → colour
+    this.strips = new Map(); // demod index → { r, p }: its lines' bins (strip.js)
     this.defaulted = false;
     this.drawn = -1;
     this.lastDraw = 0;
@@ -97,26 +99,31 @@ export class HarmonicsPanel {
 
     const W = Number(this.windowSel.value);
     const tNow = hist.tNow;
-    const from = hist.len ? hist.firstSince(tNow - W) : 0;
-    const n = hist.len - from;
-    // amplitude range over the window
+    const t0 = tNow - W;
+    // Bins a pixel wide (the two plots share their width), kept per channel between frames.
+    const dt = W / Math.max(1, this.rPlot.right - this.rPlot.left);
+    const positive = (v) => v > 0;
+    const finite = (v) => v === v;
     let lo = Infinity, hi = 0;
     for (const i of this.selected.keys()) {
-      const R = hist.r[i];
-      for (let j = from; j < hist.len; j++) {
-        const v = R[hist.pos(j)];
-        if (v > 0) { if (v < lo) lo = v; if (v > hi) hi = v; }
-      }
+      let s = this.strips.get(i);
+      if (!s) this.strips.set(i, (s = { r: new Strip(), p: new Strip() }));
+      if (!hist.len) continue;
+      s.r.sync(hist, i, hist.r[i], dt, W, positive);
+      s.p.sync(hist, i, hist.p[i], dt, W, finite);
+      const range = s.r.range(t0);
+      if (range) { lo = Math.min(lo, range[0]); hi = Math.max(hi, range[1]); }
     }
+    for (const i of this.strips.keys()) if (!this.selected.has(i)) this.strips.delete(i);
     const yr = hi > 0 ? decadeRange(lo, hi, 1, 6) : [1e-12, 1e-7];
-    const xAt = (j) => hist.t[hist.pos(from + j)] - tNow;
     this.rPlot.begin([-W, 0], yr);
     this.pPlot.begin([-W, 0], [-180, 180]);
     const DEG = 180 / Math.PI;
     for (const [i, color] of this.selected) {
-      const R = hist.r[i], P = hist.p[i];
-      this.rPlot.line(n, xAt, (j) => R[hist.pos(from + j)], color);
-      this.pPlot.line(n, xAt, (j) => P[hist.pos(from + j)] * DEG, color);
+      const s = this.strips.get(i);
+      if (!hist.len || !s) continue;
+      s.r.draw(this.rPlot, tNow, t0, color);
+      s.p.draw(this.pPlot, tNow, t0, color, DEG);
     }
     if (!hist.len) this.rPlot.message("waiting for demodulator data…");
     else if (!this.selected.size) this.rPlot.message("choose demodulators above");

@@ -18,17 +18,23 @@ export class DemodHistory {
     this.len = 0;
     this.tNow = NaN;
     this.version = 0; // bumps on every push; panels redraw when it changed
+    this.total = 0; // pushes since the last clear: entry a (0, 1, …) is at ring position a % cap
+    this.epoch = 0; // bumps on every clear
+    this.channelEpoch = new Uint32Array(DEMODS); // per channel: bumps when it is cleared
   }
 
   clear() {
     this.head = 0;
     this.len = 0;
+    this.total = 0;
+    this.epoch++;
     this.tNow = NaN;
     for (let i = 0; i < DEMODS; i++) this.clearChannel(i);
     this.version++;
   }
 
   clearChannel(i) {
+    this.channelEpoch[i]++;
     this.x[i].fill(NaN); this.y[i].fill(NaN); this.r[i].fill(NaN); this.p[i].fill(NaN);
   }
 
@@ -57,6 +63,7 @@ export class DemodHistory {
       }
     }
     this.head = (k + 1) % this.cap;
+    this.total++;
     if (this.len < this.cap) this.len++;
     this.tNow = t;
     this.version++;

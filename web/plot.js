@@ -196,12 +196,7 @@ export class Plot {
    */
   line(n, xAt, yAt, color, width = 1.25) {
     const { X, Y } = this;
-    const cap = n + 8;
-    if (!this.cols || this.cols.cap < cap) {
-      const c = Math.max(cap, 4096);
-      this.cols = { cap: c, x: new Float64Array(c), fx: new Float64Array(c), first: new Float64Array(c), lo: new Float64Array(c), hi: new Float64Array(c), last: new Float64Array(c), brk: new Uint8Array(c) };
-    }
-    const C = this.cols;
+    const C = this.columnBuffer(n + 8);
     let m = -1, col = NaN, brk = 1, pts = 0;
     const xmin = this.left - 2, xmax = this.right + 2;
     for (let i = 0; i < n; i++) {
@@ -223,7 +218,25 @@ export class Plot {
       }
       if (px > xmax) break;
     }
-    const count = m + 1;
+    this.drawColumns(m + 1, pts, color, width);
+  }
+
+  /**
+   * Room for `cap` pixel columns, in pixels: x (the column), fx (the first point's exact x),
+   * first and last (y of the column's first and last point), lo and hi (its least and
+   * greatest y) and brk (1: the line breaks before the column).
+   */
+  columnBuffer(cap) {
+    if (!this.cols || this.cols.cap < cap) {
+      const c = Math.max(cap, 4096);
+      this.cols = { cap: c, x: new Float64Array(c), fx: new Float64Array(c), first: new Float64Array(c), lo: new Float64Array(c), hi: new Float64Array(c), last: new Float64Array(c), brk: new Uint8Array(c) };
+    }
+    return this.cols;
+  }
+
+  /** Draws the first `count` columns of [`columnBuffer`], summarising `pts` points, as `line` does. */
+  drawColumns(count, pts, color, width = 1.25) {
+    const C = this.cols;
     if (!count) return;
     this.clip((ctx) => {
       ctx.beginPath();

@@ -67,7 +67,7 @@ export class StatusPanel {
     const lat = st.latency.slice(0, Math.min(st.latencyCount, st.latency.length)).sort();
     const p50 = pct(lat, 0.5), p99 = pct(lat, 0.99);
     add("to page p50/p99", p50 == null ? "–" : `${si(p50 * 1e-3, "s", 3)} / ${si(p99 * 1e-3, "s", 3)}`, "",
-      "synthesis → this page received the demods message (same machine clocks)");
+      "synthesis → this page received the lock-in time point (same machine clocks); the points come 20 to a message, so this includes up to 20 output periods of waiting for the message to fill");
     const gaps = st.gaps.demods + st.gaps.spectrum + st.gaps.scope + st.gaps.status;
     add("lost here", group(gaps), gaps > 0 ? "warn" : "", "seq gaps seen by this page");
     add("display", `${st.fps.toFixed(0)} fps${st.behind ? " (behind: drawing slowed)" : ""}`, st.behind || (st.fps > 0 && st.fps < 15) ? "warn" : "",

@@ -65,6 +65,11 @@ pub(crate) const ASSETS: &[Asset] = &[
         body: include_str!("../../web/harmonics.js"),
     },
     Asset {
+        path: "/strip.js",
+        content_type: JS,
+        body: include_str!("../../web/strip.js"),
+    },
+    Asset {
         path: "/contrast.js",
         content_type: JS,
         body: include_str!("../../web/contrast.js"),
