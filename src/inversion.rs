@@ -314,6 +314,16 @@ impl ForceEstimator {
 
     /// Takes one demodulator frame; every `averaging` frames returns an estimate.
     pub fn push(&mut self, frame: &DemodFrame) -> Option<Result<ForceEstimate, EstimateError>> {
+        self.push_or_skip(frame, true)?
+    }
+
+    /// [`Self::push`], but at the end of an averaging window the fit (nearly all of the
+    /// cost) is made only if `fit`: `Some(None)` is a window whose estimate nobody wanted.
+    pub fn push_or_skip(
+        &mut self,
+        frame: &DemodFrame,
+        fit: bool,
+    ) -> Option<Option<Result<ForceEstimate, EstimateError>>> {
         for v in frame.values() {
             if let Some(s) = self.sum.get_mut(v.index as usize) {
                 *s += Complex64::new(v.x, v.y);
@@ -322,6 +332,11 @@ impl ForceEstimator {
         self.summed += 1;
         if self.summed < self.averaging {
             return None;
+        }
+        if !fit {
+            self.sum.fill(Complex64::new(0.0, 0.0));
+            self.summed = 0;
+            return Some(None);
         }
         let n = self.summed as f64;
         let mut samples = Vec::with_capacity(frame.len);
@@ -337,7 +352,7 @@ impl ForceEstimator {
             *s = Complex64::new(0.0, 0.0);
         }
         self.summed = 0;
-        Some(self.estimate(frame, &samples))
+        Some(Some(self.estimate(frame, &samples)))
     }
 
     /// An estimate from the phasors in `frame` (X + iY per demodulator, as the lock-in

@@ -639,6 +639,80 @@ async fn a_request_flood_is_answered_and_limited_not_dropped() {
     d.shutdown().await;
 }
 
+/// `ftafm_force_estimates_total{outcome=…}` from `/metrics`.
+async fn force_count(addr: std::net::SocketAddr, outcome: &str) -> u64 {
+    let (_, metrics) = http_get(addr, "/metrics").await;
+    let key = format!("ftafm_force_estimates_total{{outcome=\"{outcome}\"}} ");
+    metrics
+        .lines()
+        .find_map(|l| l.strip_prefix(&key))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("{key} in {metrics}"))
+}
+
+/// The next `n` seqs of force messages on `ws`.
+async fn force_seqs(ws: &mut Ws, n: usize) -> Vec<u64> {
+    let mut seqs = Vec::with_capacity(n);
+    while seqs.len() < n {
+        let m = next_within(ws, "force", Duration::from_secs(60)).await;
+        seqs.push(m["seq"].as_u64().unwrap());
+    }
+    seqs
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn force_estimates_nobody_takes_are_not_fitted_and_no_taker_sees_a_gap() {
+    let mut settings = default_settings();
+    settings.noise.enable = false;
+    let d = Daemon::start(settings).await;
+    // A page's subscription: every 20th estimate. Only those are fitted.
+    let mut page = connect(d.addr).await;
+    let r = call(
+        &mut page,
+        json!({"op": "subscribe", "stream": "force", "every": 20}),
+    )
+    .await;
+    assert_eq!(r["ok"], true, "{r}");
+    let seqs = force_seqs(&mut page, 5).await;
+    assert!(
+        seqs.iter().all(|s| s % 20 == 0) && seqs.windows(2).all(|w| w[1] == w[0] + 20),
+        "{seqs:?}"
+    );
+    let (ok, skipped) = (
+        force_count(d.addr, "ok").await,
+        force_count(d.addr, "skipped").await,
+    );
+    assert!(skipped >= 10 * ok, "fitted {ok}, skipped {skipped}");
+
+    // A script taking every estimate: from its reply's next_seq on, all of them, no gap;
+    // the page still gets its every 20th, 20 apart.
+    let mut script = connect(d.addr).await;
+    let r = call(&mut script, json!({"op": "subscribe", "stream": "force"})).await;
+    assert_eq!(r["ok"], true, "{r}");
+    let from = r["next_seq"].as_u64().unwrap();
+    let seqs = force_seqs(&mut script, 100).await;
+    assert!(seqs[0] >= from, "{from} → {seqs:?}");
+    assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1), "{seqs:?}");
+    let skipped_while_taken = force_count(d.addr, "skipped").await;
+    let seqs = force_seqs(&mut page, 8).await;
+    assert!(
+        seqs.iter().all(|s| s % 20 == 0) && seqs.windows(2).all(|w| w[1] == w[0] + 20),
+        "{seqs:?}"
+    );
+
+    // The script leaves: skipping resumes.
+    let r = call(&mut script, json!({"op": "unsubscribe", "stream": "force"})).await;
+    assert_eq!(r["ok"], true, "{r}");
+    force_seqs(&mut page, 3).await;
+    let skipped = force_count(d.addr, "skipped").await;
+    assert!(
+        skipped > skipped_while_taken,
+        "{skipped_while_taken} → {skipped}"
+    );
+    assert_eq!(force_count(d.addr, "failed").await, 0);
+    d.shutdown().await;
+}
+
 /// Mean of `n` force estimates' field.
 async fn force_mean(ws: &mut Ws, n: usize, field: &str) -> f64 {
     let mut sum = 0.0;

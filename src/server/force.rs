@@ -4,7 +4,7 @@
 //! dropped and counted.
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, channel, sync_channel};
 use std::time::{Duration, Instant};
 
@@ -32,7 +32,8 @@ pub(crate) enum Input {
 /// for its point's settings from one still made for the previous point's.
 #[derive(Clone, Debug)]
 pub(crate) enum ForceOutcome {
-    Estimate(u64, ForceEstimate),
+    /// Generation, the estimate, and its `seq` in the `force` stream.
+    Estimate(u64, ForceEstimate, u64),
     /// An estimate failed (e.g. no contact) at the frame of simulated time t (s).
     Failed(u64, f64, String),
     /// There is no estimator for these settings (the inversion is off, or it failed).
@@ -45,6 +46,8 @@ pub(crate) struct ForceCounters {
     pub estimates: AtomicU64,
     pub failed: AtomicU64,
     pub dropped: AtomicU64,
+    /// Averaging windows whose fit was not made: no client and no sweep was to take it.
+    pub skipped: AtomicU64,
     pub rebuilds: AtomicU64,
     /// Time spent building estimators, in ns (the builder's CPU budget, measured).
     pub rebuild_ns: AtomicU64,
@@ -61,6 +64,11 @@ pub(crate) struct ForceLink {
     pub pending: Arc<Latest<(Settings, u64)>>,
     /// Generation of the newest request.
     generation: AtomicU64,
+    /// The worker fits only the windows whose `seq` is a multiple of this: the greatest
+    /// common divisor of the subscribers' `every` (1 while a sweep takes the estimates).
+    stride: Arc<AtomicU32>,
+    /// The `seq` the worker gives its next window (fitted or skipped).
+    next_seq: Arc<AtomicU64>,
 }
 
 impl Drop for ForceLink {
@@ -85,6 +93,9 @@ impl ForceLink {
         let (out, estimates) = channel();
         let counters = Arc::new(ForceCounters::default());
         let c = counters.clone();
+        let stride = Arc::new(AtomicU32::new(1));
+        let next_seq = Arc::new(AtomicU64::new(0));
+        let (worker_stride, worker_seq) = (stride.clone(), next_seq.clone());
         std::thread::Builder::new()
             .name("inversion".into())
             .spawn(move || {
@@ -103,12 +114,23 @@ impl ForceLink {
                             let Some(e) = estimator.as_mut() else {
                                 continue;
                             };
-                            match e.push(&frame) {
-                                Some(Ok(estimate)) => {
-                                    c.estimates.fetch_add(1, Ordering::Relaxed);
-                                    Some(ForceOutcome::Estimate(generation, estimate))
+                            // Read before the window's seq moves on (SeqCst, as the
+                            // subscriber's store of the stride and read of the seq).
+                            let seq = worker_seq.load(Ordering::SeqCst);
+                            let stride = u64::from(worker_stride.load(Ordering::SeqCst).max(1));
+                            match e.push_or_skip(&frame, seq.is_multiple_of(stride)) {
+                                Some(None) => {
+                                    c.skipped.fetch_add(1, Ordering::Relaxed);
+                                    worker_seq.store(seq + 1, Ordering::SeqCst);
+                                    None
                                 }
-                                Some(Err(err)) => {
+                                Some(Some(Ok(estimate))) => {
+                                    c.estimates.fetch_add(1, Ordering::Relaxed);
+                                    worker_seq.store(seq + 1, Ordering::SeqCst);
+                                    Some(ForceOutcome::Estimate(generation, estimate, seq))
+                                }
+                                // A failed fit is no message: its seq goes to the next.
+                                Some(Some(Err(err))) => {
                                     c.failed.fetch_add(1, Ordering::Relaxed);
                                     let err = err.to_string();
                                     if let Ok(mut last) = c.last_error.lock() {
@@ -140,6 +162,8 @@ impl ForceLink {
                 counters,
                 pending,
                 generation: AtomicU64::new(0),
+                stride,
+                next_seq,
             },
             estimates,
         )
@@ -150,6 +174,14 @@ impl ForceLink {
         if let Err(TrySendError::Full(_)) = self.input.try_send(Input::Frame(*frame)) {
             self.counters.dropped.fetch_add(1, Ordering::Relaxed);
         }
+    }
+
+    /// Fit only the windows whose seq is a multiple of `stride` from now on, and return the
+    /// seq of the next window: a client subscribing now takes estimates from there on, all
+    /// of them fitted under the new stride.
+    pub fn set_stride(&self, stride: u32) -> u64 {
+        self.stride.store(stride.max(1), Ordering::SeqCst);
+        self.next_seq.load(Ordering::SeqCst)
     }
 
     /// Asks for the estimator of `settings`, built off the request path (the modulus table

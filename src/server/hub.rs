@@ -43,6 +43,7 @@ pub(crate) fn distribute(
     distribute_points(
         state,
         stream,
+        None,
         stamps,
         json,
         binary,
@@ -50,18 +51,28 @@ pub(crate) fn distribute(
     );
 }
 
-/// [`distribute`], with `point` building the message's time point for the clients that
-/// take `demods` batched ([`protocol::demods_point`]), at most once.
+/// [`distribute`], with the message's `seq` when its producer numbers them (the force
+/// worker: its skipped windows take theirs), and `point` building the message's time point
+/// for the clients that take `demods` batched ([`protocol::demods_point`]), at most once.
 fn distribute_points(
     state: &AppState,
     stream: StreamKind,
+    seq: Option<u64>,
     (t_synth_ns, t_dsp_ns): (u64, u64),
     json: impl FnOnce(u64) -> String,
     binary: impl FnOnce(u64) -> Vec<u8>,
     point: Option<impl FnOnce(u64) -> Vec<u8>>,
 ) {
     let s = stream_index(stream);
-    let seq = state.streams[s].produced.fetch_add(1, Ordering::Relaxed);
+    let seq = match seq {
+        Some(seq) => {
+            state.streams[s]
+                .produced
+                .fetch_max(seq + 1, Ordering::Relaxed);
+            seq
+        }
+        None => state.streams[s].produced.fetch_add(1, Ordering::Relaxed),
+    };
     let clients = match state.clients.lock() {
         Ok(c) => c.clone(),
         Err(_) => return,
@@ -87,7 +98,7 @@ fn distribute_points(
         let Some(format) = client.format(s) else {
             continue;
         };
-        if !client.takes(s, seq) {
+        if !client.takes(s, seq) || (stream == StreamKind::Force && seq < client.force_from()) {
             // Skipped at the client's request (`every`), not lost: no gap, no drop.
             continue;
         }
@@ -277,6 +288,7 @@ pub(crate) async fn run(
     let mut synth_to_send = Latency::new();
     let mut last_status = Instant::now();
     let mut status_count: u64 = 0;
+    let mut swept = false;
     let mut last_counters = CountersSnapshot::default();
     loop {
         tokio::select! {
@@ -284,7 +296,13 @@ pub(crate) async fn run(
             _ = wake.wait() => {}
             _ = shutdown.changed() => return,
         }
-        let force_wanted = state.subscribed(StreamKind::Force) || state.sweep_force.is_active();
+        let sweeping = state.sweep_force.is_active();
+        if sweeping != swept {
+            // A sweep takes every estimate while it runs.
+            swept = sweeping;
+            state.update_force_stride();
+        }
+        let force_wanted = state.subscribed(StreamKind::Force) || sweeping;
         let mut newest = None;
         while let Some(frame) = output.demods.try_pop() {
             newest = Some(frame);
@@ -296,6 +314,7 @@ pub(crate) async fn run(
             distribute_points(
                 &state,
                 StreamKind::Demods,
+                None,
                 (frame.t_synth_ns, frame.t_dsp_ns),
                 |seq| protocol::demods_json(seq, &frame),
                 |seq| protocol::demods_binary(seq, &frame),
@@ -327,15 +346,17 @@ pub(crate) async fn run(
         }
         while let Ok(outcome) = estimates.try_recv() {
             state.sweep_force.offer(&outcome);
-            let super::force::ForceOutcome::Estimate(_, estimate) = outcome else {
+            let super::force::ForceOutcome::Estimate(_, estimate, seq) = outcome else {
                 continue;
             };
-            distribute(
+            distribute_points(
                 &state,
                 StreamKind::Force,
+                Some(seq),
                 (estimate.t_synth_ns, 0),
                 |seq| protocol::force_json(seq, &estimate),
                 |seq| protocol::force_binary(seq, &estimate),
+                None::<fn(u64) -> Vec<u8>>,
             );
         }
         while let Some(buffer) = output.spectra.try_pop() {

@@ -219,11 +219,15 @@ pub(crate) fn render(state: &AppState) -> String {
     metric(
         "force_estimates_total",
         "counter",
-        "FT-AFM force estimates, by outcome (dropped: frames the inversion could not take in time).",
+        "FT-AFM force estimates, by outcome (dropped: frames the inversion could not take in time; skipped: averaging windows not fitted because no client or sweep was to take their estimate).",
         &[
             (
                 "{outcome=\"ok\"}".into(),
                 f.estimates.load(Ordering::Relaxed) as f64,
+            ),
+            (
+                "{outcome=\"skipped\"}".into(),
+                f.skipped.load(Ordering::Relaxed) as f64,
             ),
             (
                 "{outcome=\"failed\"}".into(),

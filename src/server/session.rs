@@ -428,12 +428,23 @@ async fn respond(
                     super::hub::flush_batch(state, client, &mut pending, max_bytes);
                     client.subscribe(stream, format, every, batch);
                 }
+            } else if stream == StreamKind::Force {
+                // The worker fits only what some client takes: this one's estimates begin
+                // where the stride that counts it does.
+                client.set_force_from(u64::MAX);
+                client.subscribe(stream, format, every, batch);
+                let from = state.update_force_stride();
+                client.set_force_from(from);
             } else {
                 client.subscribe(stream, format, every, batch);
             }
-            let next_seq = state.streams[super::state::stream_index(stream)]
-                .produced
-                .load(Ordering::Relaxed);
+            let next_seq = if stream == StreamKind::Force {
+                client.force_from()
+            } else {
+                state.streams[super::state::stream_index(stream)]
+                    .produced
+                    .load(Ordering::Relaxed)
+            };
             Ok(fields(json!({
                 "stream": stream.name(),
                 "next_seq": next_seq,
@@ -450,6 +461,9 @@ async fn respond(
                 }
             } else {
                 client.unsubscribe(stream);
+                if stream == StreamKind::Force {
+                    state.update_force_stride();
+                }
             }
             Ok(fields(json!({ "stream": stream.name() })))
         }

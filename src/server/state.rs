@@ -291,6 +291,8 @@ pub(crate) struct ClientHandle {
     every: [AtomicU32; STREAMS],
     /// Time points per `demods` message (0 or 1: one per message; more only in binary).
     batch: AtomicU32,
+    /// See [`Self::force_from`].
+    force_from: AtomicU64,
     /// The batched `demods` message being gathered, and when its first point came and the
     /// stamps of its newest. Held while points are added and while the subscription
     /// changes, so that a change sends what was gathered under the old one first.
@@ -312,6 +314,7 @@ impl ClientHandle {
             subs: Default::default(),
             every: Default::default(),
             batch: AtomicU32::new(1),
+            force_from: AtomicU64::new(0),
             pending: Mutex::default(),
             data,
             dropped: AtomicU64::new(0),
@@ -382,6 +385,21 @@ impl ClientHandle {
         }
         self.every[stream_index(stream)].store(every.max(1), Ordering::Relaxed);
         self.subs[stream_index(stream)].store(v, Ordering::Relaxed);
+    }
+
+    /// The `every` of this client's subscription to `stream` (1: every message).
+    pub fn every(&self, stream: usize) -> u32 {
+        self.every[stream].load(Ordering::Relaxed).max(1)
+    }
+
+    /// The first `seq` of the `force` stream this client takes (its subscription began
+    /// there; `u64::MAX` while it is being made).
+    pub fn force_from(&self) -> u64 {
+        self.force_from.load(Ordering::SeqCst)
+    }
+
+    pub fn set_force_from(&self, seq: u64) {
+        self.force_from.store(seq, Ordering::SeqCst);
     }
 
     /// Time points per `demods` message (1: unbatched).
@@ -522,6 +540,25 @@ impl AppState {
     }
 
     /// Whether any client is subscribed to `stream`.
+    /// Tells the force worker which windows to fit: the greatest common divisor of the
+    /// `every` of the clients subscribed to `force`, 1 while a sweep takes the estimates.
+    /// Returns the seq of the worker's next window (see [`ForceLink::set_stride`]).
+    ///
+    /// [`ForceLink::set_stride`]: super::force::ForceLink::set_stride
+    pub fn update_force_stride(&self) -> u64 {
+        let s = stream_index(StreamKind::Force);
+        let mut stride = 0u32;
+        if let Ok(clients) = self.clients.lock() {
+            for c in clients.iter().filter(|c| c.format(s).is_some()) {
+                stride = gcd(stride, c.every(s));
+            }
+        }
+        if self.sweep_force.is_active() || stride == 0 {
+            stride = 1;
+        }
+        self.force.set_stride(stride)
+    }
+
     pub fn subscribed(&self, stream: StreamKind) -> bool {
         let s = stream_index(stream);
         self.clients
@@ -563,6 +600,11 @@ impl AppState {
             .map(|s| s.dropped.load(Ordering::Relaxed))
             .sum()
     }
+}
+
+/// Greatest common divisor (gcd(0, n) = n).
+fn gcd(a: u32, b: u32) -> u32 {
+    if b == 0 { a } else { gcd(b, a % b) }
 }
 
 #[cfg(test)]

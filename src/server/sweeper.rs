@@ -168,7 +168,7 @@ impl ForcePoint {
     /// `from` (s); returns whether the point has its answer (an estimate, or why none).
     fn take(&mut self, o: &ForceOutcome, generation: u64, from: f64) -> bool {
         match o {
-            ForceOutcome::Estimate(g, e) if *g >= generation && e.t >= from => {
+            ForceOutcome::Estimate(g, e, _) if *g >= generation && e.t >= from => {
                 self.n += 1;
                 self.max_force += e.max_force;
                 self.contact_time_ratio += e.contact_time_ratio;
