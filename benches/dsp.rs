@@ -75,6 +75,7 @@ fn lockin(c: &mut Criterion) {
     group.throughput(Throughput::Elements(BLOCK as u64));
     let variants = [
         ("32_demods_order4", bank(4)),
+        ("32_demods_order4_avx2", bank(4).with_avx2_kernel()),
         ("32_demods_order8", bank(8)),
         ("32_demods_order4_portable", bank(4).with_portable_kernel()),
     ];
@@ -111,15 +112,28 @@ fn sliding_spectrum(c: &mut Criterion) {
 fn together(c: &mut Criterion) {
     let mut group = c.benchmark_group("lockin_and_spectrum");
     group.throughput(Throughput::Elements(BLOCK as u64));
+    // The spectrum as a stress (N = 4096 every 1024 samples), and as the defaults run it
+    // (N = 32768, ten a second: every 10^6 samples at 10 MS/s).
     let variants = [
-        ("32_demods_order4_n4096_hop1024", bank(4)),
+        ("32_demods_order4_n4096_hop1024", bank(4), (4096, 1024)),
+        (
+            "32_demods_order4_n4096_hop1024_avx2",
+            bank(4).with_avx2_kernel(),
+            (4096, 1024),
+        ),
         (
             "32_demods_order4_n4096_hop1024_portable",
             bank(4).with_portable_kernel(),
+            (4096, 1024),
+        ),
+        (
+            "32_demods_order4_default_spectrum",
+            bank(4),
+            (32768, (SAMPLE_RATE / 10.0) as usize),
         ),
     ];
-    for (name, mut b) in variants {
-        let mut s = spectrum(4096, 1024);
+    for (name, mut b, (size, hop)) in variants {
+        let mut s = spectrum(size, hop);
         let mut feed = Feed::new();
         group.bench_function(name, |bencher| {
             bencher.iter(|| {
@@ -134,8 +148,6 @@ fn together(c: &mut Criterion) {
     group.finish();
 }
 
-/// The DSP stage as the DSP thread runs it: 32 demodulators of order 4 and the spectrum
-/// (N = 4096, hop 1024), on 1 thread and split over 2 (the second a worker).
 fn threads(c: &mut Criterion) {
     use ftafm::config::default_settings;
     use ftafm::pipeline::{DemodValue, DspPlan, DspSink, DspTeam};

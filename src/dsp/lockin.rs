@@ -262,6 +262,8 @@ pub struct LockInBank {
     plan: Plan,
     state: State,
     fma: bool,
+    /// The AVX-512 build of the AVX2+FMA kernel (the same bits) where the CPU has it.
+    avx512: bool,
 }
 
 impl LockInBank {
@@ -361,6 +363,7 @@ impl LockInBank {
             plan,
             state,
             fma: crate::cpu::fma_available(),
+            avx512: crate::cpu::fma_available() && crate::cpu::avx512_available(),
         })
     }
 
@@ -402,6 +405,7 @@ impl LockInBank {
             let mut shard = Self::with_drive(self.sample_rate, self.state.drive, &demods)?;
             shard.plan.sections = self.plan.sections;
             shard.fma = self.fma;
+            shard.avx512 = self.avx512;
             shards.push(shard);
         }
         Ok(shards)
@@ -416,13 +420,24 @@ impl LockInBank {
     /// results agree to rounding).
     pub fn with_portable_kernel(mut self) -> Self {
         self.fma = false;
+        self.avx512 = false;
         self
     }
 
-    /// Name of the kernel in use: `"avx2+fma"`, or the portable one, `"sse2"` on x86-64
-    /// and `"scalar"` elsewhere.
+    /// Use the AVX2+FMA kernel even where the AVX-512 one could run (for comparisons: the
+    /// two give the same bits).
+    pub fn with_avx2_kernel(mut self) -> Self {
+        self.avx512 = false;
+        self
+    }
+
+    /// Name of the kernel in use: `"avx512"` (the AVX2+FMA kernel's operations on eight
+    /// lanes a register), `"avx2+fma"`, or the portable one, `"sse2"` on x86-64 and
+    /// `"scalar"` elsewhere.
     pub fn kernel(&self) -> &'static str {
-        if self.fma {
+        if self.avx512 {
+            "avx512"
+        } else if self.fma {
             "avx2+fma"
         } else if cfg!(target_arch = "x86_64") {
             "sse2"
@@ -551,7 +566,11 @@ impl LockInBank {
         F: FnMut(LockInSample),
     {
         #[cfg(target_arch = "x86_64")]
-        if self.fma {
+        if self.avx512 {
+            // SAFETY: `avx512` is only true when the CPU reported AVX-512F, AVX2 and FMA at
+            // construction.
+            unsafe { self.process_avx512(input, &mut sink) };
+        } else if self.fma {
             // SAFETY: `fma` is only true when the CPU reported AVX2 and FMA at construction.
             unsafe { self.process_avx2_fma(input, &mut sink) };
         } else {
@@ -579,6 +598,23 @@ impl LockInBank {
         // chains, enough to cover the FMA latency, and registers to spare.
         // SAFETY: the caller guarantees AVX2 and FMA.
         unsafe { self.process_kernel::<super::simd::Avx2Fma, 4, F>(input, sink) };
+    }
+
+    /// The kernel compiled for AVX-512F: the AVX2+FMA kernel's operations, eight lanes a
+    /// register.
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F, AVX2 and FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx2,fma")]
+    unsafe fn process_avx512<F>(&mut self, input: &[f64], sink: &mut F)
+    where
+        F: FnMut(LockInSample),
+    {
+        // Two registers of eight lanes for re and two for im (a block of sixteen): four
+        // FMA chains, which cover the latency of a core that does one 512-bit FMA a cycle.
+        // SAFETY: the caller guarantees AVX-512F, AVX2 and FMA.
+        unsafe { self.process_kernel::<super::simd::Avx512, 2, F>(input, sink) };
     }
 
     /// The whole block loop, monomorphised per vector type `V` (`NV` registers per
@@ -881,6 +917,47 @@ mod tests {
             assert!((out[1].r() - 0.5).abs() < 1e-6, "{:?}", out[1]);
             assert!((out[1].phase() + 1.2).abs() < 1e-6);
         }
+    }
+
+    #[test]
+    fn the_avx512_kernel_is_the_avx2_kernel_bit_for_bit() {
+        let fs = 10e6;
+        let fd = 100.0123e3;
+        // 32 demodulators (two blocks), every filter order, outputs at several rates.
+        let demods: Vec<Demodulator> = (0..32)
+            .map(|i| {
+                Demodulator::new(
+                    i + 1,
+                    1 + i % 8,
+                    20e-6 * f64::from(1 + i % 5),
+                    1e3 * f64::from(1 + i % 7),
+                )
+            })
+            .collect();
+        let mut x = tone(150_000, fs, fd, 2e-8, 0.3);
+        for (m, v) in tone(150_000, fs, 17.0 * fd, 3e-11, -1.2).iter().enumerate() {
+            x[m] += v + 1e-12 * ((m * 7919 % 1000) as f64 - 500.0);
+        }
+        let wide = LockInBank::new(fs, fd, &demods).unwrap();
+        if wide.kernel() != "avx512" {
+            eprintln!("no AVX-512 here ({}): nothing to compare", wide.kernel());
+            return;
+        }
+        let narrow = LockInBank::new(fs, fd, &demods).unwrap().with_avx2_kernel();
+        assert_eq!(narrow.kernel(), "avx2+fma");
+        let run = |mut bank: LockInBank| {
+            let mut out = Vec::new();
+            // Blocks of uneven lengths, as the ring hands them over.
+            for chunk in x.chunks(4093) {
+                bank.process(chunk, |s| {
+                    out.push((s.demod, s.sample_index, s.x.to_bits(), s.y.to_bits()))
+                });
+            }
+            out
+        };
+        let (a, b) = (run(wide), run(narrow));
+        assert!(a.len() > 1000, "{} outputs", a.len());
+        assert_eq!(a, b);
     }
 
     #[test]

@@ -69,7 +69,7 @@ impl F64s for f64 {
 }
 
 #[cfg(target_arch = "x86_64")]
-pub(super) use x86::{Avx2Fma, Sse2};
+pub(super) use x86::{Avx2Fma, Avx512, Sse2};
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
@@ -163,6 +163,52 @@ mod x86 {
         unsafe fn mul_add(self, b: Self, c: Self) -> Self {
             // SAFETY: the caller guarantees FMA.
             Self(unsafe { _mm256_fmadd_pd(self.0, b.0, c.0) })
+        }
+    }
+
+    /// Eight lanes in an AVX-512 register, multiply–adds fused: the same operations lane by
+    /// lane as [`Avx2Fma`], so the same bits. Only for CPUs that report AVX-512F (and AVX2
+    /// and FMA); the operations inline into functions compiled with that feature.
+    #[derive(Clone, Copy)]
+    pub(in crate::dsp) struct Avx512(__m512d);
+
+    impl F64s for Avx512 {
+        const LANES: usize = 8;
+
+        #[inline(always)]
+        unsafe fn splat(x: f64) -> Self {
+            // SAFETY: the caller guarantees AVX-512F.
+            Self(unsafe { _mm512_set1_pd(x) })
+        }
+        #[inline(always)]
+        unsafe fn load(src: *const f64) -> Self {
+            // SAFETY: the caller guarantees AVX-512F and eight readable values.
+            Self(unsafe { _mm512_loadu_pd(src) })
+        }
+        #[inline(always)]
+        unsafe fn store(self, dst: *mut f64) {
+            // SAFETY: the caller guarantees AVX-512F and eight writable values.
+            unsafe { _mm512_storeu_pd(dst, self.0) }
+        }
+        #[inline(always)]
+        unsafe fn add(self, b: Self) -> Self {
+            // SAFETY: the caller guarantees AVX-512F.
+            Self(unsafe { _mm512_add_pd(self.0, b.0) })
+        }
+        #[inline(always)]
+        unsafe fn sub(self, b: Self) -> Self {
+            // SAFETY: the caller guarantees AVX-512F.
+            Self(unsafe { _mm512_sub_pd(self.0, b.0) })
+        }
+        #[inline(always)]
+        unsafe fn mul(self, b: Self) -> Self {
+            // SAFETY: the caller guarantees AVX-512F.
+            Self(unsafe { _mm512_mul_pd(self.0, b.0) })
+        }
+        #[inline(always)]
+        unsafe fn mul_add(self, b: Self, c: Self) -> Self {
+            // SAFETY: the caller guarantees AVX-512F.
+            Self(unsafe { _mm512_fmadd_pd(self.0, b.0, c.0) })
         }
     }
 }
