@@ -183,7 +183,7 @@ async function onOpen(conn) {
 function onData(m, recvMs) {
   if (!(m.stream in stats.messages)) return;
   stats.frames[m.stream]++;
-  if (m.points) for (const p of m.points) onMessage(p, recvMs);
+  if (m.batched) for (const p of m.batched) onMessage(p, recvMs); // a batched demods message
   else onMessage(m, recvMs);
 }
 

@@ -34,9 +34,9 @@ export function decodeBinary(buf) {
     const records = dv.getUint32(36, true);
     const size = 24 + 40 * records;
     if (buf.byteLength !== 40 + count * size) throw new Error("batched demods frame of the wrong length");
-    m.points = new Array(count);
+    m.batched = new Array(count);
     for (let i = 0, o = 40; i < count; i++, o += size) {
-      m.points[i] = {
+      m.batched[i] = {
         stream,
         seq: Number(dv.getBigUint64(o, true)),
         t: dv.getFloat64(o + 8, true),
