@@ -278,23 +278,6 @@ async fn a_subscription_can_take_every_nth_message_and_still_sees_its_losses_as_
     d.shutdown().await;
 }
 
-/// Next binary data message, within 10 s (a guard against a hang, not a measure of speed).
-async fn next_binary(ws: &mut Ws) -> Vec<u8> {
-    use futures_util::StreamExt;
-    use tokio_tungstenite::tungstenite::Message;
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
-    loop {
-        let msg = tokio::time::timeout_at(deadline.into(), ws.next())
-            .await
-            .expect("data in time")
-            .unwrap()
-            .unwrap();
-        if let Message::Binary(b) = msg {
-            return b.to_vec();
-        }
-    }
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn batched_demods_carry_every_point_of_the_stream_byte_for_byte() {
     use ftafm::server::protocol::{BINARY_HEADER_BYTES, batched_points, decode_header};

@@ -206,7 +206,7 @@ pub(crate) fn flush_batch(
 }
 
 /// How long a batched `demods` message waits for its points at most, from its first.
-pub(crate) const BATCH_WAIT: Duration = Duration::from_millis(100);
+const BATCH_WAIT: Duration = Duration::from_millis(100);
 
 /// Queues every batched `demods` message whose first point has waited [`BATCH_WAIT`].
 fn flush_aged_batches(state: &AppState, now: Instant) {

@@ -143,6 +143,8 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
     if let Ok(mut clients) = state.clients.lock() {
         clients.retain(|c| c.id != id);
     }
+    // The force worker may skip again what this client took.
+    state.update_force_stride();
     // Let the writer flush a final close frame, but not forever.
     if !writer_done {
         let _ = tokio::time::timeout(Duration::from_secs(1), writer).await;

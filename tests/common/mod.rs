@@ -131,6 +131,21 @@ pub async fn next_within(ws: &mut Ws, stream: &str, limit: Duration) -> Value {
     }
 }
 
+/// Next binary data message, within 10 s (a guard against a hang, not a measure of speed).
+pub async fn next_binary(ws: &mut Ws) -> Vec<u8> {
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let msg = tokio::time::timeout_at(deadline.into(), ws.next())
+            .await
+            .expect("binary data in time")
+            .unwrap()
+            .unwrap();
+        if let Message::Binary(b) = msg {
+            return b.to_vec();
+        }
+    }
+}
+
 pub async fn http_get(addr: SocketAddr, path: &str) -> (u16, String) {
     let mut s = TcpStream::connect(addr).await.unwrap();
     s.write_all(
