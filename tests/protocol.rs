@@ -1084,6 +1084,26 @@ fn status_binary_carries_the_status_json() {
 }
 
 #[test]
+fn a_batched_header_off_the_wire_never_overflows() {
+    use ftafm::server::protocol::batched_points;
+    // A demods header with layout 1 announcing u32::MAX points of u32::MAX records.
+    let mut bytes = vec![0u8; BINARY_HEADER_BYTES];
+    bytes[..4].copy_from_slice(b"FTAF");
+    bytes[4] = 1;
+    bytes[6] = 1;
+    bytes[7] = 1;
+    bytes[32..36].copy_from_slice(&u32::MAX.to_le_bytes());
+    bytes[36..40].copy_from_slice(&u32::MAX.to_le_bytes());
+    let h = decode_header(&bytes).unwrap();
+    assert_eq!(h.batched_records, Some(u32::MAX));
+    assert_eq!(h.payload_bytes(), usize::MAX);
+    assert_eq!(batched_points(&bytes), None, "the length does not match");
+    // Layout 1 on another stream is not a batch.
+    bytes[6] = 2;
+    assert_eq!(decode_header(&bytes).unwrap().batched_records, None);
+}
+
+#[test]
 fn decode_header_rejects_what_is_not_a_header() {
     let good = spectrum_binary(1, &spectrum());
     assert!(decode_header(&good[..BINARY_HEADER_BYTES]).is_some());

@@ -53,7 +53,11 @@ impl BinaryHeader {
     pub fn payload_bytes(&self) -> usize {
         let count = self.count as usize;
         if let Some(records) = self.batched_records {
-            return count * (POINT_HEADER_BYTES + records as usize * DEMOD_RECORD_BYTES);
+            // Saturating: a header read off the wire may announce anything.
+            let point = (records as usize)
+                .saturating_mul(DEMOD_RECORD_BYTES)
+                .saturating_add(POINT_HEADER_BYTES);
+            return count.saturating_mul(point);
         }
         match self.stream {
             StreamKind::Demods => count * DEMOD_RECORD_BYTES,
@@ -90,14 +94,16 @@ pub fn decode_header(bytes: &[u8]) -> Option<BinaryHeader> {
                 .expect("8 bytes of a 40-byte slice"),
         )
     };
+    let stream = StreamKind::from_code(header[6])?;
     Some(BinaryHeader {
         version: u16_at(4),
-        stream: StreamKind::from_code(header[6])?,
+        stream,
         seq: u64_at(8),
         t: f64::from_bits(u64_at(16)),
         t_synth_ns: u64_at(24),
         count: u32_at(32),
-        batched_records: (header[7] == LAYOUT_BATCHED).then(|| u32_at(36)),
+        batched_records: (header[7] == LAYOUT_BATCHED && stream == StreamKind::Demods)
+            .then(|| u32_at(36)),
     })
 }
 
