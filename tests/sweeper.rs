@@ -23,12 +23,24 @@ async fn sweep(ws: &mut Ws, values: Value) -> (Vec<Value>, Value) {
     assert_eq!(r["ok"], true, "{r}");
     let mut values = values;
     values["/sweeper/enable"] = json!(true);
-    let r = call(ws, json!({"op": "set", "values": values})).await;
+    // Points may come before the reply: they are kept.
+    let mut early = Vec::new();
+    let r = call_keeping(
+        ws,
+        json!({"op": "set", "values": values}),
+        "sweep",
+        &mut early,
+    )
+    .await;
     assert_eq!(r["ok"], true, "{r}");
     let mut points = Vec::new();
+    let mut early = early.into_iter();
     loop {
         // A point may wait for its force estimator (built at nice 10): a hang guard only.
-        let m = next_within(ws, "sweep", std::time::Duration::from_secs(120)).await;
+        let m = match early.next() {
+            Some(m) => m,
+            None => next_within(ws, "sweep", std::time::Duration::from_secs(120)).await,
+        };
         if m["done"] == true {
             return (points, m);
         }
@@ -183,15 +195,21 @@ async fn a_sweep_is_aborted_by_turning_it_off_and_still_restores() {
     let d = Daemon::start(settings).await;
     let mut ws = connect(d.addr).await;
     call(&mut ws, json!({"op": "subscribe", "stream": "sweep"})).await;
-    let r = call(
+    let mut early = Vec::new();
+    let r = call_keeping(
         &mut ws,
         json!({"op": "set", "values": {"/sweeper/parameter": "/surface/distance",
                "/sweeper/start": 30e-9, "/sweeper/stop": 10e-9, "/sweeper/points": 2000,
                "/sweeper/enable": true}}),
+        "sweep",
+        &mut early,
     )
     .await;
     assert_eq!(r["ok"], true, "{r}");
-    let first = next_of(&mut ws, "sweep").await;
+    let first = match early.into_iter().next() {
+        Some(m) => m,
+        None => next_of(&mut ws, "sweep").await,
+    };
     assert_eq!(first["point"], 0);
     let r = call(
         &mut ws,

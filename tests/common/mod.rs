@@ -87,6 +87,37 @@ pub async fn call(ws: &mut Ws, request: Value) -> Value {
     reply(ws).await
 }
 
+/// Sends `request` and returns its reply, keeping the data messages of `stream` that came
+/// before it in `early` (a change can make data at once, and its messages may overtake the
+/// reply).
+pub async fn call_keeping(
+    ws: &mut Ws,
+    request: Value,
+    stream: &str,
+    early: &mut Vec<Value>,
+) -> Value {
+    ws.send(Message::Text(request.to_string().into()))
+        .await
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let msg = tokio::time::timeout_at(deadline.into(), ws.next())
+            .await
+            .expect("a reply in time")
+            .unwrap()
+            .unwrap();
+        if let Message::Text(t) = msg {
+            let v: Value = serde_json::from_str(&t).unwrap();
+            if v.get("ok").is_some() {
+                return v;
+            }
+            if v["stream"] == stream {
+                early.push(v);
+            }
+        }
+    }
+}
+
 pub async fn reply(ws: &mut Ws) -> Value {
     let deadline = Instant::now() + Duration::from_secs(10);
     loop {
