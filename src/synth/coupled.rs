@@ -84,6 +84,9 @@ pub(crate) struct CoupledLanes<V> {
     sub_gap_im: V,
     sub_gap_re: V,
     sub_gap_noise: V,
+    two_gap_re: V,
+    two_gap_im: V,
+    two_gap_noise: V,
 }
 
 /// The coupled engine's contact as it integrated it ([`SynthPlan::coupled_trace`]).
@@ -139,6 +142,13 @@ pub struct CoupledKernel {
     sub_gap_noise: [f64; MAX_MODES],
     first_gap_per_force: f64,
     gap_per_force: f64,
+    /// The same two sub-steps on: the tip's displacement after a sub-step's kick and two
+    /// drifts per unit of the Re q and Im q before them and of the held deviate (m), and
+    /// per newton-second of that kick (m/(N·s)).
+    two_gap_re: [f64; MAX_MODES],
+    two_gap_im: [f64; MAX_MODES],
+    two_gap_noise: [f64; MAX_MODES],
+    two_gap_per_impulse: f64,
     /// A sample whose ends both leave at least this gap to the surface is one step (m):
     /// a bound on how far the tip can dip below the chord of its path within a sample.
     pub(crate) margin: f64,
@@ -202,6 +212,20 @@ impl CoupledKernel {
             sub_gap_noise[m] = tip[m] * sub.noise_im[m];
             sub_gap_kick += tip[m] * sub.a_im[m] * kick[m];
         }
+        // Two drifts compose: the gap two sub-steps on is the one-sub-step gap of the
+        // drifted lanes, Σ g_re·(a_re·re − a_im·im + n_re·ξ) + g_im·(a_im·re + a_re·im +
+        // n_im·ξ) + g_ξ·ξ.
+        let (mut two_gap_re, mut two_gap_im) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
+        let mut two_gap_noise = [0.0; MAX_MODES];
+        let mut two_gap_per_impulse = 0.0;
+        for m in 0..modes.len() {
+            two_gap_re[m] = sub_gap_re[m] * sub.a_re[m] + sub_gap_im[m] * sub.a_im[m];
+            two_gap_im[m] = sub_gap_im[m] * sub.a_re[m] - sub_gap_re[m] * sub.a_im[m];
+            two_gap_noise[m] = sub_gap_re[m] * sub.noise_re[m]
+                + sub_gap_im[m] * sub.noise_im[m]
+                + sub_gap_noise[m];
+            two_gap_per_impulse += two_gap_re[m] * kick[m];
+        }
         Self {
             stiffness: contact.stiffness_coefficient(),
             sub_gap_im,
@@ -209,6 +233,10 @@ impl CoupledKernel {
             sub_gap_noise,
             first_gap_per_force: sub_gap_kick * 0.5 * dt,
             gap_per_force: sub_gap_kick * dt,
+            two_gap_re,
+            two_gap_im,
+            two_gap_noise,
+            two_gap_per_impulse,
             strength,
             a0,
             pull_off,
@@ -250,6 +278,31 @@ impl CoupledKernel {
         }
     }
 
+    /// [`force`](Self::force) at `gap` (N), and the gap after it, `base + per_force·force`
+    /// (m), with the Hertz branch's product fused: `(per_force·κδ)·√δ + base`, so the
+    /// sub-steps' chain from one gap to the next is a square root and one multiply-add.
+    #[inline(always)]
+    fn force_and_gap(&self, gap: f64, base: f64, per_force: f64) -> (f64, f64) {
+        if gap < 0.0 {
+            let delta = -gap;
+            let root = delta.sqrt();
+            let k_delta = self.stiffness * delta;
+            let hertz = k_delta * root;
+            if self.pull_off != 0.0 {
+                let next = (per_force * k_delta).mul_add(root, base - per_force * self.pull_off);
+                (hertz - self.pull_off, next)
+            } else {
+                (hertz, (per_force * k_delta).mul_add(root, base))
+            }
+        } else if self.strength != 0.0 {
+            let d = self.a0 + gap;
+            let g = -self.strength / (d * d);
+            (g, per_force.mul_add(g, base))
+        } else {
+            (0.0, base)
+        }
+    }
+
     /// The constants of [`step_lanes`](Self::step_lanes) as lanes of `V`.
     #[inline(always)]
     pub(crate) fn lanes<V: Lanes>(&self) -> CoupledLanes<V> {
@@ -267,6 +320,9 @@ impl CoupledKernel {
             sub_gap_im: V::load(&self.sub_gap_im),
             sub_gap_re: V::load(&self.sub_gap_re),
             sub_gap_noise: V::load(&self.sub_gap_noise),
+            two_gap_re: V::load(&self.two_gap_re),
+            two_gap_im: V::load(&self.two_gap_im),
+            two_gap_noise: V::load(&self.two_gap_noise),
         }
     }
 
@@ -331,11 +387,12 @@ impl CoupledKernel {
     }
 
     /// The sub-steps of [`step_lanes`](Self::step_lanes) from the force `g0` at the
-    /// sample's start, the two half kicks between them merged into one. The gap after a
-    /// drift is split into the part without the kick of the force g before it (lanes
-    /// only) and that kick's part, a scalar: C·g. So the chain from one force to the next
-    /// is one multiply-add and the force law, and the lanes' arithmetic runs beside it
-    /// instead of in it (the sub-steps are latency-bound).
+    /// sample's start, the two half kicks between them merged into one. The sub-steps are
+    /// a chain from one force to the next, so the gap at the end of sub-step j is taken
+    /// apart by what it waits for: the lanes two sub-steps back (before sub-step j − 1's
+    /// kick, a sum across lanes that runs beside the chain), that kick's part (Φ·impulse)
+    /// and sub-step j's own kick's part (C·g). The chain from one force to the next is then
+    /// two multiply-adds and the force law: no lane arithmetic, no sum across lanes.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn substeps<V: Lanes>(
@@ -349,27 +406,38 @@ impl CoupledKernel {
         mid: &mut V,
         record: &mut impl FnMut(f64),
     ) -> (V, V, f64, bool) {
-        let mut r = rho;
+        let dt = 2.0 * self.half_dt;
+        let mut r = rho * self.sub_rotation;
+        // Sub-step 0: its gap from the lanes it starts from.
+        let p = c
+            .sub_gap_im
+            .mul(im)
+            .add(c.sub_gap_re.mul(re))
+            .add(c.sub_gap_noise.mul(z));
+        let mut gap =
+            (self.free_tip * r).re + p.sum() + self.distance + self.first_gap_per_force * g0;
         let mut g = g0;
-        let mut weight = self.half_dt;
-        let mut gap_per_force = self.first_gap_per_force;
-        let mut tip = f64::NAN;
-        for j in 0..SUBSTEPS {
-            if j == SUBSTEPS / 2 {
-                // Kicks move Re q only, so Im q here is the midpoint's either side of one.
-                *mid = im;
+        let mut impulse = self.half_dt * g0;
+        for j in 1..=SUBSTEPS {
+            // The lanes before the kick of sub-step j − 1 give the gap at the end of
+            // sub-step j, with that kick's part (Φ·impulse) and sub-step j's (C·g) added.
+            let two = c
+                .two_gap_re
+                .mul(re)
+                .add(c.two_gap_im.mul(im))
+                .add(c.two_gap_noise.mul(z));
+            let next_g;
+            if j < SUBSTEPS {
+                r *= self.sub_rotation;
+                let base = (self.free_tip * r).re
+                    + two.sum()
+                    + self.distance
+                    + self.two_gap_per_impulse * impulse;
+                (next_g, gap) = self.force_and_gap(gap, base, self.gap_per_force);
+            } else {
+                next_g = self.force(gap);
             }
-            r *= self.sub_rotation;
-            let p = c
-                .sub_gap_im
-                .mul(im)
-                .add(c.sub_gap_re.mul(re))
-                .add(c.sub_gap_noise.mul(z));
-            let lanes = (self.free_tip * r).re + p.sum() + self.distance;
-            let gap = lanes + gap_per_force * g;
-            let next_g = self.force(gap);
-            tip = gap - self.distance;
-            let impulse = weight * g;
+            record(next_g);
             if g != 0.0 {
                 re = re.add(c.kick.mul(V::splat(impulse)));
             }
@@ -384,15 +452,17 @@ impl CoupledKernel {
                 .add(c.sub_a_im.mul(re))
                 .add(c.sub_noise_im.mul(z));
             re = r1;
+            if j == SUBSTEPS / 2 {
+                // Kicks move Re q only, so Im q here is the midpoint's either side of one.
+                *mid = im;
+            }
             g = next_g;
-            record(g);
-            weight = 2.0 * self.half_dt;
-            gap_per_force = self.gap_per_force;
+            impulse = dt * g;
         }
         if g != 0.0 {
             re = re.add(c.kick.mul(V::splat(self.half_dt * g)));
         }
-        (re, im, tip, true)
+        (re, im, gap - self.distance, true)
     }
 
     /// The modal states at drive phase `theta` (rad) on the engine's own periodic orbit: the
