@@ -49,9 +49,27 @@ use crate::synth::{PixelTopography, PlanError, ScanRuntime, SynthPlan, SynthStat
 use dsp_worker::DspWorker;
 use synth_worker::SynthWorker;
 
-/// Capacity of the sample ring: 2^21 samples, 0.21 s at 10 MS/s, so the DSP thread may be
-/// descheduled for a fifth of a second before anything is lost.
+/// The sample ring holds at least this long of the stream (s): the DSP thread may fall half
+/// a second behind the synthesiser (descheduled beside a browser on two vCPUs, say) before
+/// anything is lost. Only a DSP that is behind makes its outputs late; one that keeps up
+/// keeps the ring nearly empty.
+pub const RING_SECONDS: f64 = 0.5;
+/// The sample ring's least capacity (samples): 1.05 s at 2 MS/s.
 pub const SAMPLE_RING: usize = 1 << 21;
+/// The sample ring's largest capacity (samples, 128 MiB): 0.67 s at 25 MS/s, 0.17 s at
+/// 100 MS/s (rates that run in real time nowhere yet).
+pub const SAMPLE_RING_MAX: usize = 1 << 24;
+
+/// The sample ring's capacity (samples) at `sample_rate` (S/s): [`RING_SECONDS`] of the
+/// stream in whole blocks, within [`SAMPLE_RING`] … [`SAMPLE_RING_MAX`]. 5 001 216 samples
+/// (40 MB) at the defaults' 10 MS/s, 12 500 992 (100 MB) at 25 MS/s.
+pub fn ring_samples(sample_rate: f64) -> usize {
+    let blocks = (RING_SECONDS * sample_rate / BLOCK_SAMPLES as f64).ceil();
+    // `as` saturates a NaN or huge product, which the clamp then bounds.
+    (blocks as usize)
+        .saturating_mul(BLOCK_SAMPLES)
+        .clamp(SAMPLE_RING, SAMPLE_RING_MAX)
+}
 /// Plans in flight per thread (queued plus waiting to be freed).
 const PLAN_SLOTS: usize = 4;
 /// How long [`Pipeline::apply`] waits for the threads to take queued plans before it
@@ -293,9 +311,10 @@ impl Pipeline {
         let (noise_supply, noise_factory) = crate::synth::noise_pages::page_queue();
         state.attach_noise_supply(noise_supply);
 
-        let (samples_in, samples_out) = HeapRb::<f64>::new(SAMPLE_RING).split();
+        let ring = ring_samples(settings.synth.sample_rate);
+        let (samples_in, samples_out) = HeapRb::<f64>::new(ring).split();
         let (headers_in, headers_out) =
-            HeapRb::<BlockHeader>::new(SAMPLE_RING / BLOCK_SAMPLES + 1).split();
+            HeapRb::<BlockHeader>::new(ring / BLOCK_SAMPLES + 1).split();
         let (demods_in, demods_out) = HeapRb::<DemodFrame>::new(DEMOD_QUEUE).split();
         // Pools sized for the largest spectrum and trace the settings allow, so a live change
         // of /spectrum/size or /scope/length never needs a bigger buffer on the DSP thread.
@@ -537,5 +556,32 @@ impl Pipeline {
 impl Drop for Pipeline {
     fn drop(&mut self) {
         self.shutdown();
+    }
+}
+
+#[cfg(test)]
+mod ring_tests {
+    use super::*;
+
+    /// Half a second of the stream in whole blocks, within the least and largest ring.
+    #[test]
+    fn the_sample_ring_holds_half_a_second_within_its_bounds() {
+        for rate in [1e3, 2e6, 10e6, 25e6, 40e6, 1e9] {
+            let ring = ring_samples(rate);
+            assert_eq!(ring % BLOCK_SAMPLES, 0, "{rate}");
+            assert!((SAMPLE_RING..=SAMPLE_RING_MAX).contains(&ring), "{rate}");
+            let seconds = ring as f64 / rate;
+            if ring > SAMPLE_RING && ring < SAMPLE_RING_MAX {
+                assert!(seconds >= RING_SECONDS, "{rate}: {seconds} s");
+                assert!(
+                    seconds < RING_SECONDS + BLOCK_SAMPLES as f64 / rate,
+                    "{rate}"
+                );
+            }
+        }
+        assert_eq!(ring_samples(10e6), 5_001_216);
+        assert_eq!(ring_samples(25e6), 12_500_992);
+        assert_eq!(ring_samples(2e6), SAMPLE_RING);
+        assert_eq!(ring_samples(1e9), SAMPLE_RING_MAX);
     }
 }

@@ -218,8 +218,8 @@ async fn image_file(
 }
 
 /// Longest the pipeline may go without finishing a block before `/healthz` reports it
-/// stalled: far beyond any scheduling hiccup (the sample ring itself holds 0.2 s at
-/// 10 MS/s), far below what an operator would call running.
+/// stalled: far beyond any scheduling hiccup (the sample ring itself holds 0.5 s), far
+/// below what an operator would call running.
 const STALL_LIMIT_NS: u64 = 2_000_000_000;
 
 /// `GET /healthz`: 200 `ok` while the pipeline runs; 503 with the reason while it starts

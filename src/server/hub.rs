@@ -17,7 +17,7 @@ use super::memory::release_freed_memory;
 use super::protocol::{self, Format, StreamKind};
 use super::state::{AppState, ClientHandle, PendingBatch, Stamps, stream_index};
 use super::status::StatusReport;
-use crate::pipeline::{CountersSnapshot, FrameSignal, PipelineOutput, SAMPLE_RING, unix_ns};
+use crate::pipeline::{CountersSnapshot, FrameSignal, PipelineOutput, ring_samples, unix_ns};
 
 /// How often the hub looks for frames without being woken: the demodulators' 1 kHz output
 /// period. The DSP thread wakes it as soon as it has demodulator frames (where the system
@@ -415,7 +415,7 @@ pub(crate) async fn run(
                 realtime_factor: processed as f64 / elapsed.as_secs_f64() / state.sample_rate,
                 realtime,
                 ring_fill: counters.ring_fill,
-                ring_capacity: SAMPLE_RING as u64,
+                ring_capacity: ring_samples(state.sample_rate) as u64,
                 clients: state.client_count() as u64,
                 messages_dropped: state.dropped_total(),
                 latency_synth_to_dsp: synth_to_dsp.take_interval(),
