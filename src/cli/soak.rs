@@ -999,34 +999,31 @@ pub async fn run(
             daemon_stall_max_ns: daemon_stalls.max.swap(0, Ordering::Relaxed),
         });
     };
-    loop {
-        let elapsed = start.elapsed();
-        if elapsed >= duration {
-            break;
+    // A point for every whole second that falls within the run, however late the
+    // collector wakes on a busy machine (a late tick is taken late, not skipped), then the
+    // last part second's.
+    while next < duration {
+        tokio::time::sleep(next.saturating_sub(start.elapsed())).await;
+        if during.values.is_empty() {
+            // Once, with every client connected: the server's view of the clients.
+            during = fetch_metrics(&target).await.unwrap_or_default();
         }
-        let wake = next.min(duration);
-        tokio::time::sleep(wake.saturating_sub(elapsed)).await;
-        if wake == next && wake < duration {
-            if during.values.is_empty() {
-                // Once, with every client connected: the server's view of the clients.
-                during = fetch_metrics(&target).await.unwrap_or_default();
-            }
-            take_interval(start.elapsed().as_secs_f64());
-            let (h, per, disconnects) = summarize();
-            progress(&SoakProgress {
-                elapsed: start.elapsed().as_secs_f64(),
-                messages: per.iter().map(|p| p.0).sum(),
-                gaps: per.iter().map(|p| p.1).sum(),
-                disconnects,
-                p99_ns: if h.is_empty() {
-                    0
-                } else {
-                    h.value_at_quantile(0.99)
-                },
-            });
-            next += Duration::from_secs(1);
-        }
+        take_interval(start.elapsed().as_secs_f64());
+        let (h, per, disconnects) = summarize();
+        progress(&SoakProgress {
+            elapsed: start.elapsed().as_secs_f64(),
+            messages: per.iter().map(|p| p.0).sum(),
+            gaps: per.iter().map(|p| p.1).sum(),
+            disconnects,
+            p99_ns: if h.is_empty() {
+                0
+            } else {
+                h.value_at_quantile(0.99)
+            },
+        });
+        next += Duration::from_secs(1);
     }
+    tokio::time::sleep(duration.saturating_sub(start.elapsed())).await;
     state.store(DONE, Ordering::Release);
     let seconds = start.elapsed().as_secs_f64();
     take_interval(seconds);
