@@ -99,26 +99,22 @@ pub async fn call_keeping(
     ws.send(Message::Text(request.to_string().into()))
         .await
         .unwrap();
-    let deadline = Instant::now() + Duration::from_secs(10);
-    loop {
-        let msg = tokio::time::timeout_at(deadline.into(), ws.next())
-            .await
-            .expect("a reply in time")
-            .unwrap()
-            .unwrap();
-        if let Message::Text(t) = msg {
-            let v: Value = serde_json::from_str(&t).unwrap();
-            if v.get("ok").is_some() {
-                return v;
-            }
-            if v["stream"] == stream {
-                early.push(v);
-            }
+    reply_keeping(ws, |v| {
+        if v["stream"] == stream {
+            early.push(v);
         }
-    }
+    })
+    .await
 }
 
+/// The next reply, skipping data messages, within 10 s.
 pub async fn reply(ws: &mut Ws) -> Value {
+    reply_keeping(ws, |_| {}).await
+}
+
+/// The next reply (a message with "ok"; data messages never have one), within 10 s,
+/// handing the JSON data messages before it to `other`.
+async fn reply_keeping(ws: &mut Ws, mut other: impl FnMut(Value)) -> Value {
     let deadline = Instant::now() + Duration::from_secs(10);
     loop {
         let msg = tokio::time::timeout_at(deadline.into(), ws.next())
@@ -128,10 +124,10 @@ pub async fn reply(ws: &mut Ws) -> Value {
             .unwrap();
         if let Message::Text(t) = msg {
             let v: Value = serde_json::from_str(&t).unwrap();
-            // Replies carry "ok"; data messages never do.
             if v.get("ok").is_some() {
                 return v;
             }
+            other(v);
         }
     }
 }
