@@ -3,8 +3,8 @@
 //! force on and the detector's noise and the ADC's rounding off, each demodulated over
 //! whole drive periods (as the lock-in's reference does, with its time constant → ∞).
 //!
-//! `cargo run --release --example thermal_jitter -- [SECONDS] [coupled|paper]`
-//! (default 1 s, the coupled engine; default settings otherwise). Prints, for two seeds,
+//! `cargo run --release --example thermal_jitter -- [SECONDS] [coupled|paper] [KELVIN]`
+//! (default 1 s, the coupled engine, the default 300 K; default settings otherwise). Prints, for two seeds,
 //! the relative change of H1, H6, H17, H18 and the equivalent rms jitter of the tap against
 //! the drive (1 − |⟨e^{ikφ}⟩| ≈ k²σ²/2 for a small jitter φ of any distribution), and the
 //! modulus the estimator reads off the averaged harmonics.
@@ -64,6 +64,12 @@ fn main() {
             std::process::exit(2);
         }
     };
+    if let Some(kelvin) = args.get(2) {
+        settings.noise.temperature = kelvin.parse().unwrap_or_else(|_| {
+            eprintln!("KELVIN must be a number, not {kelvin}");
+            std::process::exit(2);
+        });
+    }
     let estimator = ForceEstimator::new(&settings)
         .expect("a valid estimator")
         .expect("the inversion is on by default");
