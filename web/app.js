@@ -42,6 +42,7 @@ const stats = {
   latencyCount: 0,
   framesSkipped: 0, // animation frames not drawn because the page was behind its messages
   behind: false, // the page handles messages 0.5 s later than it did (its backlog): it draws less
+  strained: false, // the daemon reported falling behind real time in the last 5 s: the page draws less
   sets: 0,
   rejects: 0,
   references: 0,
@@ -201,6 +202,7 @@ function onMessage(m, recvMs) {
     stats.latency[stats.latencyCount++ % stats.latency.length] = late;
     backlog.add(late, recvMs);
   } else {
+    if (s === "status") noteStrain(m, performance.now());
     try {
       byStream[s].onData(m);
     } catch (e) {
@@ -230,6 +232,19 @@ let fpsT0 = performance.now(), fpsDraws = 0, fpsFrames = 0, factsT = 0;
 // waits four such costs between draws.
 let lastDraw = -Infinity, drawCost = 0, drew = false;
 const BEHIND_MS = 500, SLOW_DRAW_MS = 500, FRAME_MS = 26;
+
+// The daemon may share the machine with this page (two vCPUs, say), where the page's drawing
+// costs as much CPU as the synthesiser. While the daemon reports falling behind real time (a
+// paced chain whose real-time factor is below 0.98, or a sample ring more than 5 % full) the
+// page draws at most 10 times a second, and for 5 s after the last such report, giving the
+// rest back to the instrument. Where the daemon runs elsewhere this costs only smoothness.
+const STRAINED_FRAME_MS = 100, STRAINED_HOLD_MS = 5000;
+let strainedUntil = -Infinity;
+function noteStrain(s, now) {
+  const behind = s.realtime && typeof s.realtime_factor === "number" && s.realtime_factor < 0.98;
+  const filling = s.ring_capacity > 0 && s.ring_fill > 0.05 * s.ring_capacity;
+  if (behind || filling) strainedUntil = now + STRAINED_HOLD_MS;
+}
 function frame(now) {
   fpsFrames++;
   if (drew) {
@@ -237,13 +252,15 @@ function frame(now) {
     drew = false;
   }
   stats.behind = backlog.behind(performance.timeOrigin + now, BEHIND_MS);
+  stats.strained = now < strainedUntil;
+  const frameMs = stats.strained ? STRAINED_FRAME_MS : FRAME_MS;
   // Every panel draws in the same frames, at most ~30 a second (every second frame of a 60 Hz
   // display): each frame that changes a canvas costs the browser a composited frame, so
   // panels drawing in frames of their own would cost up to twice as many.
-  if (now - lastDraw < FRAME_MS) {
+  if (now - lastDraw < frameMs) {
     // Not asking for every frame lets the browser skip the frames in between (an animation
     // frame requested is a frame produced, drawn into or not).
-    setTimeout(() => requestAnimationFrame(frame), Math.max(0, FRAME_MS - (now - lastDraw) - 8));
+    setTimeout(() => requestAnimationFrame(frame), Math.max(0, frameMs - (now - lastDraw) - 8));
     return;
   }
   if (stats.behind && now - lastDraw < Math.max(SLOW_DRAW_MS, 4 * drawCost)) {
@@ -278,8 +295,8 @@ function frame(now) {
       (h ? `<span>${esc(h.server)} ${esc(h.version)} · protocol ${esc(h.protocol)}</span><span>f<sub>s</sub> <b>${si(h.sample_rate, "Hz", 3)}</b></span>` : "") +
       `<span title="simulated time of the newest lock-in output">t <b>${isFinite(t) ? t.toFixed(2) + " s" : "–"}</b></span>`;
   }
-  // The next draw is due in FRAME_MS: ask for the frame after the one in between.
-  setTimeout(() => requestAnimationFrame(frame), FRAME_MS - 10);
+  // The next draw is due in a frame's time: ask for the frame before it is due.
+  setTimeout(() => requestAnimationFrame(frame), (stats.strained ? STRAINED_FRAME_MS : FRAME_MS) - 10);
 }
 requestAnimationFrame(frame);
 setInterval(refreshParams, 3000);

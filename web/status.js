@@ -70,8 +70,9 @@ export class StatusPanel {
       "synthesis → this page received the lock-in time point (same machine clocks); the points come 20 to a message, so this includes up to 20 output periods of waiting for the message to fill");
     const gaps = st.gaps.demods + st.gaps.spectrum + st.gaps.scope + st.gaps.status;
     add("lost here", group(gaps), gaps > 0 ? "warn" : "", "seq gaps seen by this page");
-    add("display", `${st.fps.toFixed(0)} fps${st.behind ? " (behind: drawing slowed)" : ""}`, st.behind || (st.fps > 0 && st.fps < 15) ? "warn" : "",
-      "frames drawn per second by this page; behind its messages (handled 0.5 s later than at best in the last 10 s) it draws at most twice a second and at most a fifth of the time, so that reading keeps up");
+    const slowed = st.behind ? " (behind: drawing slowed)" : st.strained ? " (the daemon is behind real time: drawing less)" : "";
+    add("display", `${st.fps.toFixed(0)} fps${slowed}`, st.behind || st.strained || (st.fps > 0 && st.fps < 15) ? "warn" : "",
+      "frames drawn per second by this page; behind its messages (handled 0.5 s later than at best in the last 10 s) it draws at most twice a second and at most a fifth of the time, so that reading keeps up; while the daemon reports falling behind real time (real-time factor below 0.98, or its sample ring over 5 % full) it draws at most 10 times a second, until 5 s after the last such report, to give a machine it shares with the daemon back its CPU");
     this.el.innerHTML = rows.join("");
   }
 }

@@ -16,10 +16,16 @@ export const daemons = new Set();
 process.on("exit", () => { for (const d of daemons) d.kill("SIGKILL"); });
 for (const sig of ["SIGINT", "SIGTERM"]) process.once(sig, () => process.exit(128 + (sig === "SIGINT" ? 2 : 15)));
 
-/** Starts `ftafm serve --bind bind …extra`; resolves with the process and its dashboard URL (first stdout line). */
-export function startDaemon(bind, extra = []) {
+/**
+ * Starts `ftafm serve --bind bind …extra`; resolves with the process and its dashboard URL
+ * (first stdout line). `nice`: run it at that nice value (through nice(1), which execs it).
+ */
+export function startDaemon(bind, extra = [], { nice = null } = {}) {
   return new Promise((resolve, reject) => {
-    const proc = spawn(BIN, ["serve", "--bind", bind, ...extra], { stdio: ["ignore", "pipe", "pipe"] });
+    const args = ["serve", "--bind", bind, ...extra];
+    const proc = nice === null
+      ? spawn(BIN, args, { stdio: ["ignore", "pipe", "pipe"] })
+      : spawn("nice", ["-n", String(nice), BIN, ...args], { stdio: ["ignore", "pipe", "pipe"] });
     daemons.add(proc);
     let out = "", err = "";
     const timer = setTimeout(() => { proc.kill("SIGKILL"); reject(new Error(`daemon did not print its URL within 20 s; stderr:\n${err}`)); }, 20000);
