@@ -391,8 +391,9 @@ impl CoupledKernel {
     /// a chain from one force to the next, so the gap at the end of sub-step j is taken
     /// apart by what it waits for: the lanes two sub-steps back (before sub-step j − 1's
     /// kick, a sum across lanes that runs beside the chain), that kick's part (Φ·impulse)
-    /// and sub-step j's own kick's part (C·g). The chain from one force to the next is then
-    /// two multiply-adds and the force law: no lane arithmetic, no sum across lanes.
+    /// and sub-step j's own kick's part (C·g, fused into the force law). The chain from one
+    /// gap to the next is then the force law's square root and one multiply-add; the lanes'
+    /// arithmetic and the kick's part, a sub-step ahead of it, run beside it.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn substeps<V: Lanes>(
