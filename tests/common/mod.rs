@@ -115,21 +115,16 @@ pub async fn reply(ws: &mut Ws) -> Value {
 /// The next reply (a message with "ok"; data messages never have one), within 10 s,
 /// handing the JSON data messages before it to `other`.
 async fn reply_keeping(ws: &mut Ws, mut other: impl FnMut(Value)) -> Value {
-    let deadline = Instant::now() + Duration::from_secs(10);
-    loop {
-        let msg = tokio::time::timeout_at(deadline.into(), ws.next())
-            .await
-            .expect("a reply in time")
-            .unwrap()
-            .unwrap();
-        if let Message::Text(t) = msg {
-            let v: Value = serde_json::from_str(&t).unwrap();
-            if v.get("ok").is_some() {
-                return v;
-            }
-            other(v);
+    next_where(ws, Duration::from_secs(10), "a reply", |msg| {
+        let Message::Text(t) = msg else { return None };
+        let v: Value = serde_json::from_str(&t).unwrap();
+        if v.get("ok").is_some() {
+            return Some(v);
         }
-    }
+        other(v);
+        None
+    })
+    .await
 }
 
 /// Next data message of `stream` (JSON), within 10 s: a guard against a hang, not a
@@ -142,33 +137,45 @@ pub async fn next_of(ws: &mut Ws, stream: &str) -> Value {
 /// off the real-time threads (a sweep point waits for its force estimator, built at low
 /// priority), which a loaded machine may slow down many times over.
 pub async fn next_within(ws: &mut Ws, stream: &str, limit: Duration) -> Value {
-    let deadline = Instant::now() + limit;
-    loop {
-        let msg = tokio::time::timeout_at(deadline.into(), ws.next())
-            .await
-            .expect("data in time")
-            .unwrap()
-            .unwrap();
-        if let Message::Text(t) = msg {
-            let v: Value = serde_json::from_str(&t).unwrap();
-            if v["stream"] == stream && v.get("ok").is_none() {
-                return v;
-            }
-        }
-    }
+    next_where(ws, limit, "data", |msg| {
+        let Message::Text(t) = msg else { return None };
+        let v: Value = serde_json::from_str(&t).unwrap();
+        (v["stream"] == stream && v.get("ok").is_none()).then_some(v)
+    })
+    .await
 }
 
 /// Next binary data message, within 10 s (a guard against a hang, not a measure of speed).
 pub async fn next_binary(ws: &mut Ws) -> Vec<u8> {
-    let deadline = Instant::now() + Duration::from_secs(10);
+    next_where(
+        ws,
+        Duration::from_secs(10),
+        "binary data",
+        |msg| match msg {
+            Message::Binary(b) => Some(b.to_vec()),
+            _ => None,
+        },
+    )
+    .await
+}
+
+/// The first message within `limit` that `pick` takes (`Some`); panics naming `what` if
+/// none comes in time (a hang guard).
+async fn next_where<T>(
+    ws: &mut Ws,
+    limit: Duration,
+    what: &str,
+    mut pick: impl FnMut(Message) -> Option<T>,
+) -> T {
+    let deadline = Instant::now() + limit;
     loop {
         let msg = tokio::time::timeout_at(deadline.into(), ws.next())
             .await
-            .expect("binary data in time")
+            .unwrap_or_else(|_| panic!("{what} in time"))
             .unwrap()
             .unwrap();
-        if let Message::Binary(b) = msg {
-            return b.to_vec();
+        if let Some(v) = pick(msg) {
+            return v;
         }
     }
 }
