@@ -35,6 +35,7 @@ const stats = {
   frames: zero(), // WebSocket messages received per stream (a batched demods message holds many points)
   draws: { harmonics: 0, contrast: 0, scope: 0, spectrum: 0, force: 0, image: 0, sweep: 0 },
   connects: 0,
+  disconnects: [], // the last 20 closes of the connection: { at: page time (ms), why: the status line's words }
   state: "connecting",
   fps: 0, // redraws per second of the time plot (the page's animation rate)
   rafFps: 0, // animation frames per second the page took (it asks for about every second one)
@@ -152,6 +153,10 @@ const backlog = {
 
 function onState(state, detail) {
   stats.state = state;
+  if (state === "closed") {
+    stats.disconnects.push({ at: Math.round(performance.now()), why: detail });
+    if (stats.disconnects.length > 20) stats.disconnects.shift();
+  }
   connEl.dataset.state = state;
   connText.textContent = state === "open" ? "connected" : state === "connecting" ? `connecting…${detail ? " (" + detail + ")" : ""}` : `disconnected: ${detail}`;
   document.body.classList.toggle("offline", state !== "open");

@@ -13,12 +13,9 @@ import assert from "node:assert/strict";
 import { mkdtempSync, readFileSync, rmSync, writeFileSync } from "node:fs";
 import { tmpdir } from "node:os";
 import path from "node:path";
-import { chromium } from "playwright-core";
+import { launchBrowser } from "./browser.mjs";
 import { daemons, startDaemon, stopDaemon } from "./daemon.mjs";
 
-const CHROMIUM = process.env.CHROMIUM ?? "/usr/bin/chromium";
-const ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-  "--disable-background-networking", "--disable-component-update", "--disable-sync"];
 const PIXELS = 16;
 // Waits are generous: on a loaded machine the daemon runs below real time (a 0.8 s frame can
 // take several seconds); on an idle one every wait ends within about a frame.
@@ -34,7 +31,7 @@ line_rate = 20.0
 enable = false
 `;
 
-let daemon, url, context, page, profile, work;
+let daemon, url, context, page, work, closeBrowser;
 const consoleErrors = [];
 const pageErrors = [];
 
@@ -78,22 +75,14 @@ before(async () => {
   writeFileSync(overlay, OVERLAY);
   daemon = await startDaemon("127.0.0.1:0", ["--config", overlay]);
   url = daemon.url;
-  profile = path.join(work, "profile");
-  context = await chromium.launchPersistentContext(profile, {
-    executablePath: CHROMIUM,
-    headless: true,
-    args: ARGS,
-    viewport: { width: 1600, height: 1000 },
-    acceptDownloads: true,
-  });
-  page = context.pages()[0] ?? (await context.newPage());
+  ({ context, page, close: closeBrowser } = await launchBrowser({ acceptDownloads: true }));
   context.setDefaultTimeout(WAIT); // every action (click, fill, scroll) too: a hang guard
   page.on("console", (m) => { if (m.type() === "error") consoleErrors.push(m.text()); });
   page.on("pageerror", (e) => pageErrors.push(String(e)));
 });
 
 after(async () => {
-  await context?.close().catch(() => {});
+  await closeBrowser?.();
   for (const d of [...daemons]) await stopDaemon({ proc: d });
   if (work) rmSync(work, { recursive: true, force: true });
 });
@@ -326,7 +315,24 @@ const droppedPixels = () => page.evaluate(() => fetch("/metrics").then((r) => r.
   text.split("\n").filter((l) => l.startsWith("ftafm_scan_pixels_total{") && l.includes('outcome="dropped"'))
     .reduce((sum, l) => sum + Number(l.split(" ").pop()), 0));
 
-test("a 64-line scan at 8 lines/s reaches the page without losing a line", { timeout: 240000 }, async (t) => {
+/**
+ * Waits until fn(arg) holds in the page while lines keep arriving: a stall guard, not a time
+ * limit. It fails only when no image line has reached the page for `stall` ms (a wedged
+ * stream), however long a busy machine takes over the whole wait.
+ */
+async function whileLinesArrive(fn, arg, what, stall = WAIT) {
+  const seen = () => page.evaluate(() => window.ftafm.stats.messages.image);
+  let lines = await seen(), since = Date.now();
+  for (;;) {
+    if (await page.evaluate(fn, arg)) return;
+    const now = await seen();
+    if (now !== lines) { lines = now; since = Date.now(); }
+    else if (Date.now() - since > stall) return until(fn, arg, `${what} (no image line for ${stall} ms)`, 1);
+    await page.waitForTimeout(100);
+  }
+}
+
+test("a 64-line scan at 8 lines/s reaches the page without losing a line", { timeout: 900000 }, async (t) => {
   await page.locator("#p-image").scrollIntoViewIfNeeded();
   await until(() => window.ftafm.image().subscribed, null, "the image subscription");
   await page.evaluate(async () => {
@@ -334,25 +340,41 @@ test("a 64-line scan at 8 lines/s reaches the page without losing a line", { tim
     await c.request("set", { path: "/scan/line_rate", value: 8 });
     await c.request("set", { path: "/scan/pixels", value: 64 });
   });
-  // The first 64-pixel frame may start mid-way; count from the next one that starts.
-  await until(() => { const i = window.ftafm.image(); return i.pixels === 64 && i.line === 0; }, null, "a 64-line frame to start", 60000);
-  const before = await page.evaluate(() => ({ gaps: window.ftafm.stats.gaps.image, frame: window.ftafm.image().frame }));
-  const droppedBefore = await droppedPixels();
-  // That frame finished: it is the page's last finished frame.
-  await until((f) => { const l = window.ftafm.image().lastFrame; return l && l.pixels === 64 && l.frame === f; }, before.frame, "that frame to finish", 90000);
-  const after = await page.evaluate(() => ({ gaps: window.ftafm.stats.gaps.image, lines: window.ftafm.image().lastFrame.lines }));
-  const dropped = (await droppedPixels()) - droppedBefore;
-  t.diagnostic(`64-line frame: ${after.lines} lines on the page, ${after.gaps - before.gaps} lost on the way, ${dropped} pixels dropped in the daemon meanwhile`);
-  assert.equal(after.gaps - before.gaps, 0, "no seq gap in the image stream");
-  // A line can be missing only if the daemon lost its pixels and counted them (an overrun
-  // on a machine too busy for real time cuts them): never silently.
-  assert.ok(after.lines === 64 || dropped >= 64 - after.lines, `${64 - after.lines} lines missing, ${dropped} pixels counted as dropped`);
+  // A frame takes 8 s of simulated time; a busy machine can stretch that many times over,
+  // so the waits below end on the frame's lines, and fail only if the lines stop coming.
+  // A reconnect (the page's or the daemon's watchdog, on a machine busy enough) loses the
+  // lines sent meanwhile by design: it is reported, and the next frame is measured instead;
+  // lines lost within one connection fail the test.
+  for (let attempt = 1; ; attempt++) {
+    // The first 64-pixel frame may start mid-way; count from the next one that starts.
+    await whileLinesArrive(() => { const i = window.ftafm.image(); return i.pixels === 64 && i.line === 0; }, null, "a 64-line frame to start");
+    const before = await page.evaluate(() => ({ gaps: window.ftafm.stats.gaps.image, frame: window.ftafm.image().frame, generation: window.ftafm.image().generation, connects: window.ftafm.stats.connects }));
+    const droppedBefore = await droppedPixels();
+    // That frame finished (it is the page's last finished frame), or the connection dropped.
+    await whileLinesArrive((b) => {
+      const l = window.ftafm.image().lastFrame;
+      return (l && l.pixels === 64 && l.frame === b.frame && l.generation === b.generation) || window.ftafm.stats.connects !== b.connects;
+    }, before, "that frame to finish");
+    const after = await page.evaluate(() => ({ gaps: window.ftafm.stats.gaps.image, lines: window.ftafm.image().lastFrame?.lines, connects: window.ftafm.stats.connects, why: window.ftafm.stats.disconnects.at(-1)?.why }));
+    if (after.connects !== before.connects) {
+      t.diagnostic(`attempt ${attempt}: the connection dropped during the frame (${after.why}); measuring the next frame`);
+      assert.ok(attempt < 3, `the connection dropped during ${attempt} frames in a row (last: ${after.why})`);
+      continue;
+    }
+    const dropped = (await droppedPixels()) - droppedBefore;
+    t.diagnostic(`64-line frame: ${after.lines} lines on the page, ${after.gaps - before.gaps} lost on the way, ${dropped} pixels dropped in the daemon meanwhile`);
+    assert.equal(after.gaps - before.gaps, 0, "no seq gap in the image stream");
+    // A line can be missing only if the daemon lost its pixels and counted them (an overrun
+    // on a machine too busy for real time cuts them): never silently.
+    assert.ok(after.lines === 64 || dropped >= 64 - after.lines, `${64 - after.lines} lines missing, ${dropped} pixels counted as dropped`);
+    break;
+  }
 });
 
 test("no console or page errors during the whole session", async (t) => {
   // Scan lines take their own lane to the page: none may be lost, busy machine or not.
-  const st = await page.evaluate(() => ({ gaps: window.ftafm.stats.gaps.image, lines: window.ftafm.stats.messages.image, connects: window.ftafm.stats.connects }));
-  t.diagnostic(`image lines: ${st.lines} received, ${st.gaps} lost (seq gaps); connections: ${st.connects}`);
+  const st = await page.evaluate(() => ({ gaps: window.ftafm.stats.gaps.image, lines: window.ftafm.stats.messages.image, connects: window.ftafm.stats.connects, disconnects: window.ftafm.stats.disconnects }));
+  t.diagnostic(`image lines: ${st.lines} received, ${st.gaps} lost (seq gaps); connections: ${st.connects}; disconnects: ${JSON.stringify(st.disconnects)}`);
   assert.equal(st.gaps, 0, "image lines lost");
   assert.deepEqual(consoleErrors, [], "console errors");
   assert.deepEqual(pageErrors, [], "page errors");

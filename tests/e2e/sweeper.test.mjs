@@ -9,12 +9,9 @@ import assert from "node:assert/strict";
 import { mkdtempSync, readFileSync, rmSync, writeFileSync } from "node:fs";
 import { tmpdir } from "node:os";
 import path from "node:path";
-import { chromium } from "playwright-core";
+import { launchBrowser } from "./browser.mjs";
 import { daemons, startDaemon, stopDaemon } from "./daemon.mjs";
 
-const CHROMIUM = process.env.CHROMIUM ?? "/usr/bin/chromium";
-const ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-  "--disable-background-networking", "--disable-component-update", "--disable-sync"];
 // Waits are generous: on a loaded machine the daemon runs below real time.
 const WAIT = 60000;
 const TEST = { timeout: 120000 };
@@ -23,7 +20,7 @@ const OVERLAY = `# e2e: a free tune
 distance = 200e-9
 `;
 
-let daemon, context, page, work;
+let daemon, context, page, work, closeBrowser;
 const pageErrors = [];
 
 async function until(fn, arg, what, timeout = WAIT) {
@@ -41,10 +38,7 @@ before(async () => {
   const overlay = path.join(work, "free.toml");
   writeFileSync(overlay, OVERLAY);
   daemon = await startDaemon("127.0.0.1:0", ["--config", overlay]);
-  context = await chromium.launchPersistentContext(path.join(work, "profile"), {
-    executablePath: CHROMIUM, headless: true, args: ARGS, viewport: { width: 1600, height: 1000 }, acceptDownloads: true,
-  });
-  page = context.pages()[0] ?? (await context.newPage());
+  ({ context, page, close: closeBrowser } = await launchBrowser({ acceptDownloads: true }));
   context.setDefaultTimeout(WAIT); // every action (click, fill, scroll) too: a hang guard
   page.on("pageerror", (e) => pageErrors.push(String(e)));
   await page.goto(daemon.url);
@@ -52,7 +46,7 @@ before(async () => {
 });
 
 after(async () => {
-  await context?.close().catch(() => {});
+  await closeBrowser?.();
   for (const d of [...daemons]) await stopDaemon({ proc: d });
   if (work) rmSync(work, { recursive: true, force: true });
 });
