@@ -65,7 +65,7 @@ fn default_is_the_papers_silicon_case() {
     assert!(s.server.allowed_origins.is_empty());
     assert_eq!(s.server.max_clients, 128);
     assert_eq!(s.server.client_queue, 1024);
-    assert_eq!(s.server.stall_timeout, 10.0);
+    assert_eq!(s.server.stall_timeout, 60.0);
     assert_eq!(
         s.inversion,
         InversionSettings {

@@ -169,7 +169,7 @@ fn stall_timeout(state: &AppState) -> Duration {
         .control
         .lock()
         .map(|c| c.settings.server.stall_timeout)
-        .unwrap_or(10.0);
+        .unwrap_or(60.0);
     Duration::from_secs_f64(seconds)
 }
 
@@ -209,6 +209,11 @@ async fn write(
             Ok(Err(_)) => return,
             Err(_) => {
                 state.closed_stalled.fetch_add(1, Ordering::Relaxed);
+                tracing::warn!(
+                    client = client.id,
+                    stall_timeout_s = stall.as_secs_f64(),
+                    "closing a client whose socket accepted nothing for /server/stall_timeout"
+                );
                 let _ = tokio::time::timeout(
                     Duration::from_millis(200),
                     sink.send(close(POLICY, "stalled")),
