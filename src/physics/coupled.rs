@@ -28,7 +28,7 @@ use std::f64::consts::PI;
 
 use rustfft::num_complex::Complex64;
 
-use super::beam::{Cantilever, Mode};
+use super::beam::{Cantilever, MAX_MODES, Mode};
 use super::contact::{Adhesion, HertzContact};
 
 /// The tapping problem of §6: modes, drive, surface and contact.
@@ -574,6 +574,9 @@ struct PeriodMap<'a> {
     /// φn(L)/Mn: modal force per newton of tip force (1/kg).
     force_gain: Vec<f64>,
     scan_step: f64,
+    /// Each mode's exact propagator over `scan_step`, the step the force-free stretch takes
+    /// again and again.
+    scan_propagator: Vec<[[f64; 2]; 2]>,
     /// [`PeriodMap::scales`], once.
     scale: Vec<f64>,
 }
@@ -596,6 +599,11 @@ impl<'a> PeriodMap<'a> {
                 .map(|m| m.tip_value * m.omega * m.omega / m.stiffness)
                 .collect(),
             scan_step,
+            scan_propagator: p
+                .modes
+                .iter()
+                .map(|m| modal_exponential(m.omega, m.gamma, scan_step))
+                .collect(),
             scale: Vec::new(),
         };
         map.scale = map.scales();
@@ -627,28 +635,35 @@ impl<'a> PeriodMap<'a> {
             .sqrt()
     }
 
-    /// Base position and velocity at t.
-    fn base(&self, t: f64) -> (f64, f64) {
+    /// The drive's phasor e^{iΩt} at t: cos and sin from one `sin_cos` (the same bits as
+    /// `Complex64::from_polar(1.0, Ωt)`, which takes them one at a time). The integrator
+    /// asks for the tip at every stage: one phasor for the base and every mode there.
+    fn phasor(&self, t: f64) -> Complex64 {
         let (s, c) = (self.p.drive_omega * t).sin_cos();
-        (self.u * s, self.u * self.p.drive_omega * c)
+        Complex64::new(c, s)
     }
 
-    /// Free modal displacement and velocity of mode n at t.
-    fn free_mode(&self, n: usize, t: f64) -> (f64, f64) {
-        let e = Complex64::from_polar(1.0, self.p.drive_omega * t);
+    /// Base position and velocity at the drive phasor `e`.
+    fn base(&self, e: Complex64) -> (f64, f64) {
+        (self.u * e.im, self.u * self.p.drive_omega * e.re)
+    }
+
+    /// Free modal displacement and velocity of mode n at the drive phasor `e`.
+    fn free_mode(&self, n: usize, e: Complex64) -> (f64, f64) {
         let y = self.free[n] * e;
         (y.im, (Complex64::i() * self.p.drive_omega * y).im)
     }
 
     /// Tip position z (m) at t for deviations h.
     fn tip(&self, t: f64, h: &[f64]) -> f64 {
-        let (base, _) = self.base(t);
+        let e = self.phasor(t);
+        let (base, _) = self.base(e);
         base + self
             .p
             .modes
             .iter()
             .enumerate()
-            .map(|(n, m)| m.tip_value * (self.free_mode(n, t).0 + h[2 * n]))
+            .map(|(n, m)| m.tip_value * (self.free_mode(n, e).0 + h[2 * n]))
             .sum::<f64>()
     }
 
@@ -661,7 +676,11 @@ impl<'a> PeriodMap<'a> {
     fn propagate(&self, h: &[f64], dt: f64) -> Vec<f64> {
         let mut out = vec![0.0; h.len()];
         for (n, m) in self.p.modes.iter().enumerate() {
-            let [[a, b], [c, d]] = modal_exponential(m.omega, m.gamma, dt);
+            let [[a, b], [c, d]] = if dt == self.scan_step {
+                self.scan_propagator[n]
+            } else {
+                modal_exponential(m.omega, m.gamma, dt)
+            };
             let (y, v) = (h[2 * n], h[2 * n + 1]);
             out[2 * n] = a * y + b * v;
             out[2 * n + 1] = c * y + d * v;
@@ -719,8 +738,9 @@ impl<'a> PeriodMap<'a> {
             -1.0 / 40.0,
         ];
         let n = h.len();
-        let mut k = vec![vec![0.0; n]; 7];
-        self.derivative(t, h, &mut k[0]);
+        // The stages on the stack: the integrator takes millions of steps in a table build.
+        let mut k = [[0.0; 2 * MAX_MODES]; 7];
+        self.derivative(t, h, &mut k[0][..n]);
         let mut tmp = vec![0.0; n];
         for s in 0..6 {
             for i in 0..n {
@@ -731,8 +751,7 @@ impl<'a> PeriodMap<'a> {
                         .map(|(j, a)| a * k[j][i])
                         .sum::<f64>();
             }
-            let (_, tail) = k.split_at_mut(s + 1);
-            self.derivative(t + C[s] * dt, &tmp, &mut tail[0]);
+            self.derivative(t + C[s] * dt, &tmp, &mut k[s + 1][..n]);
         }
         // The 5th-order solution is the last stage's argument (FSAL).
         let scale = &self.scale;
@@ -874,15 +893,16 @@ impl<'a> PeriodMap<'a> {
 
     /// The power terms at (t, h).
     fn powers(&self, t: f64, h: &[f64]) -> Powers {
-        let (_, ubase_v) = self.base(t);
-        let udd = -self.u * self.p.drive_omega.powi(2) * (self.p.drive_omega * t).sin();
+        let e = self.phasor(t);
+        let (_, ubase_v) = self.base(e);
+        let udd = -self.u * self.p.drive_omega.powi(2) * e.im;
         let delta = self.indentation(t, h);
         let g = self.p.force(delta);
         let mut drive = 0.0;
         let mut damping = 0.0;
         let mut tip_v = ubase_v;
         for (n, m) in self.p.modes.iter().enumerate() {
-            let (_, v0) = self.free_mode(n, t);
+            let (_, v0) = self.free_mode(n, e);
             let v = v0 + h[2 * n + 1];
             let mass = m.stiffness / (m.omega * m.omega);
             drive += -mass * m.participation * udd * v;
