@@ -122,6 +122,13 @@ impl Assembler {
         // One estimate per pixel, whatever the live stream averages.
         let mut s = settings.clone();
         s.inversion.averaging = 1;
+        // No scan, no pixels to invert: the estimator is built when a scan starts (else every
+        // point of a sweep would cost a second build beside the force stream's). Pixels still
+        // on their way from a scan just stopped were made under the settings the estimator
+        // was built for.
+        if !settings.scan.enable {
+            return;
+        }
         // A change of the scan or the sample keeps the estimator (a coupled engine's table
         // takes seconds to build).
         if self

@@ -4,7 +4,7 @@
 //! dropped and counted.
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, channel, sync_channel};
 use std::time::{Duration, Instant};
 
@@ -69,6 +69,8 @@ pub(crate) struct ForceLink {
     stride: Arc<AtomicU32>,
     /// The `seq` the worker gives its next window (fitted or skipped).
     next_seq: Arc<AtomicU64>,
+    /// A sweep waits for each point's estimate: the builder does not rest between builds.
+    awaited: Arc<AtomicBool>,
 }
 
 impl Drop for ForceLink {
@@ -83,8 +85,13 @@ impl Drop for ForceLink {
 /// coupled one, that nothing waits on in real time).
 const BUILDER_NICE: i32 = 10;
 /// The builder spends at most this fraction of a core building, however many changes come:
-/// after a build of `d` it rests `d · (1/BUILD_DUTY − 1)` before the next.
+/// after a build of `d` it rests `d · (1/BUILD_DUTY − 1)` before the next. Not while a sweep
+/// waits for each point's estimate ([`ForceLink::await_estimates`]): the sweep asks for one
+/// build per point and waits for it, so it bounds the rate itself, and a rest would be most
+/// of each point's time (at nice 10 the real-time threads still come first).
 pub(crate) const BUILD_DUTY: f64 = 0.25;
+/// Longest the builder's rest goes without looking whether a sweep now waits.
+const REST_SLICE: Duration = Duration::from_millis(20);
 
 impl ForceLink {
     /// Starts the worker thread; its outcomes come out of the returned receiver.
@@ -151,10 +158,16 @@ impl ForceLink {
             })
             .expect("the inversion thread starts");
         let pending = Arc::new(Latest::new());
-        let (p, c, to_worker) = (pending.clone(), counters.clone(), input.clone());
+        let awaited = Arc::new(AtomicBool::new(false));
+        let (p, c, to_worker, a) = (
+            pending.clone(),
+            counters.clone(),
+            input.clone(),
+            awaited.clone(),
+        );
         std::thread::Builder::new()
             .name("force-build".into())
-            .spawn(move || build_loop(&p, &c, &to_worker))
+            .spawn(move || build_loop(&p, &c, &to_worker, &a))
             .expect("the estimator builder thread starts");
         (
             Self {
@@ -164,6 +177,7 @@ impl ForceLink {
                 generation: AtomicU64::new(0),
                 stride,
                 next_seq,
+                awaited,
             },
             estimates,
         )
@@ -192,6 +206,12 @@ impl ForceLink {
         self.pending.put((settings, generation));
     }
 
+    /// Whether a sweep waits for each point's estimate (the builder then does not rest
+    /// between builds; [`BUILD_DUTY`]).
+    pub fn await_estimates(&self, on: bool) {
+        self.awaited.store(on, Ordering::Relaxed);
+    }
+
     /// Generation of the newest estimator asked for: outcomes of this generation or later
     /// come from settings at least as new as those of the last [`rebuild`](Self::rebuild).
     pub fn requested(&self) -> u64 {
@@ -205,6 +225,7 @@ fn build_loop(
     pending: &Latest<(Settings, u64)>,
     counters: &ForceCounters,
     worker: &SyncSender<Input>,
+    awaited: &AtomicBool,
 ) {
     lower_priority(BUILDER_NICE);
     // The last coupled table's orbits: the next build starts from them (a sweep's next
@@ -245,8 +266,13 @@ fn build_loop(
         if worker.send(Input::Replace(next, generation, why)).is_err() {
             return;
         }
-        if !pending.is_closed() {
-            std::thread::sleep(took.mul_f64(1.0 / BUILD_DUTY - 1.0));
+        let rested = Instant::now() + took.mul_f64(1.0 / BUILD_DUTY - 1.0);
+        loop {
+            let now = Instant::now();
+            if now >= rested || pending.is_closed() || awaited.load(Ordering::Relaxed) {
+                break;
+            }
+            std::thread::sleep((rested - now).min(REST_SLICE));
         }
     }
 }

@@ -265,7 +265,7 @@ pub(crate) fn render(state: &AppState) -> String {
     metric(
         "estimator_rebuild_seconds_total",
         "counter",
-        "CPU time spent rebuilding the force stream's FT-AFM estimator (its builder runs at nice 10 and at most a quarter of a core).",
+        "CPU time spent rebuilding the force stream's FT-AFM estimator (its builder runs at nice 10 and at most a quarter of a core, but without rests while a sweep waits for its estimates).",
         &[(
             String::new(),
             f.rebuild_ns.load(Ordering::Relaxed) as f64 * 1e-9,

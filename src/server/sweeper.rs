@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use serde_json::{Map, Value, json};
 use tokio::sync::mpsc;
 
-use super::force::ForceOutcome;
+use super::force::{ForceLink, ForceOutcome};
 use super::protocol::{self, ErrorCode, ProtocolError, StreamKind};
 use super::state::AppState;
 use crate::config::{
@@ -26,9 +26,10 @@ const FRAME_QUEUE: usize = 4096;
 /// Longest wait for a demodulator frame (wall time) before a sweep gives up.
 const FRAME_WAIT: Duration = Duration::from_secs(10);
 /// Longest wait (wall time) at a point for the force estimator of its settings; past it the
-/// point reports that it has no force estimate. The estimator is built at nice 10 on at most
-/// a quarter of a core, so a machine busy with other work can slow a build from 0.2 s to
-/// over 10 s (seen under `stress-ng --cpu 2`); a minute means something is wrong.
+/// point reports that it has no force estimate. The estimator is built at nice 10 (without
+/// the builder's rests while a sweep waits), so a machine busy with other work can slow a
+/// build from 0.5 s to over 10 s (seen under `stress-ng --cpu 2`); a minute means something
+/// is wrong.
 const FORCE_WAIT: Duration = Duration::from_secs(60);
 /// Inaccuracy the automatic settling time allows for (relative).
 const SETTLE_TO: f64 = 1e-3;
@@ -41,6 +42,22 @@ pub(crate) struct Tap<T> {
     rx: Mutex<Option<mpsc::Receiver<T>>>,
     /// Items a sweep missed because its queue was full (counted, never silent).
     pub dropped: AtomicU64,
+}
+
+/// While alive, the force builder knows a sweep waits for each point's estimate.
+struct Awaiting<'a>(&'a ForceLink);
+
+impl<'a> Awaiting<'a> {
+    fn new(force: &'a ForceLink) -> Self {
+        force.await_estimates(true);
+        Self(force)
+    }
+}
+
+impl Drop for Awaiting<'_> {
+    fn drop(&mut self) {
+        self.0.await_estimates(false);
+    }
 }
 
 /// The demodulator frames' tap.
@@ -338,6 +355,9 @@ async fn run_sweep(
         .sweep_force
         .active
         .store(force_off.is_none(), Ordering::Relaxed);
+    // Each point waits for its estimator: the builder does not rest between them, until
+    // the sweep ends, however it ends.
+    let _awaiting = force_off.is_none().then(|| Awaiting::new(&state.force));
     let mut shutdown = state.shutdown.clone();
     let mut measured: Vec<Measured> = Vec::with_capacity(points.len());
     let (mut t_last, mut t_synth_last) = (0.0, 0u64);
