@@ -51,6 +51,10 @@ pub(crate) struct ForceCounters {
     pub rebuilds: AtomicU64,
     /// Time spent building estimators, in ns (the builder's CPU budget, measured).
     pub rebuild_ns: AtomicU64,
+    /// The builder's rests after a build ([`BUILD_DUTY`]): taken in full, and cut short
+    /// because a sweep waits for its estimates (or the link closed).
+    pub rests_taken: AtomicU64,
+    pub rests_cut: AtomicU64,
     /// Why the estimator or the last estimate failed, if it did (for logs).
     pub last_error: std::sync::Mutex<String>,
 }
@@ -269,7 +273,12 @@ fn build_loop(
         let rested = Instant::now() + took.mul_f64(1.0 / BUILD_DUTY - 1.0);
         loop {
             let now = Instant::now();
-            if now >= rested || pending.is_closed() || awaited.load(Ordering::Relaxed) {
+            if now >= rested {
+                counters.rests_taken.fetch_add(1, Ordering::Relaxed);
+                break;
+            }
+            if pending.is_closed() || awaited.load(Ordering::Relaxed) {
+                counters.rests_cut.fetch_add(1, Ordering::Relaxed);
                 break;
             }
             std::thread::sleep((rested - now).min(REST_SLICE));

@@ -263,6 +263,21 @@ pub(crate) fn render(state: &AppState) -> String {
         ],
     );
     metric(
+        "estimator_rests_total",
+        "counter",
+        "Rests of the force stream's estimator builder after a build (it holds itself to a quarter of a core), by outcome (cut: a sweep was waiting for its estimates).",
+        &[
+            (
+                "{outcome=\"taken\"}".into(),
+                f.rests_taken.load(Ordering::Relaxed) as f64,
+            ),
+            (
+                "{outcome=\"cut\"}".into(),
+                f.rests_cut.load(Ordering::Relaxed) as f64,
+            ),
+        ],
+    );
+    metric(
         "estimator_rebuild_seconds_total",
         "counter",
         "CPU time spent rebuilding the force stream's FT-AFM estimator (its builder runs at nice 10 and at most a quarter of a core, but without rests while a sweep waits for its estimates).",
