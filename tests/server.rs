@@ -642,12 +642,10 @@ async fn a_request_flood_is_answered_and_limited_not_dropped() {
 /// `ftafm_force_estimates_total{outcome=…}` from `/metrics`.
 async fn force_count(addr: std::net::SocketAddr, outcome: &str) -> u64 {
     let (_, metrics) = http_get(addr, "/metrics").await;
-    let key = format!("ftafm_force_estimates_total{{outcome=\"{outcome}\"}} ");
-    metrics
-        .lines()
-        .find_map(|l| l.strip_prefix(&key))
-        .and_then(|v| v.parse().ok())
-        .unwrap_or_else(|| panic!("{key} in {metrics}"))
+    metric(
+        &metrics,
+        &format!("ftafm_force_estimates_total{{outcome=\"{outcome}\"}}"),
+    ) as u64
 }
 
 /// The next `n` seqs of force messages on `ws`.

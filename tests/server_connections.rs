@@ -18,14 +18,6 @@ use common::*;
 /// Guard against a hang, never a margin the test relies on.
 const HANG: Duration = Duration::from_secs(120);
 
-fn metric(text: &str, name: &str) -> f64 {
-    text.lines()
-        .find(|l| l.starts_with(name) && l[name.len()..].starts_with(' '))
-        .and_then(|l| l.rsplit(' ').next())
-        .and_then(|v| v.parse().ok())
-        .unwrap_or_else(|| panic!("no {name} in metrics"))
-}
-
 /// Reads until the peer closes (EOF or reset); returns what came.
 async fn read_to_close(s: &mut TcpStream) -> Vec<u8> {
     let mut out = Vec::new();

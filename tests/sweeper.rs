@@ -364,11 +364,7 @@ async fn an_approach_reports_the_force_estimates_and_mean_deflection_of_each_poi
     let mut ws = connect(d.addr).await;
     let rests_cut = || async {
         let (_, metrics) = http_get(d.addr, "/metrics").await;
-        metrics
-            .lines()
-            .find_map(|l| l.strip_prefix("ftafm_estimator_rests_total{outcome=\"cut\"} "))
-            .and_then(|v| v.trim().parse::<f64>().ok())
-            .expect("the builder's rests in /metrics")
+        metric(&metrics, "ftafm_estimator_rests_total{outcome=\"cut\"}")
     };
     let cut_before = rests_cut().await;
     let (points, done) = sweep(
