@@ -344,7 +344,7 @@ fn a_new_seed_restarts_the_noise_from_that_seed() {
 
 #[test]
 fn turning_the_anti_alias_filter_on_and_off_while_running_is_seamless() {
-    // The filter's delay (14.5 samples) shifts the stream when it turns on or off, by at
+    // The filter's delay (21.5 samples) shifts the stream when it turns on or off, by at
     // most the signal's change over that time; it must not start from a stale history.
     let off = {
         let mut s = quiet(paper_defaults());
@@ -360,14 +360,14 @@ fn turning_the_anti_alias_filter_on_and_off_while_running_is_seamless() {
     state.retarget(&p_on, &p_off);
     let back = run(&p_off, &mut state, 1_000);
     let max_step = largest_step(&before);
-    // On: the delay appears, so the stream steps back by 14.5 samples once, at most the
+    // On: the delay appears, so the stream steps back by 21.5 samples once, at most the
     // signal's change over that time (a stale or zero history would step by up to the full
     // 30 nm amplitude); from then on it is as smooth as before.
     let on_step = (after[0] - before[before.len() - 1]).abs();
-    assert!(on_step <= 16.0 * max_step, "{on_step:e} vs {max_step:e}");
+    assert!(on_step <= 23.0 * max_step, "{on_step:e} vs {max_step:e}");
     let step = largest_step(&after);
     assert!(step <= max_step * 1.05, "step {step:e} vs {max_step:e}");
     // Off again: the delay goes, the stream steps forward once by as much.
     let across = (back[0] - after[after.len() - 1]).abs();
-    assert!(across <= 16.0 * max_step, "{across:e} vs {max_step:e}");
+    assert!(across <= 23.0 * max_step, "{across:e} vs {max_step:e}");
 }

@@ -1033,7 +1033,7 @@ impl Field {
                 "Pace synthesis to the wall clock (true) or run as fast as possible (false)."
             }
             Field::SynthAntiAlias => {
-                "The ADC's anti-alias filter (true): the signal is taken at twice the sample rate and decimated by a halfband FIR, flat to 0.4 x sample_rate, >= 88 dB down from 0.6 x sample_rate, delay 14.5 samples (compensated in the drive phase); false samples the signal directly, with every alias."
+                "The ADC's anti-alias filter (true): the signal is integrated over a triangle window (sinc^2, zero at every multiple of 2 x sample_rate), taken at twice the sample rate, decimated by a halfband FIR and the window's droop compensated: flat to 0.4 x sample_rate, >= 88 dB down from 0.6 x sample_rate, delay 21.5 samples (compensated in the drive phase); false samples the signal directly, with every alias."
             }
             Field::NoiseEnable => "Switches all noise sources on (true) or off (false).",
             Field::NoiseTemperature => {

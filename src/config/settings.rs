@@ -150,8 +150,9 @@ pub struct SynthSettings {
     pub seed: u64,
     /// Pace synthesis to the wall clock (true) or run as fast as possible (false).
     pub realtime: bool,
-    /// The ADC's anti-alias filter: sample at 2·f_s and decimate by a halfband FIR (true,
-    /// the default), or sample the signal directly (false).
+    /// The ADC's anti-alias filter: integrate over a triangle window, sample at 2·f_s,
+    /// decimate by a halfband FIR and compensate the window's droop (true, the default),
+    /// or sample the signal directly (false).
     #[serde(default = "yes")]
     pub anti_alias: bool,
 }

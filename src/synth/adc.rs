@@ -1,23 +1,28 @@
-//! The ADC's anti-alias filter: the photodiode signal is taken at twice the sample rate and
-//! decimated by a linear-phase halfband FIR, as an oversampling (sigma-delta) converter's
-//! digital filter does, so that what lies above the Nyquist frequency does not fold onto
-//! the harmonics.
+//! The ADC's anti-alias filter, modelled on an oversampling (sigma-delta) converter's
+//! decimation chain, so that what lies above the Nyquist frequency does not fold onto the
+//! harmonics.
 //!
 //! The model, at output rate f_s (docs/signal-chain.md states it for users):
-//! - the signal is taken at t_n and at the midpoints t_n + h/2 (exact: the modal states
-//!   are propagated there, with the same held thermal input and the exact tap force);
+//! - the signal is integrated over a triangle window of half-width h/2 and taken at twice
+//!   the sample rate, at t_n and at the midpoints t_n + h/2 (the modulator's second-order
+//!   sinc decimator: gain sinc²(f/2f_s), zero at every multiple of 2·f_s; exact, from the
+//!   modal states at the knots and the input's moments, [`super::window`]);
 //! - a halfband FIR of [`TAPS`] taps at 2·f_s (Kaiser window, β = [`KAISER_BETA`]) keeps
 //!   0 … 0.4·f_s within ±4e-5 in amplitude and stops 0.6·f_s … 1.4·f_s by ≥ 88 dB
 //!   (measured in this module's tests: 3.4e-5 both); 0.5·f_s is attenuated by 6 dB;
+//! - a droop compensator of [`COMPENSATOR_TAPS`] taps at f_s undoes the window's sinc² in
+//!   the passband: the whole chain is flat to ±4e-5 from DC (exact) to 0.4·f_s and ≥ 88 dB
+//!   down from 0.6·f_s on;
 //! - it is linear-phase with a delay of [`DELAY_HALF_SAMPLES`]/2 output samples: output
-//!   sample n is the filtered signal at t_n − D, D = 14.5/f_s (1.45 µs at 10 MS/s). The
+//!   sample n is the filtered signal at t_n − D, D = 21.5/f_s (2.15 µs at 10 MS/s). The
 //!   synthesiser stamps each block with the drive phase at t_n − D, so the lock-in, the
 //!   scope's drive phase and everything downstream see no phase shift from it;
 //! - detector noise and quantisation act after it, at f_s.
 //!
-//! What still aliases: content above 1.6·f_s, which folds into the passband already at
-//! 2·f_s; the tap force's harmonics there are ≥ 60 dB below those they land on (the
-//! lock-in test in tests/synth.rs measures what is left).
+//! What still aliases: content near 2·f_s, 4·f_s, … (within 0.4·f_s of them), which folds
+//! into the passband when the 2·f_s samples are taken, attenuated by the window (27× and
+//! more for what lands below 0.3·f_s); the lock-in test in tests/physics_inversion.rs
+//! measures what is left.
 
 /// Half-length K of the halfband: [`TAPS`] = 4K + 3.
 const K: usize = 14;
@@ -29,8 +34,27 @@ pub const GRID_TAPS: usize = 2 * K + 2;
 pub const GRID_HISTORY: usize = GRID_TAPS - 1;
 /// Midpoint samples of history: the centre tap reads the midpoint K + 1 samples back.
 pub const MID_HISTORY: usize = K + 1;
-/// The filter's delay in half output samples, 2K + 1: D = 14.5 samples.
-pub const DELAY_HALF_SAMPLES: u64 = 2 * K as u64 + 1;
+/// Half-length of the droop compensator: [`COMPENSATOR_TAPS`] = 2M + 1.
+const M: usize = 7;
+/// Taps of the droop compensator at f_s.
+pub const COMPENSATOR_TAPS: usize = 2 * M + 1;
+/// Outputs of history the compensator keeps.
+pub const COMPENSATOR_HISTORY: usize = 2 * M;
+/// The compensator's taps c_1 … c_M (symmetric: c_{−k} = c_k; c_0 = 1 − 2Σc_k, so its
+/// DC gain is 1). A minimax fit (iteratively reweighted least squares on 0 … 0.4·f_s, DC
+/// held) of sinc²(f/2)·halfband(f)·C(f) to 1: ±3.9e-5.
+const COMPENSATOR: [f64; M] = [
+    -4.393_311_765_927_654e-2,
+    1.083_741_392_488_644_4e-2,
+    -3.996_672_214_529_688e-3,
+    1.665_992_840_745_283_8e-3,
+    -6.886_891_514_883_628e-4,
+    2.650_139_533_494_703_6e-4,
+    -8.092_994_835_745_474e-5,
+];
+/// The whole chain's delay in half output samples: the halfband's 2K + 1 and the
+/// compensator's 2M, D = 21.5 samples.
+pub const DELAY_HALF_SAMPLES: u64 = 2 * K as u64 + 1 + 2 * M as u64;
 /// Kaiser window parameter: β = 0.1102·(A − 8.7) for a design attenuation A = 90 dB.
 pub const KAISER_BETA: f64 = 0.1102 * (90.0 - 8.7);
 
@@ -75,9 +99,34 @@ fn bessel_i0(x: f64) -> f64 {
     sum
 }
 
-/// Complex gain of the filter at `frequency` f/f_s (cycles per output sample), its delay
-/// removed: real, 1 at DC, 1/2 at f_s/2.
+/// The compensator's taps c_0 … c_M.
+fn compensator_taps() -> [f64; M + 1] {
+    let mut c = [0.0; M + 1];
+    c[1..].copy_from_slice(&COMPENSATOR);
+    c[0] = 1.0 - 2.0 * COMPENSATOR.iter().sum::<f64>();
+    c
+}
+
+/// Gain of the whole front end at `frequency` f/f_s of a component before sampling (any
+/// frequency, aliases included), its delay removed: the window's sinc², the halfband's
+/// and the compensator's gains. Real; 1 at DC.
 pub fn gain(taps: &[f64; GRID_TAPS], frequency: f64) -> f64 {
+    super::window::gain(frequency) * halfband_gain(taps, frequency) * compensator_gain(frequency)
+}
+
+/// Gain of the droop compensator at `frequency` f/f_s: c_0 + 2Σ c_k·cos(2πkf).
+pub fn compensator_gain(frequency: f64) -> f64 {
+    let c = compensator_taps();
+    let mut g = c[0];
+    for (k, ck) in c.iter().enumerate().skip(1) {
+        g += 2.0 * ck * (std::f64::consts::TAU * frequency * k as f64).cos();
+    }
+    g
+}
+
+/// Gain of the halfband at `frequency` f/f_s (cycles per output sample), its delay
+/// removed: real, 1 at DC, 1/2 at f_s/2.
+pub fn halfband_gain(taps: &[f64; GRID_TAPS], frequency: f64) -> f64 {
     // Grid tap i sits at 2i − (2K + 1) half samples from the centre.
     let mut g = 0.5;
     for (i, c) in taps.iter().enumerate() {
@@ -95,6 +144,10 @@ pub struct AdcFilter {
     pub(crate) grid: Vec<f64>,
     /// [`MID_HISTORY`] past midpoints, then the chunk's.
     pub(crate) mid: Vec<f64>,
+    /// [`COMPENSATOR_HISTORY`] past halfband outputs, then the chunk's.
+    compensator: Vec<f64>,
+    /// The compensator's taps c_0 … c_M.
+    compensator_taps: [f64; M + 1],
     /// The widest kernel the CPU runs.
     kernel: Kernel,
 }
@@ -135,6 +188,7 @@ trait FusedVector: Copy {
     unsafe fn store(self, x: &mut [f64]);
     unsafe fn splat(c: f64) -> Self;
     unsafe fn mul(self, o: Self) -> Self;
+    unsafe fn add(self, o: Self) -> Self;
     /// `self·a + b`, rounded once.
     unsafe fn mul_add(self, a: Self, b: Self) -> Self;
 }
@@ -165,6 +219,10 @@ mod fused {
             unsafe { _mm256_mul_pd(self, o) }
         }
         #[inline(always)]
+        unsafe fn add(self, o: Self) -> Self {
+            unsafe { _mm256_add_pd(self, o) }
+        }
+        #[inline(always)]
         unsafe fn mul_add(self, a: Self, b: Self) -> Self {
             unsafe { _mm256_fmadd_pd(self, a, b) }
         }
@@ -189,6 +247,10 @@ mod fused {
             unsafe { _mm512_mul_pd(self, o) }
         }
         #[inline(always)]
+        unsafe fn add(self, o: Self) -> Self {
+            unsafe { _mm512_add_pd(self, o) }
+        }
+        #[inline(always)]
         unsafe fn mul_add(self, a: Self, b: Self) -> Self {
             unsafe { _mm512_fmadd_pd(self, a, b) }
         }
@@ -207,9 +269,16 @@ impl AdcFilter {
         for (i, m) in mid[..MID_HISTORY].iter_mut().enumerate() {
             *m = past(2 * (MID_HISTORY - i) - 1);
         }
+        // The halfband's past outputs: the signal its delay before each earlier output.
+        let mut compensator = vec![0.0; COMPENSATOR_HISTORY + chunk];
+        for (i, c) in compensator[..COMPENSATOR_HISTORY].iter_mut().enumerate() {
+            *c = past(2 * (COMPENSATOR_HISTORY - i) + 2 * K + 1);
+        }
         Self {
             grid,
             mid,
+            compensator,
+            compensator_taps: compensator_taps(),
             kernel: Kernel::detect(),
         }
     }
@@ -230,6 +299,11 @@ impl AdcFilter {
                 1.5 * self.grid[g] - 0.5 * self.grid[g - 1]
             };
         }
+        // The halfband's outputs would have been the signal 14.5 samples earlier.
+        for i in 0..COMPENSATOR_HISTORY {
+            let g = GRID_HISTORY - 1 - K - i;
+            self.compensator[COMPENSATOR_HISTORY - 1 - i] = 0.5 * (self.grid[g] + self.grid[g - 1]);
+        }
     }
 
     /// Filters the `n` grid and midpoint samples written behind the histories into `out`
@@ -246,6 +320,82 @@ impl AdcFilter {
             Kernel::Avx2Fma => unsafe { self.decimate_avx2_fma(taps, out) },
             _ => self.decimate_with::<false>(taps, out),
         }
+    }
+
+    /// The droop compensator over the halfband's outputs in `out`, in place, then its
+    /// history kept: output i is c_0·x_i + Σ_k c_k·(x_{i−k} + x_{i+k}), the pairs added in
+    /// order k = 1 … M, fused (`FUSED`) or not. Tap pair by tap pair over all outputs (the
+    /// outputs are independent, so the loop vectorises). Inlined into each kernel, so
+    /// that it is compiled for the kernel's instructions.
+    #[inline(always)]
+    fn compensate<const FUSED: bool>(&mut self, out: &mut [f64]) {
+        let n = out.len();
+        let x = &mut self.compensator;
+        x[COMPENSATOR_HISTORY..COMPENSATOR_HISTORY + n].copy_from_slice(out);
+        // Output i is centred on buffer sample i + M.
+        let c = &self.compensator_taps;
+        for (y, x0) in out.iter_mut().zip(&x[M..M + n]) {
+            *y = c[0] * x0;
+        }
+        for k in 1..=M {
+            for (y, (lo, hi)) in out
+                .iter_mut()
+                .zip(x[M - k..M - k + n].iter().zip(&x[M + k..M + k + n]))
+            {
+                *y = if FUSED {
+                    c[k].mul_add(lo + hi, *y)
+                } else {
+                    *y + c[k] * (lo + hi)
+                };
+            }
+        }
+        x.copy_within(n..n + COMPENSATOR_HISTORY, 0);
+    }
+
+    /// [`compensate`](Self::compensate), fused, with four registers of `V` holding 4·W
+    /// outputs while the tap pairs stream past them, then the rest one at a time (the
+    /// same operations in the same order per output, so the same bits).
+    ///
+    /// # Safety
+    /// The CPU must have `V`'s instructions.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn compensate_fused<V: FusedVector>(&mut self, out: &mut [f64]) {
+        let n = out.len();
+        let w = V::WIDTH;
+        let blocks = n / (4 * w) * (4 * w);
+        let x = &mut self.compensator;
+        x[COMPENSATOR_HISTORY..COMPENSATOR_HISTORY + n].copy_from_slice(out);
+        let c = &self.compensator_taps;
+        for i in (0..blocks).step_by(4 * w) {
+            // SAFETY: the CPU has V's instructions (the caller); every load and store is
+            // of `w` f64 inside its slice (bounds-checked): output i + 4w − 1 < n reads
+            // buffer samples up to i + 4w − 1 + 2M < n + COMPENSATOR_HISTORY.
+            unsafe {
+                let at = |j: usize| &x[j..];
+                let c0 = V::splat(c[0]);
+                let mut y: [V; 4] = std::array::from_fn(|b| c0.mul(V::load(at(M + i + b * w))));
+                for (k, &ck) in c.iter().enumerate().skip(1) {
+                    let ck = V::splat(ck);
+                    for (b, y) in y.iter_mut().enumerate() {
+                        let o = i + b * w;
+                        let pair = V::load(at(M - k + o)).add(V::load(at(M + k + o)));
+                        *y = ck.mul_add(pair, *y);
+                    }
+                }
+                for (b, y) in y.iter().enumerate() {
+                    y.store(&mut out[i + b * w..]);
+                }
+            }
+        }
+        for (i, y) in out.iter_mut().enumerate().skip(blocks) {
+            let mut acc = c[0] * x[M + i];
+            for k in 1..=M {
+                acc = c[k].mul_add(x[M - k + i] + x[M + k + i], acc);
+            }
+            *y = acc;
+        }
+        x.copy_within(n..n + COMPENSATOR_HISTORY, 0);
     }
 
     /// [`decimate`](Self::decimate) compiled for AVX2 and FMA. The CPU must have both.
@@ -297,6 +447,8 @@ impl AdcFilter {
             }
         }
         self.decimate_tail(taps, out, blocks);
+        // SAFETY: the CPU has V's instructions (the caller).
+        unsafe { self.compensate_fused::<V>(out) };
     }
 
     /// The fused kernels' outputs from `from` on, one at a time (the same fused
@@ -332,6 +484,7 @@ impl AdcFilter {
         }
         self.grid.copy_within(n..n + GRID_HISTORY, 0);
         self.mid.copy_within(n..n + MID_HISTORY, 0);
+        self.compensate::<FUSED>(out);
     }
 }
 
@@ -340,13 +493,13 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_passband_is_flat_to_0_4_fs_and_the_stopband_is_88_db_down() {
+    fn the_halfbands_passband_is_flat_to_0_4_fs_and_its_stopband_is_88_db_down() {
         let taps = grid_taps();
         let mut worst_pass: f64 = 0.0;
         let mut worst_stop: f64 = 0.0;
         for j in 0..=4000 {
             let f = j as f64 / 4000.0; // 0 … f_s: the FIR at 2 f_s repeats beyond
-            let g = gain(&taps, f);
+            let g = halfband_gain(&taps, f);
             if f <= 0.4 {
                 worst_pass = worst_pass.max((g - 1.0).abs());
             }
@@ -356,21 +509,60 @@ mod tests {
         }
         assert!(worst_pass < 4e-5, "passband ripple {worst_pass:e}");
         assert!(worst_stop < 4e-5, "stopband {worst_stop:e}");
-        assert!((gain(&taps, 0.5) - 0.5).abs() < 1e-12);
-        assert!((gain(&taps, 0.0) - 1.0).abs() < 1e-15);
+        assert!((halfband_gain(&taps, 0.5) - 0.5).abs() < 1e-12);
+        assert!((halfband_gain(&taps, 0.0) - 1.0).abs() < 1e-15);
     }
 
     #[test]
-    fn a_sinusoid_comes_out_delayed_by_14_5_samples_and_unchanged_in_amplitude() {
+    fn the_whole_chain_is_flat_to_0_4_fs_and_88_db_down_from_0_6_fs() {
+        // Window, halfband and compensator: what a component before the sampler keeps.
+        let taps = grid_taps();
+        let (mut worst_pass, mut worst_stop) = (0.0f64, 0.0f64);
+        for j in 0..=8000 {
+            let f = j as f64 / 4000.0; // 0 … 2·f_s
+            let g = gain(&taps, f);
+            if f <= 0.4 {
+                worst_pass = worst_pass.max((g - 1.0).abs());
+            } else if (0.6..=1.4).contains(&f) {
+                worst_stop = worst_stop.max(g.abs());
+            }
+        }
+        println!("chain: passband {worst_pass:.2e}, stopband {worst_stop:.2e}");
+        assert!(worst_pass < 4e-5, "passband ripple {worst_pass:e}");
+        assert!(worst_stop < 4e-5, "stopband {worst_stop:e}");
+        assert!((gain(&taps, 0.0) - 1.0).abs() < 1e-15);
+        // What folds when the 2·f_s samples are taken: content at 2·f_s ± f lands on f,
+        // weighed by the window; next to 2·f_s ± 0.3·f_s at most 1/27.
+        for f in [1.7, 2.3, 3.7, 4.3] {
+            let w = crate::synth::window::gain(f);
+            assert!(w < 1.0 / 27.0, "{f}: {w}");
+        }
+    }
+
+    #[test]
+    fn a_sinusoid_comes_out_delayed_by_21_5_samples_with_the_windows_droop_undone() {
+        // Point samples (no window) come out with the compensator's gain, 1/sinc² of the
+        // window's droop; sampled through the window they would come out unchanged.
         let taps = grid_taps();
         let f = 0.3137; // cycles per output sample
+        let boost = compensator_gain(f);
+        assert!((boost * crate::synth::window::gain(f) - 1.0).abs() < 1e-4);
         let x = |half: f64| (std::f64::consts::PI * f * half + 0.4).cos();
         let mut adc = AdcFilter::new(64, |j| x(-(j as f64)));
-        decimates_to_the_delayed_signal(&mut adc, &taps, x, 4e-5);
+        let mut out = vec![0.0; 64];
+        for n in 0..64 {
+            adc.grid[GRID_HISTORY + n] = x(2.0 * n as f64);
+            adc.mid[MID_HISTORY + n] = x(2.0 * n as f64 + 1.0);
+        }
+        adc.decimate(&taps, &mut out);
+        for (n, y) in out.iter().enumerate() {
+            let want = boost * x(2.0 * n as f64 - DELAY_HALF_SAMPLES as f64);
+            assert!((y - want).abs() < 4e-5, "sample {n}: {y} vs {want}");
+        }
     }
 
     /// Feeds 64 samples of `x` (a function of time in half samples) on the grid and at the
-    /// midpoints; each output must be `x` 14.5 samples earlier within `tolerance`.
+    /// midpoints; each output must be `x` 21.5 samples earlier (the chain's delay) within `tolerance`.
     fn decimates_to_the_delayed_signal(
         adc: &mut AdcFilter,
         taps: &[f64; GRID_TAPS],
@@ -443,10 +635,10 @@ mod tests {
 
     #[test]
     fn the_delayed_phase_is_exact() {
-        assert_eq!(delayed_phase(0, 2), 0u64.wrapping_sub(29));
+        assert_eq!(delayed_phase(0, 2), 0u64.wrapping_sub(43));
         assert_eq!(
             delayed_phase(1 << 40, 1 << 60),
-            (1u64 << 40).wrapping_sub(29 << 59)
+            (1u64 << 40).wrapping_sub(43 << 59)
         );
     }
 }

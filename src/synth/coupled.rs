@@ -27,6 +27,7 @@ use rustfft::num_complex::Complex64;
 
 use super::lanes::{Lanes, Portable};
 use super::modal::ModalKernel;
+use super::window::Moments;
 use crate::physics::beam::{MAX_MODES, Mode};
 use crate::physics::contact::{Adhesion, HertzContact};
 
@@ -335,8 +336,10 @@ impl CoupledKernel {
     /// Advances the lanes `re`, `im` (Re q, Im q) by one sample from drive phasor `rho` to
     /// `next` with the thermal deviates `z` (one per mode lane), with the constants `c` of
     /// this kernel. Returns the lanes and the tip position at `next`, and whether it
-    /// sub-stepped; if it did, `mid` holds the lanes' Im q at the sample's midpoint (for
-    /// the ADC's filter). `tip` is the position at `rho` if known (NaN if not: it is
+    /// sub-stepped; if it did, `mid` holds the lanes' Re q and Im q at the sample's
+    /// midpoint, before the kick there (for the ADC's window). `moments` gets the kicks'
+    /// impulses (N·s) and their first moments over the sample's halves, the kicks at the
+    /// sample's ends included. `tip` is the position at `rho` if known (NaN if not: it is
     /// computed), so a loop of steps computes each position once. `record` is handed the
     /// force at the end of every sub-step ([`SUBSTEPS`] values per sample, the
     /// end-of-sample force repeated where the sample is one step); the real-time loop
@@ -352,7 +355,8 @@ impl CoupledKernel {
         next: Complex64,
         z: V,
         tip: f64,
-        mid: &mut V,
+        mid: &mut (V, V),
+        moments: &mut Moments,
         record: &mut impl FnMut(f64),
     ) -> (V, V, f64, bool) {
         let z0 = if tip.is_nan() {
@@ -366,6 +370,7 @@ impl CoupledKernel {
         if g0 != 0.0 {
             r = r.add(c.kick.mul(V::splat(self.half_h * g0)));
         }
+        let h = 2.0 * self.half_h;
         let r1 = c.a_re.mul(r).sub(c.a_im.mul(im)).add(c.noise_re.mul(z));
         let i1 = c.a_re.mul(im).add(c.a_im.mul(r)).add(c.noise_im.mul(z));
         let z1 = self.tip_position(c, next, i1);
@@ -374,16 +379,18 @@ impl CoupledKernel {
             // Clear of the surface at both ends: no force at the end, or adhesion's weak one.
             let mut r1 = r1;
             let mut g1 = 0.0;
+            moments.s1 += self.half_h * g0;
             if self.strength != 0.0 {
                 g1 = self.force(gap1);
                 r1 = r1.add(c.kick.mul(V::splat(self.half_h * g1)));
+                moments.kick(self.half_h * g1, h, true);
             }
             for _ in 0..SUBSTEPS {
                 record(g1);
             }
             return (r1, i1, z1, false);
         }
-        self.substeps(c, re, im, rho, z, g0, mid, record)
+        self.substeps(c, re, im, rho, z, g0, mid, moments, record)
     }
 
     /// The sub-steps of [`step_lanes`](Self::step_lanes) from the force `g0` at the
@@ -404,10 +411,12 @@ impl CoupledKernel {
         rho: Complex64,
         z: V,
         g0: f64,
-        mid: &mut V,
+        mid: &mut (V, V),
+        moments: &mut Moments,
         record: &mut impl FnMut(f64),
     ) -> (V, V, f64, bool) {
         let dt = 2.0 * self.half_dt;
+        let h = 2.0 * self.half_h;
         let mut r = rho * self.sub_rotation;
         // Sub-step 0: its gap from the lanes it starts from.
         let p = c
@@ -442,6 +451,8 @@ impl CoupledKernel {
             if g != 0.0 {
                 re = re.add(c.kick.mul(V::splat(impulse)));
             }
+            // The kick at (j − 1)·dt: the midpoint's (j = S/2 + 1) is in the second half.
+            moments.kick(impulse, (j - 1) as f64 * dt, j > SUBSTEPS / 2);
             let r1 = c
                 .sub_a_re
                 .mul(re)
@@ -454,8 +465,8 @@ impl CoupledKernel {
                 .add(c.sub_noise_im.mul(z));
             re = r1;
             if j == SUBSTEPS / 2 {
-                // Kicks move Re q only, so Im q here is the midpoint's either side of one.
-                *mid = im;
+                // The midpoint, before its kick.
+                *mid = (re, im);
             }
             g = next_g;
             impulse = dt * g;
@@ -463,6 +474,7 @@ impl CoupledKernel {
         if g != 0.0 {
             re = re.add(c.kick.mul(V::splat(self.half_dt * g)));
         }
+        moments.kick(self.half_dt * g, h, true);
         (re, im, gap - self.distance, true)
     }
 
@@ -548,7 +560,8 @@ impl CoupledKernel {
         type All = Portable<MAX_MODES>;
         let c = kernel.lanes::<All>();
         let (mut re, mut im) = (All::splat(0.0), All::splat(0.0));
-        let mut mid = im;
+        let mut mid = (re, im);
+        let mut moments = Moments::default();
         let z = All::splat(0.0);
         for period in 0..periods + extra {
             let mut rho = Complex64::from_polar(1.0, theta);
@@ -560,10 +573,18 @@ impl CoupledKernel {
                     let mut before = [0.0; MAX_MODES];
                     im.store(&mut before);
                     let mut largest = 0.0f64;
-                    (re, im, _, _) =
-                        kernel.step_lanes(&c, re, im, rho, next, z, f64::NAN, &mut mid, &mut |g| {
-                            largest = largest.max(g)
-                        });
+                    (re, im, _, _) = kernel.step_lanes(
+                        &c,
+                        re,
+                        im,
+                        rho,
+                        next,
+                        z,
+                        f64::NAN,
+                        &mut mid,
+                        &mut moments,
+                        &mut |g| largest = largest.max(g),
+                    );
                     sample(phase, &before, largest);
                 } else {
                     (re, im, _, _) = kernel.step_lanes(
@@ -575,6 +596,7 @@ impl CoupledKernel {
                         z,
                         f64::NAN,
                         &mut mid,
+                        &mut moments,
                         &mut |_| {},
                     );
                 }
@@ -630,7 +652,8 @@ mod tests {
         let (mut b_re, mut b_im) = (P::splat(0.0), P::splat(0.0));
         let rotation = Complex64::from_polar(1.0, 2.0 * PI * 100e3 * 1e-7);
         let mut rho = Complex64::new(1.0, 0.0);
-        let mut mid = a_re;
+        let mut mid = (a_re, a_im);
+        let mut moments = Moments::default();
         for n in 0..5000 {
             let z: [f64; 8] = std::array::from_fn(|m| ((n * 7 + m * 13) % 11) as f64 - 5.0);
             let z = P::load(&z);
@@ -645,6 +668,7 @@ mod tests {
                 z,
                 f64::NAN,
                 &mut mid,
+                &mut moments,
                 &mut |_| {},
             );
             assert!(!substepped);
@@ -658,6 +682,7 @@ mod tests {
                 z,
                 f64::NAN,
                 &mut mid,
+                &mut moments,
                 &mut |_| {},
             );
             assert!(substepped);

@@ -14,6 +14,7 @@ pub mod pulse;
 pub mod raster;
 pub mod scan;
 pub mod synthesizer;
+pub mod window;
 
 pub use coupled::{CoupledKernel, CoupledTrace, SUBSTEPS};
 pub use plan::{Adc, BOLTZMANN, PlanError, SynthPlan, TapForce};

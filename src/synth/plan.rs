@@ -11,6 +11,7 @@ use super::coupled::CoupledKernel;
 use super::modal::ModalKernel;
 use super::pulse::{PulseKernel, PulseTrain};
 use super::scan::{ScanBase, ScanPlan, TapTables};
+use super::window::{ModeWindow, Moments};
 use crate::config::{Engine, Settings};
 use crate::model;
 use crate::physics::beam::{BeamError, MAX_MODES};
@@ -112,9 +113,12 @@ pub struct SynthPlan {
     pub adc: Option<Adc>,
     /// The ADC's anti-alias filter ([`adc`]): its grid taps, or none to sample directly.
     pub(crate) anti_alias: Option<[f64; adc::GRID_TAPS]>,
-    /// The drive's photodiode response half a sample on, Ŝ·e^{iΩh/2}: the midpoint's is
-    /// Re[drive_mid·e^{iθ_n}].
+    /// The drive's photodiode response through the ADC's window ([`super::window`]) at a
+    /// grid sample, Ŝ·W(Ω): Re[drive_grid·e^{iθ_n}]; and half a sample on, Ŝ·W(Ω)·e^{iΩh/2}.
+    pub(crate) drive_grid: Complex64,
     pub(crate) drive_mid: Complex64,
+    /// The window's weights of the tap force's moments (α, β summed over the modes).
+    pub(crate) force_window: (f64, f64),
     /// Per-mode constants laid out for the hot loop.
     pub(crate) lanes: Lanes,
     /// Seed of the noise generator (`/synth/seed`).
@@ -139,12 +143,38 @@ pub(crate) struct Lanes {
     /// Thermal input per standard normal deviate: σ·∫₀ʰe^{λ(h−s)}ds, real and imaginary.
     pub noise_re: [f64; MAX_MODES],
     pub noise_im: [f64; MAX_MODES],
-    /// The photodiode at the midpoint of a sample, for the ADC's filter, per unit of Re q,
-    /// of Im q and of the thermal deviate at the sample's start: `lever` times
-    /// Im e^{λh/2}, Re e^{λh/2} and σ·Im ∫₀^{h/2} e^{λ(h/2−s)}ds.
+    /// The ADC's window ([`super::window`]): the knot functional κ per unit of Re q and
+    /// of Im q at a grid sample.
+    pub knot_re: [f64; MAX_MODES],
+    pub knot_im: [f64; MAX_MODES],
+    /// κ at the sample's midpoint per unit of Re q, of Im q and of the thermal deviate at
+    /// the sample's start (the midpoint's state is e^{λh/2}·q + σ·∫₀^{h/2}e^{λ(h/2−s)}ds·ξ).
     pub mid_re: [f64; MAX_MODES],
     pub mid_im: [f64; MAX_MODES],
     pub mid_noise: [f64; MAX_MODES],
+    /// The held thermal input's part of the window centred on a grid sample, per deviate
+    /// of the sample it starts and of the one before; of the window on a midpoint.
+    pub grid_noise: [f64; MAX_MODES],
+    pub grid_noise_before: [f64; MAX_MODES],
+    pub mid_input_noise: [f64; MAX_MODES],
+    /// κ at the midpoint per newton-second of a kick at the sample's start.
+    pub mid_kick: [f64; MAX_MODES],
+    /// Where neither the sample nor the one before has a tap force, the windows are
+    /// functionals of the grid sample's state and the deviates alone: the grid sample's
+    /// window per unit of Re q, Im q, this sample's deviate and the last one's; the
+    /// midpoint's per unit of Re q, Im q and this sample's deviate.
+    pub free_grid_re: [f64; MAX_MODES],
+    pub free_grid_im: [f64; MAX_MODES],
+    pub free_grid_noise: [f64; MAX_MODES],
+    pub free_grid_noise_before: [f64; MAX_MODES],
+    pub free_mid_re: [f64; MAX_MODES],
+    pub free_mid_im: [f64; MAX_MODES],
+    pub free_mid_noise: [f64; MAX_MODES],
+    /// κ at the last midpoint from the grid sample's state, where the last sample had no
+    /// tap force: per unit of Re q, Im q and of the last sample's deviate.
+    pub back_re: [f64; MAX_MODES],
+    pub back_im: [f64; MAX_MODES],
+    pub back_noise: [f64; MAX_MODES],
 }
 
 impl Lanes {
@@ -156,13 +186,51 @@ impl Lanes {
             l.lever[m] = k.lever_gain;
             l.noise_re[m] = k.hold_gain.re * sigma;
             l.noise_im[m] = k.hold_gain.im * sigma;
+            let w = ModeWindow::new(k, h);
+            l.knot_re[m] = w.knot_re;
+            l.knot_im[m] = w.knot_im;
             let half = (k.lambda * (0.5 * h)).exp();
-            l.mid_re[m] = k.lever_gain * half.im;
-            l.mid_im[m] = k.lever_gain * half.re;
-            l.mid_noise[m] = k.lever_gain * ((half - 1.0) / k.lambda).im * sigma;
+            // κ(e·q) = knot_re·(e_re·re − e_im·im) + knot_im·(e_im·re + e_re·im).
+            l.mid_re[m] = w.knot_re * half.re + w.knot_im * half.im;
+            l.mid_im[m] = w.knot_im * half.re - w.knot_re * half.im;
+            l.mid_noise[m] = w.knot(((half - 1.0) / k.lambda) * sigma);
+            let (start, mid, end) = Moments::held(*sigma, h).weigh(w.alpha, w.beta, h);
+            l.grid_noise[m] = start;
+            l.mid_input_noise[m] = mid;
+            l.grid_noise_before[m] = end;
+            l.mid_kick[m] = l.mid_re[m] * k.force_gain;
+            // Free samples: q at the midpoint is e·q + σ·g·ξ (e = e^{λh/2}, g = (e − 1)/λ),
+            // so the last midpoint is (q − σ·g·ξ′)/e. The second differences 1/e − 2 + e and
+            // 1 − 2e + e² are written as sinh² to keep their digits.
+            let x = k.lambda * (0.5 * h);
+            let sh = (x * 0.5).sinh();
+            let g = (half - 1.0) / k.lambda;
+            let (gr, gi) = w.of(4.0 * sh * sh);
+            l.free_grid_re[m] = gr;
+            l.free_grid_im[m] = gi;
+            l.free_grid_noise[m] = w.knot(g * sigma) + start;
+            l.free_grid_noise_before[m] = -w.knot(g / half * sigma) + end;
+            let (mr, mi) = w.of(4.0 * half * sh * sh);
+            l.free_mid_re[m] = mr;
+            l.free_mid_im[m] = mi;
+            // σ·κ(hold − 2g) with hold − 2g = (e − 1)²/λ.
+            l.free_mid_noise[m] = w.knot(4.0 * half * sh * sh / k.lambda * sigma) + mid;
+            let (br, bi) = w.of(1.0 / half);
+            l.back_re[m] = br;
+            l.back_im[m] = bi;
+            l.back_noise[m] = -w.knot(g / half * sigma);
         }
         l
     }
+}
+
+/// The ADC window's weights of the tap force's moments, summed over the modes it drives
+/// ([`super::window::Moments::weigh`]).
+fn force_window(modes: &[ModalKernel], h: f64) -> (f64, f64) {
+    modes.iter().fold((0.0, 0.0), |(alpha, beta), k| {
+        let w = ModeWindow::new(k, h);
+        (alpha + w.alpha * k.force_gain, beta + w.beta * k.force_gain)
+    })
 }
 
 impl SynthPlan {
@@ -256,6 +324,7 @@ impl SynthPlan {
             }
         });
         let lanes = Lanes::new(&modes, &thermal_sigma, h);
+        let force_window = force_window(&modes, h);
         let coupled = (engine == Engine::Coupled).then(|| {
             let contact = model::impact_oscillator(settings, &cantilever, settings.sample).contact;
             CoupledKernel::new(
@@ -318,8 +387,11 @@ impl SynthPlan {
             detector_sigma,
             adc,
             anti_alias: settings.synth.anti_alias.then(adc::grid_taps),
+            drive_grid: drive_signal * super::window::gain(drive_frequency / sample_rate),
             drive_mid: drive_signal
+                * super::window::gain(drive_frequency / sample_rate)
                 * Complex64::from_polar(1.0, 0.5 * word as f64 / TURN * 2.0 * PI),
+            force_window,
             epoch: 0,
         })
     }

@@ -7,6 +7,7 @@ use std::f64::consts::PI;
 use rustfft::num_complex::Complex64;
 
 use super::modal::ModalKernel;
+use super::window::Moments;
 use crate::physics::beam::MAX_MODES;
 
 /// Phase words per drive period.
@@ -55,6 +56,17 @@ pub struct Overlap {
     pub b: f64,
     /// Pulse centre relative to t_n (s).
     pub centre: f64,
+}
+
+/// The pulse's phasor e^{iν(s − centre)} at the overlap's start `a`, at its end `b` and,
+/// where the overlap spans the sample's midpoint, at the midpoint: the sines and cosines
+/// every integral over the sample shares, each computed once (inside a pulse, rotated from
+/// the start's rather than computed).
+#[derive(Clone, Copy, Debug)]
+pub struct Phasors {
+    pub a: Complex64,
+    pub b: Complex64,
+    pub half: Complex64,
 }
 
 impl PulseKernel {
@@ -148,13 +160,41 @@ impl PulseKernel {
         })
     }
 
+    /// The phasors of `overlap` ([`Phasors`]).
+    #[inline]
+    pub fn phasors(&self, overlap: &Overlap) -> Phasors {
+        let Overlap { a, b, centre } = *overlap;
+        let half = 0.5 * self.h;
+        let ca = Complex64::from_polar(1.0, self.nu * (a - centre));
+        let cb = if a <= 0.0 && b >= self.h {
+            ca * self.rotation
+        } else {
+            Complex64::from_polar(1.0, self.nu * (b - centre))
+        };
+        let ch = if a >= half || b <= half {
+            // Not spanned: the midpoint's phasor is never read.
+            Complex64::new(1.0, 0.0)
+        } else if a <= 0.0 {
+            ca * self.half_rotation
+        } else {
+            Complex64::from_polar(1.0, self.nu * (half - centre))
+        };
+        Phasors {
+            a: ca,
+            b: cb,
+            half: ch,
+        }
+    }
+
     /// Adds to `re`, `im` the exact response at the sample's midpoint h/2 to the part of
     /// the pulse in `overlap` ∩ [0, h/2]: F·gain·∫ e^{λ(h/2−s)}·cos(ν(s − centre)) ds. The
-    /// synthesiser reads the midpoint for the ADC's filter with it.
+    /// synthesiser reads the midpoint for the ADC's filter with it. `p`: the overlap's
+    /// [`phasors`](Self::phasors).
     #[inline]
     pub fn apply_to_midpoint(
         &self,
         overlap: &Overlap,
+        p: &Phasors,
         modes: &[ModalKernel],
         re: &mut [f64],
         im: &mut [f64],
@@ -165,12 +205,8 @@ impl PulseKernel {
         if b <= a {
             return;
         }
-        let ca = Complex64::from_polar(1.0, self.nu * (a - overlap.centre));
-        let cb = if a <= 0.0 && b >= end {
-            ca * self.half_rotation
-        } else {
-            Complex64::from_polar(1.0, self.nu * (b - overlap.centre))
-        };
+        let ca = p.a;
+        let cb = if overlap.b > end { p.half } else { p.b };
         for ((((m, re), im), (inv_plus, inv_minus)), half) in modes
             .iter()
             .zip(re.iter_mut())
@@ -197,18 +233,51 @@ impl PulseKernel {
         }
     }
 
+    /// The force's moments over the sample's halves ([`Moments`], N·s and N·s²): the
+    /// integrals of F·cos(ν(s − centre)) and of s times it over `overlap` ∩ [0, h/2) and
+    /// ∩ [h/2, h], in closed form, for the ADC's window.
+    #[inline]
+    pub fn moments(&self, overlap: &Overlap, p: &Phasors) -> Moments {
+        let half = 0.5 * self.h;
+        let (nu, f) = (self.nu, self.max_force);
+        // ∫ cos(ν(s − c)) = sin(ν(s − c))/ν; ∫ s·cos(ν(s − c)) = s·sin(…)/ν + cos(…)/ν².
+        let over = |x0: f64, p0: Complex64, x1: f64, p1: Complex64| -> (f64, f64) {
+            if x1 <= x0 {
+                return (0.0, 0.0);
+            }
+            let first = (p1.im - p0.im) / nu;
+            let second = (x1 * p1.im - x0 * p0.im) / nu + (p1.re - p0.re) / (nu * nu);
+            (f * first, f * second)
+        };
+        let Overlap { a, b, .. } = *overlap;
+        let (s1, t1, s2, t2) = if b <= half {
+            let (s1, t1) = over(a, p.a, b, p.b);
+            (s1, t1, 0.0, 0.0)
+        } else if a >= half {
+            let (s2, t2) = over(a, p.a, b, p.b);
+            (0.0, 0.0, s2, t2)
+        } else {
+            let (s1, t1) = over(a, p.a, half, p.half);
+            let (s2, t2) = over(half, p.half, b, p.b);
+            (s1, t1, s2, t2)
+        };
+        Moments { s1, t1, s2, t2 }
+    }
+
     /// Adds to the modal states (`re`, `im`: real and imaginary parts of q, one per mode)
     /// the exact response to the pulse over `overlap`:
     /// F·gain·∫_a^b e^{λ(h−s)}·cos(ν(s − centre)) ds for each mode.
     #[inline]
-    pub fn apply(&self, overlap: &Overlap, modes: &[ModalKernel], re: &mut [f64], im: &mut [f64]) {
-        let Overlap { a, b, centre } = *overlap;
-        let ca = Complex64::from_polar(1.0, self.nu * (a - centre));
-        let cb = if a <= 0.0 && b >= self.h {
-            ca * self.rotation
-        } else {
-            Complex64::from_polar(1.0, self.nu * (b - centre))
-        };
+    pub fn apply(
+        &self,
+        overlap: &Overlap,
+        p: &Phasors,
+        modes: &[ModalKernel],
+        re: &mut [f64],
+        im: &mut [f64],
+    ) {
+        let Overlap { a, b, .. } = *overlap;
+        let (ca, cb) = (p.a, p.b);
         for (((m, re), im), (inv_plus, inv_minus)) in modes
             .iter()
             .zip(re.iter_mut())

@@ -9,7 +9,7 @@
 
 use rustfft::num_complex::Complex64;
 
-use super::adc::{AdcFilter, GRID_HISTORY, MID_HISTORY};
+use super::adc::{AdcFilter, COMPENSATOR_HISTORY, GRID_HISTORY, MID_HISTORY};
 use super::coupled::{CoupledKernel, CoupledTrace, SUBSTEPS};
 #[cfg(target_arch = "x86_64")]
 use super::lanes::{Avx8, Avx512x8};
@@ -19,6 +19,7 @@ use super::normals::NormalSource;
 
 use super::plan::{SynthPlan, TURN};
 use super::pulse::PulseKernel;
+use super::window::Moments;
 use crate::physics::beam::MAX_MODES;
 use crate::timebase::phase_to_radians;
 
@@ -57,6 +58,21 @@ pub struct SynthCounters {
     pub clipped: u64,
 }
 
+/// What the ADC's window carries from one sample to the next ([`super::window`]): the
+/// last sample's thermal deviates, and if it had a tap force, its knot at its midpoint
+/// (κ, one lane per mode) and what its force adds to the window on the next grid sample.
+#[derive(Clone, Debug, Default)]
+struct WindowCarry {
+    z: [f64; MAX_MODES],
+    mid: [f64; MAX_MODES],
+    input: f64,
+    /// Whether the last sample had a tap force.
+    forced: bool,
+    /// Whether the carry continues the stream: not at a start without the filter's
+    /// history, after a change of plan ([`SynthState::retarget`]) or with the filter off.
+    valid: bool,
+}
+
 /// Samples per chunk: the loop writes a chunk's grid and midpoint samples, then the ADC
 /// filter decimates them. A chunk never straddles two pages of deviates.
 const CHUNK: usize = 256;
@@ -79,6 +95,8 @@ pub struct SynthState {
     noise: NoisePages,
     /// The ADC filter's histories and the chunk's grid and midpoint samples.
     adc: AdcFilter,
+    /// The ADC window's carry from the last sample.
+    window: WindowCarry,
     /// The widest vector instructions the CPU has (the loop is compiled for them).
     build: Build,
     /// Counters.
@@ -111,14 +129,14 @@ impl SynthState {
             let [z1, z2] = z;
             thermal[m] = Complex64::new(l11 * z1, l21 * z1 + l22 * z2);
         }
-        let (q, adc) = if plan.anti_alias.is_some() {
+        let (q, adc, window) = if plan.anti_alias.is_some() {
             plan.settled_start(&thermal)
         } else {
             let mut q = thermal;
             for (q, tap) in q.iter_mut().zip(plan.tap_steady_state(0.0)) {
                 *q += tap;
             }
-            (q, AdcFilter::new(CHUNK, |_| 0.0))
+            (q, AdcFilter::new(CHUNK, |_| 0.0), WindowCarry::default())
         };
         Self {
             re: q.map(|q| q.re),
@@ -128,6 +146,7 @@ impl SynthState {
             seed,
             noise: NoisePages::new(),
             adc,
+            window,
             build: Build::detect(),
             counters: SynthCounters::default(),
         }
@@ -168,6 +187,9 @@ impl SynthState {
     /// transient. Modes that `new` adds start at rest; modes it drops are gone. A new seed
     /// takes over the noise: from then on the deviates are that seed's at those samples.
     pub fn retarget(&mut self, old: &SynthPlan, new: &SynthPlan) {
+        // The window's carried knots belong to the old plan's modes and drive: the next
+        // grid sample and the midpoint before it are taken without the window.
+        self.window.valid = false;
         if new.seed != old.seed {
             self.seed = new.seed;
         }
@@ -290,9 +312,17 @@ impl SynthPlan {
     }
 
     /// The per-sample loop on mode lanes of `V` held in registers. `MID`: with the ADC's
-    /// filter (the signal at the midpoints too); `COUPLED`: the coupled engine's contact,
-    /// else the paper engine's pulse. The samples where a pulse falls take arrays of the
-    /// lanes for its exact integrals.
+    /// filter (the signal through its window at the grid samples and midpoints,
+    /// [`super::window`]); `COUPLED`: the coupled engine's contact, else the paper engine's
+    /// pulse. The samples where a pulse falls take arrays of the lanes for its exact
+    /// integrals.
+    ///
+    /// Through the window, grid sample n spans the second half of sample n − 1 and the
+    /// first of sample n, and midpoint n + ½ spans sample n. Where neither sample has a tap
+    /// force, both are fixed functionals of the state at t_n and the two samples' thermal
+    /// deviates; otherwise the window is taken from its three knots and the force's
+    /// moments, carrying the last midpoint's knot and its sample's force from a forced
+    /// sample to the next ([`WindowCarry`]).
     #[allow(clippy::needless_range_loop)]
     #[inline(always)]
     fn process_lanes<V: Lanes, const MID: bool, const COUPLED: bool>(
@@ -310,15 +340,33 @@ impl SynthPlan {
         let (a_re, a_im) = (V::load(&k.a_re), V::load(&k.a_im));
         let (noise_re, noise_im) = (V::load(&k.noise_re), V::load(&k.noise_im));
         let lever = V::load(&k.lever);
-        let (mid_re, mid_im, mid_noise) = (
-            V::load(&k.mid_re),
-            V::load(&k.mid_im),
-            V::load(&k.mid_noise),
+        let (free_grid_re, free_grid_im, free_grid_noise, free_grid_noise_before) = (
+            V::load(&k.free_grid_re),
+            V::load(&k.free_grid_im),
+            V::load(&k.free_grid_noise),
+            V::load(&k.free_grid_noise_before),
+        );
+        let (free_mid_re, free_mid_im, free_mid_noise) = (
+            V::load(&k.free_mid_re),
+            V::load(&k.free_mid_im),
+            V::load(&k.free_mid_noise),
         );
         let coupled_lanes = coupled.map(|c| c.lanes::<V>());
         let n = self.modes.len();
         let mut re = V::load(&state.re);
         let mut im = V::load(&state.im);
+        let carry = &state.window;
+        let valid = MID && carry.valid;
+        // Without a carry (the window just started) the last sample is taken as free, with
+        // no thermal input: one grid sample's window is then approximate.
+        let mut z_before = if valid {
+            V::load(&carry.z)
+        } else {
+            V::splat(0.0)
+        };
+        let mut forced_before = valid && carry.forced;
+        let mut knot_before = V::load(&carry.mid);
+        let mut input_before = carry.input;
         // The coupled engine's tip position at the next sample, once a step has found it.
         let mut tip = f64::NAN;
         let mut phase = state.phase;
@@ -334,7 +382,6 @@ impl SynthPlan {
             self.prepare_noise(state, index);
             let thermal = state.noise.page().thermal(within, n);
             let (grid, mids) = if MID {
-                let len = chunk.len();
                 (
                     &mut state.adc.grid[GRID_HISTORY..GRID_HISTORY + len],
                     &mut state.adc.mid[MID_HISTORY..MID_HISTORY + len],
@@ -349,15 +396,14 @@ impl SynthPlan {
                 if index.is_multiple_of(REANCHOR) {
                     rho = Complex64::from_polar(1.0, phase_to_radians(phase));
                 }
-                *out = (self.drive_signal * rho).re + lever.mul(im).sum();
-                let mut mid = 0.0;
-                if MID {
-                    let p = mid_re.mul(re).add(mid_im.mul(im)).add(mid_noise.mul(z));
-                    mid = (self.drive_mid * rho).re + p.sum();
-                }
+                let (re0, im0) = (re, im);
+                // A forced sample's knot at its midpoint, and the force's moments.
+                let mut knot_mid = V::splat(0.0);
+                let mut moments = Moments::default();
+                let mut forced = false;
                 let next = rho * step;
                 if COUPLED && let (Some(coupled), Some(lanes)) = (coupled, &coupled_lanes) {
-                    let mut mid_im = re;
+                    let mut midq = (re, im);
                     let substepped;
                     (re, im, tip, substepped) = coupled.step_lanes(
                         lanes,
@@ -367,36 +413,52 @@ impl SynthPlan {
                         next,
                         z,
                         tip,
-                        &mut mid_im,
+                        &mut midq,
+                        &mut moments,
                         &mut |_| {},
                     );
-                    if substepped && MID {
-                        mid = (self.drive_mid * rho).re + lever.mul(mid_im).sum();
+                    if MID {
+                        forced = moments != Moments::default();
+                        if substepped {
+                            knot_mid = V::load(&k.knot_re)
+                                .mul(midq.0)
+                                .add(V::load(&k.knot_im).mul(midq.1));
+                        } else if forced {
+                            // The kick at the sample's start, seen at the midpoint.
+                            knot_mid = self
+                                .free_knot_mid(re0, im0, z)
+                                .add(V::load(&k.mid_kick).mul(V::splat(moments.s1)));
+                        }
                     }
                 } else if let Some(overlap) =
                     pulse.and_then(|p| p.overlap(phase, self.frequency_word))
                 {
                     // A pulse falls in this sample: its exact integrals, mode by mode.
                     let pulse = pulse.expect("an overlap has a pulse");
+                    let phasors = pulse.phasors(&overlap);
                     if MID {
                         let mut dre = [0.0; MAX_MODES];
                         let mut dim = [0.0; MAX_MODES];
                         pulse.apply_to_midpoint(
                             &overlap,
+                            &phasors,
                             &self.modes,
                             &mut dre[..n],
                             &mut dim[..n],
                         );
-                        for m in 0..n {
-                            mid += k.lever[m] * dim[m];
-                        }
+                        knot_mid = self
+                            .free_knot_mid(re0, im0, z)
+                            .add(V::load(&k.knot_re).mul(V::load(&dre)))
+                            .add(V::load(&k.knot_im).mul(V::load(&dim)));
+                        moments = pulse.moments(&overlap, &phasors);
+                        forced = true;
                     }
                     let r1 = a_re.mul(re).sub(a_im.mul(im)).add(noise_re.mul(z));
                     let i1 = a_re.mul(im).add(a_im.mul(re)).add(noise_im.mul(z));
                     let (mut r, mut i) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
                     r1.store(&mut r);
                     i1.store(&mut i);
-                    pulse.apply(&overlap, &self.modes, &mut r[..n], &mut i[..n]);
+                    pulse.apply(&overlap, &phasors, &self.modes, &mut r[..n], &mut i[..n]);
                     (re, im) = (V::load(&r), V::load(&i));
                 } else {
                     let r1 = a_re.mul(re).sub(a_im.mul(im)).add(noise_re.mul(z));
@@ -404,7 +466,46 @@ impl SynthPlan {
                     re = r1;
                 }
                 if MID {
-                    mids[i] = mid;
+                    let drive_grid = (self.drive_grid * rho).re;
+                    let drive_mid = (self.drive_mid * rho).re;
+                    if !forced && !forced_before {
+                        let g = free_grid_re
+                            .mul(re0)
+                            .add(free_grid_im.mul(im0))
+                            .add(free_grid_noise.mul(z))
+                            .add(free_grid_noise_before.mul(z_before));
+                        let m = free_mid_re
+                            .mul(re0)
+                            .add(free_mid_im.mul(im0))
+                            .add(free_mid_noise.mul(z));
+                        *out = drive_grid + g.sum();
+                        mids[i] = drive_mid + m.sum();
+                    } else {
+                        (*out, mids[i]) = self.forced_windows(
+                            (re0, im0),
+                            (re, im),
+                            z,
+                            z_before,
+                            if forced {
+                                knot_mid
+                            } else {
+                                self.free_knot_mid(re0, im0, z)
+                            },
+                            forced_before.then_some((knot_before, input_before)),
+                            &moments,
+                            (drive_grid, drive_mid),
+                        );
+                        if forced {
+                            knot_before = knot_mid;
+                            input_before = moments
+                                .weigh(self.force_window.0, self.force_window.1, self.h)
+                                .2;
+                        }
+                    }
+                    forced_before = forced;
+                    z_before = z;
+                } else {
+                    *out = (self.drive_signal * rho).re + lever.mul(im0).sum();
                 }
                 phase = phase.wrapping_add(self.frequency_word);
                 rho = next;
@@ -419,10 +520,70 @@ impl SynthPlan {
         }
         re.store(&mut state.re);
         im.store(&mut state.im);
+        let carry = &mut state.window;
+        z_before.store(&mut carry.z);
+        knot_before.store(&mut carry.mid);
+        (carry.input, carry.forced, carry.valid) = (input_before, forced_before, MID);
         state.phase = phase;
         state.rho = rho;
         state.counters.samples = index;
         state.counters.clipped += clipped;
+    }
+
+    /// κ at the midpoint of a sample without force, from the state `re`, `im` at its start
+    /// and its thermal deviates `z`.
+    #[inline(always)]
+    fn free_knot_mid<V: Lanes>(&self, re: V, im: V, z: V) -> V {
+        let k = &self.lanes;
+        V::load(&k.mid_re)
+            .mul(re)
+            .add(V::load(&k.mid_im).mul(im))
+            .add(V::load(&k.mid_noise).mul(z))
+    }
+
+    /// The windows on grid sample n and on midpoint n + ½ where sample n or n − 1 has a
+    /// tap force, from the knots ([`super::window`]): the states at t_n and t_{n+1}, the
+    /// knot at n + ½ `knot_mid`, the thermal deviates of samples n and n − 1, the force's
+    /// `moments` over sample n, and for a forced sample n − 1 its knot at n − ½ and what
+    /// its force gives the window on n (else that knot is found from the state at t_n).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn forced_windows<V: Lanes>(
+        &self,
+        (re0, im0): (V, V),
+        (re1, im1): (V, V),
+        z: V,
+        z_before: V,
+        knot_mid: V,
+        before: Option<(V, f64)>,
+        moments: &Moments,
+        (drive_grid, drive_mid): (f64, f64),
+    ) -> (f64, f64) {
+        let k = &self.lanes;
+        let (knot_re, knot_im) = (V::load(&k.knot_re), V::load(&k.knot_im));
+        let knot_grid = knot_re.mul(re0).add(knot_im.mul(im0));
+        let knot_next = knot_re.mul(re1).add(knot_im.mul(im1));
+        let (knot_left, input_left) = before.unwrap_or_else(|| {
+            let back = V::load(&k.back_re)
+                .mul(re0)
+                .add(V::load(&k.back_im).mul(im0))
+                .add(V::load(&k.back_noise).mul(z_before));
+            (back, 0.0)
+        });
+        let (w_start, w_mid, _) = moments.weigh(self.force_window.0, self.force_window.1, self.h);
+        let g = knot_left
+            .add(knot_mid)
+            .sub(knot_grid.add(knot_grid))
+            .add(V::load(&k.grid_noise).mul(z))
+            .add(V::load(&k.grid_noise_before).mul(z_before));
+        let m = knot_grid
+            .add(knot_next)
+            .sub(knot_mid.add(knot_mid))
+            .add(V::load(&k.mid_input_noise).mul(z));
+        (
+            drive_grid + g.sum() + (input_left + w_start),
+            drive_mid + m.sum() + w_mid,
+        )
     }
 
     /// Advances `state` by `samples` samples of the coupled engine with the noise left
@@ -443,40 +604,53 @@ impl SynthPlan {
         let lanes = coupled.lanes::<All>();
         let z = All::splat(0.0);
         let (mut re, mut im) = (All::load(&state.re), All::load(&state.im));
-        let mut mid = im;
+        let mut mid = (re, im);
+        let mut moments = Moments::default();
         for _ in 0..samples {
             let rho = Complex64::from_polar(1.0, phase_to_radians(state.phase));
             let next_phase = state.phase.wrapping_add(step);
             let next = Complex64::from_polar(1.0, phase_to_radians(next_phase));
             let tip = coupled.tip_position(&lanes, rho, im);
             trace.tip.push(tip);
-            (re, im, _, _) =
-                coupled.step_lanes(&lanes, re, im, rho, next, z, tip, &mut mid, &mut |g| {
-                    trace.force.push(g)
-                });
+            (re, im, _, _) = coupled.step_lanes(
+                &lanes,
+                re,
+                im,
+                rho,
+                next,
+                z,
+                tip,
+                &mut mid,
+                &mut moments,
+                &mut |g| trace.force.push(g),
+            );
             state.phase = next_phase;
             state.counters.samples += 1;
         }
         re.store(&mut state.re);
         im.store(&mut state.im);
         state.rho = Complex64::from_polar(1.0, phase_to_radians(state.phase));
+        state.window.valid = false;
         Some(trace)
     }
 
-    /// The modal states at phase 0 and the ADC filter's history for a stream that starts
-    /// on the periodic orbit under the tap force plus the free motion `thermal`: the
-    /// [`GRID_HISTORY`] samples before phase 0 synthesised without noise from the orbit's
-    /// state that many samples earlier (and `thermal` propagated back), so the filter's
-    /// history and the states it ends in are one stream, settled from its first sample.
+    /// The modal states at phase 0, the ADC filter's history and the window's carry for a
+    /// stream that starts on the periodic orbit under the tap force plus the free motion
+    /// `thermal`: the samples before phase 0 that the filter remembers (its halfband's and
+    /// compensator's histories, and one more for the window's carry) synthesised without
+    /// noise from the orbit's state that many samples earlier (and `thermal` propagated
+    /// back), so the filter's history and the states it ends in are one stream, settled
+    /// from its first sample.
     fn settled_start(
         &self,
         thermal: &[Complex64; MAX_MODES],
-    ) -> ([Complex64; MAX_MODES], AdcFilter) {
+    ) -> ([Complex64; MAX_MODES], AdcFilter, WindowCarry) {
         let mut quiet = self.clone();
         quiet.thermal_sigma.iter_mut().for_each(|s| *s = 0.0);
         quiet.detector_sigma = 0.0;
         quiet.adc = None;
-        let before = GRID_HISTORY;
+        const BEFORE: usize = GRID_HISTORY + 1 + COMPENSATOR_HISTORY;
+        let before = BEFORE;
         let word = self.frequency_word;
         let start = 0u64.wrapping_sub((before as u64).wrapping_mul(word));
         let t = -(before as f64) * self.h;
@@ -489,6 +663,7 @@ impl SynthPlan {
             seed: 0,
             noise: NoisePages::new(),
             adc: AdcFilter::new(CHUNK, |_| 0.0),
+            window: WindowCarry::default(),
             build: Build::detect(),
             counters: SynthCounters::default(),
         };
@@ -496,14 +671,14 @@ impl SynthPlan {
             let back = (kernel.lambda * t).exp();
             temp.set_q(m, periodic[m] + thermal[m] * back);
         }
-        let mut scratch = [0.0; GRID_HISTORY];
+        let mut scratch = [0.0; BEFORE];
         quiet.process_with(
             quiet.pulse.as_ref(),
             quiet.coupled.as_ref(),
             &mut temp,
             &mut scratch,
         );
-        (std::array::from_fn(|m| temp.q(m)), temp.adc)
+        (std::array::from_fn(|m| temp.q(m)), temp.adc, temp.window)
     }
 
     /// Makes the page of deviates that holds sample `index` current, if the plan has noise.
