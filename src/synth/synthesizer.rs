@@ -187,8 +187,9 @@ impl SynthState {
     /// transient. Modes that `new` adds start at rest; modes it drops are gone. A new seed
     /// takes over the noise: from then on the deviates are that seed's at those samples.
     pub fn retarget(&mut self, old: &SynthPlan, new: &SynthPlan) {
-        // The window's carried knots belong to the old plan's modes and drive: the next
-        // grid sample and the midpoint before it are taken without the window.
+        // The window's carry belongs to the old plan's modes and drive: the next grid
+        // sample's window takes the sample before it as free of force and thermal input
+        // (one approximate window in the transient).
         self.window.valid = false;
         if new.seed != old.seed {
             self.seed = new.seed;
