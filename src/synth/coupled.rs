@@ -569,36 +569,27 @@ impl CoupledKernel {
                 // Re-anchored every step: the orbit must close on `theta` exactly.
                 let phase = theta + omega * step * j as f64;
                 let next = Complex64::from_polar(1.0, phase + omega * step);
-                if period >= periods {
-                    let mut before = [0.0; MAX_MODES];
+                // The last `extra` periods are handed to `sample`.
+                let recorded = period >= periods;
+                let mut before = [0.0; MAX_MODES];
+                if recorded {
                     im.store(&mut before);
-                    let mut largest = 0.0f64;
-                    (re, im, _, _) = kernel.step_lanes(
-                        &c,
-                        re,
-                        im,
-                        rho,
-                        next,
-                        z,
-                        f64::NAN,
-                        &mut mid,
-                        &mut moments,
-                        &mut |g| largest = largest.max(g),
-                    );
+                }
+                let mut largest = 0.0f64;
+                (re, im, _, _) = kernel.step_lanes(
+                    &c,
+                    re,
+                    im,
+                    rho,
+                    next,
+                    z,
+                    f64::NAN,
+                    &mut mid,
+                    &mut moments,
+                    &mut |g| largest = largest.max(g),
+                );
+                if recorded {
                     sample(phase, &before, largest);
-                } else {
-                    (re, im, _, _) = kernel.step_lanes(
-                        &c,
-                        re,
-                        im,
-                        rho,
-                        next,
-                        z,
-                        f64::NAN,
-                        &mut mid,
-                        &mut moments,
-                        &mut |_| {},
-                    );
                 }
                 rho = next;
             }
