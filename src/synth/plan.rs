@@ -190,9 +190,7 @@ impl Lanes {
             l.knot_re[m] = w.knot_re;
             l.knot_im[m] = w.knot_im;
             let half = (k.lambda * (0.5 * h)).exp();
-            // κ(e·q) = knot_re·(e_re·re − e_im·im) + knot_im·(e_im·re + e_re·im).
-            l.mid_re[m] = w.knot_re * half.re + w.knot_im * half.im;
-            l.mid_im[m] = w.knot_im * half.re - w.knot_re * half.im;
+            (l.mid_re[m], l.mid_im[m]) = w.of(half);
             l.mid_noise[m] = w.knot(((half - 1.0) / k.lambda) * sigma);
             let (start, mid, end) = Moments::held(*sigma, h).weigh(w.alpha, w.beta, h);
             l.grid_noise[m] = start;

@@ -41,9 +41,10 @@ pub struct ModeWindow {
     /// Knot functional κ(q) = `knot_re`·Re q + `knot_im`·Im q (m per unit of q).
     pub knot_re: f64,
     pub knot_im: f64,
-    /// Weight of ∫wu: L/ω² (m per m/s²·… of input; L the light-lever factor).
+    /// Weight of ∫wu (m/s² for an acceleration input): L/ω² (s²; L the light-lever
+    /// factor, photodiode metres per metre of Y).
     pub alpha: f64,
-    /// Weight of U₊ − U₋: −2γL/(a²ω³).
+    /// Weight of U₊ − U₋ (m/s): −2γL/(a²ω³) (s).
     pub beta: f64,
 }
 
