@@ -23,11 +23,22 @@ fn synth(c: &mut Criterion) {
             Engine::Coupled,
             false,
         ),
+        // The tip clear of the surface (A_set 100 nm): the free samples' cost alone, so
+        // that the contact's (its sub-steps) is the difference.
+        (
+            "coupled_5_modes_noise_on_clear",
+            true,
+            Engine::Coupled,
+            true,
+        ),
     ] {
         let mut settings = default_settings();
         settings.noise.enable = noise;
         settings.synth.engine = engine;
         settings.synth.anti_alias = anti_alias;
+        if name.ends_with("_clear") {
+            settings.surface.distance = 100e-9;
+        }
         let plan = SynthPlan::new(&settings).expect("default plan");
         let mut state = SynthState::steady(&plan, 1);
         let mut block = vec![0.0; BLOCK];
