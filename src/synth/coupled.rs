@@ -368,11 +368,11 @@ impl CoupledKernel {
         let g0 = self.force(gap0);
         let mut r = re;
         if g0 != 0.0 {
-            r = r.add(c.kick.mul(V::splat(self.half_h * g0)));
+            r = c.kick.mul_add(V::splat(self.half_h * g0), r);
         }
         let h = 2.0 * self.half_h;
-        let r1 = c.a_re.mul(r).sub(c.a_im.mul(im)).add(c.noise_re.mul(z));
-        let i1 = c.a_re.mul(im).add(c.a_im.mul(r)).add(c.noise_im.mul(z));
+        let r1 = c.a_im.neg_mul_add(im, c.a_re.mul_add(r, c.noise_re.mul(z)));
+        let i1 = c.a_im.mul_add(r, c.a_re.mul_add(im, c.noise_im.mul(z)));
         let z1 = self.tip_position(c, next, i1);
         let gap1 = z1 + self.distance;
         if gap0.min(gap1) >= self.margin {
@@ -382,7 +382,7 @@ impl CoupledKernel {
             moments.s1 += self.half_h * g0;
             if self.strength != 0.0 {
                 g1 = self.force(gap1);
-                r1 = r1.add(c.kick.mul(V::splat(self.half_h * g1)));
+                r1 = c.kick.mul_add(V::splat(self.half_h * g1), r1);
                 moments.kick(self.half_h * g1, h, true);
             }
             for _ in 0..SUBSTEPS {
@@ -421,9 +421,7 @@ impl CoupledKernel {
         // Sub-step 0: its gap from the lanes it starts from.
         let p = c
             .sub_gap_im
-            .mul(im)
-            .add(c.sub_gap_re.mul(re))
-            .add(c.sub_gap_noise.mul(z));
+            .mul_add(im, c.sub_gap_re.mul_add(re, c.sub_gap_noise.mul(z)));
         let mut gap =
             (self.free_tip * r).re + p.sum() + self.distance + self.first_gap_per_force * g0;
         let mut g = g0;
@@ -433,9 +431,7 @@ impl CoupledKernel {
             // sub-step j, with that kick's part (Φ·impulse) and sub-step j's (C·g) added.
             let two = c
                 .two_gap_re
-                .mul(re)
-                .add(c.two_gap_im.mul(im))
-                .add(c.two_gap_noise.mul(z));
+                .mul_add(re, c.two_gap_im.mul_add(im, c.two_gap_noise.mul(z)));
             let next_g;
             if j < SUBSTEPS {
                 r *= self.sub_rotation;
@@ -449,20 +445,16 @@ impl CoupledKernel {
             }
             record(next_g);
             if g != 0.0 {
-                re = re.add(c.kick.mul(V::splat(impulse)));
+                re = c.kick.mul_add(V::splat(impulse), re);
             }
             // The kick at (j − 1)·dt: the midpoint's (j = S/2 + 1) is in the second half.
             moments.kick(impulse, (j - 1) as f64 * dt, j > SUBSTEPS / 2);
             let r1 = c
-                .sub_a_re
-                .mul(re)
-                .sub(c.sub_a_im.mul(im))
-                .add(c.sub_noise_re.mul(z));
+                .sub_a_im
+                .neg_mul_add(im, c.sub_a_re.mul_add(re, c.sub_noise_re.mul(z)));
             im = c
-                .sub_a_re
-                .mul(im)
-                .add(c.sub_a_im.mul(re))
-                .add(c.sub_noise_im.mul(z));
+                .sub_a_im
+                .mul_add(re, c.sub_a_re.mul_add(im, c.sub_noise_im.mul(z)));
             re = r1;
             if j == SUBSTEPS / 2 {
                 // The midpoint, before its kick.
@@ -472,7 +464,7 @@ impl CoupledKernel {
             impulse = dt * g;
         }
         if g != 0.0 {
-            re = re.add(c.kick.mul(V::splat(self.half_dt * g)));
+            re = c.kick.mul_add(V::splat(self.half_dt * g), re);
         }
         moments.kick(self.half_dt * g, h, true);
         (re, im, gap - self.distance, true)

@@ -22,6 +22,10 @@ pub(crate) trait Lanes: Copy {
     fn add(self, other: Self) -> Self;
     fn sub(self, other: Self) -> Self;
     fn mul(self, other: Self) -> Self;
+    /// `self·a + b`, rounded once.
+    fn mul_add(self, a: Self, b: Self) -> Self;
+    /// `b − self·a`, rounded once.
+    fn neg_mul_add(self, a: Self, b: Self) -> Self;
     /// The sum, in [`lane_sum`](super::modal::lane_sum)'s tree.
     fn sum(self) -> f64;
 }
@@ -60,6 +64,16 @@ impl<const L: usize> Lanes for Portable<L> {
     #[inline(always)]
     fn mul(self, o: Self) -> Self {
         Self(std::array::from_fn(|m| self.0[m] * o.0[m]))
+    }
+    #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        Self(std::array::from_fn(|m| self.0[m].mul_add(a.0[m], b.0[m])))
+    }
+    #[inline(always)]
+    fn neg_mul_add(self, a: Self, b: Self) -> Self {
+        Self(std::array::from_fn(|m| {
+            (-self.0[m]).mul_add(a.0[m], b.0[m])
+        }))
     }
     #[inline(always)]
     fn sum(self) -> f64 {
@@ -131,6 +145,24 @@ mod avx {
             unsafe { Self(_mm256_mul_pd(self.0, o.0), _mm256_mul_pd(self.1, o.1)) }
         }
         #[inline(always)]
+        fn mul_add(self, a: Self, b: Self) -> Self {
+            unsafe {
+                Self(
+                    _mm256_fmadd_pd(self.0, a.0, b.0),
+                    _mm256_fmadd_pd(self.1, a.1, b.1),
+                )
+            }
+        }
+        #[inline(always)]
+        fn neg_mul_add(self, a: Self, b: Self) -> Self {
+            unsafe {
+                Self(
+                    _mm256_fnmadd_pd(self.0, a.0, b.0),
+                    _mm256_fnmadd_pd(self.1, a.1, b.1),
+                )
+            }
+        }
+        #[inline(always)]
         fn sum(self) -> f64 {
             unsafe {
                 let s = _mm256_add_pd(self.0, self.1);
@@ -178,6 +210,14 @@ mod avx {
         #[inline(always)]
         fn mul(self, o: Self) -> Self {
             unsafe { Self(_mm512_mul_pd(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn mul_add(self, a: Self, b: Self) -> Self {
+            unsafe { Self(_mm512_fmadd_pd(self.0, a.0, b.0)) }
+        }
+        #[inline(always)]
+        fn neg_mul_add(self, a: Self, b: Self) -> Self {
+            unsafe { Self(_mm512_fnmadd_pd(self.0, a.0, b.0)) }
         }
         #[inline(always)]
         fn sum(self) -> f64 {

@@ -422,13 +422,11 @@ impl SynthPlan {
                         forced = moments != Moments::default();
                         if substepped {
                             knot_mid = V::load(&k.knot_re)
-                                .mul(midq.0)
-                                .add(V::load(&k.knot_im).mul(midq.1));
+                                .mul_add(midq.0, V::load(&k.knot_im).mul(midq.1));
                         } else if forced {
                             // The kick at the sample's start, seen at the midpoint.
-                            knot_mid = self
-                                .free_knot_mid(re0, im0, z)
-                                .add(V::load(&k.mid_kick).mul(V::splat(moments.s1)));
+                            knot_mid = V::load(&k.mid_kick)
+                                .mul_add(V::splat(moments.s1), self.free_knot_mid(re0, im0, z));
                         }
                     }
                 } else if let Some(overlap) =
@@ -447,38 +445,39 @@ impl SynthPlan {
                             &mut dre[..n],
                             &mut dim[..n],
                         );
-                        knot_mid = self
-                            .free_knot_mid(re0, im0, z)
-                            .add(V::load(&k.knot_re).mul(V::load(&dre)))
-                            .add(V::load(&k.knot_im).mul(V::load(&dim)));
+                        knot_mid = V::load(&k.knot_re).mul_add(
+                            V::load(&dre),
+                            V::load(&k.knot_im)
+                                .mul_add(V::load(&dim), self.free_knot_mid(re0, im0, z)),
+                        );
                         moments = pulse.moments(&overlap, &phasors);
                         forced = true;
                     }
-                    let r1 = a_re.mul(re).sub(a_im.mul(im)).add(noise_re.mul(z));
-                    let i1 = a_re.mul(im).add(a_im.mul(re)).add(noise_im.mul(z));
+                    let r1 = a_im.neg_mul_add(im, a_re.mul_add(re, noise_re.mul(z)));
+                    let i1 = a_im.mul_add(re, a_re.mul_add(im, noise_im.mul(z)));
                     let (mut r, mut i) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
                     r1.store(&mut r);
                     i1.store(&mut i);
                     pulse.apply(&overlap, &phasors, &self.modes, &mut r[..n], &mut i[..n]);
                     (re, im) = (V::load(&r), V::load(&i));
                 } else {
-                    let r1 = a_re.mul(re).sub(a_im.mul(im)).add(noise_re.mul(z));
-                    im = a_re.mul(im).add(a_im.mul(re)).add(noise_im.mul(z));
+                    let r1 = a_im.neg_mul_add(im, a_re.mul_add(re, noise_re.mul(z)));
+                    im = a_im.mul_add(re, a_re.mul_add(im, noise_im.mul(z)));
                     re = r1;
                 }
                 if MID {
                     let drive_grid = (self.drive_grid * rho).re;
                     let drive_mid = (self.drive_mid * rho).re;
                     if !forced && !forced_before {
-                        let g = free_grid_re
-                            .mul(re0)
-                            .add(free_grid_im.mul(im0))
-                            .add(free_grid_noise.mul(z))
-                            .add(free_grid_noise_before.mul(z_before));
+                        let g = free_grid_re.mul_add(
+                            re0,
+                            free_grid_im.mul_add(
+                                im0,
+                                free_grid_noise.mul_add(z, free_grid_noise_before.mul(z_before)),
+                            ),
+                        );
                         let m = free_mid_re
-                            .mul(re0)
-                            .add(free_mid_im.mul(im0))
-                            .add(free_mid_noise.mul(z));
+                            .mul_add(re0, free_mid_im.mul_add(im0, free_mid_noise.mul(z)));
                         *out = drive_grid + g.sum();
                         mids[i] = drive_mid + m.sum();
                     } else {
@@ -536,10 +535,10 @@ impl SynthPlan {
     #[inline(always)]
     fn free_knot_mid<V: Lanes>(&self, re: V, im: V, z: V) -> V {
         let k = &self.lanes;
-        V::load(&k.mid_re)
-            .mul(re)
-            .add(V::load(&k.mid_im).mul(im))
-            .add(V::load(&k.mid_noise).mul(z))
+        V::load(&k.mid_re).mul_add(
+            re,
+            V::load(&k.mid_im).mul_add(im, V::load(&k.mid_noise).mul(z)),
+        )
     }
 
     /// The windows on grid sample n and on midpoint n + ½ where sample n or n − 1 has a
@@ -562,25 +561,25 @@ impl SynthPlan {
     ) -> (f64, f64) {
         let k = &self.lanes;
         let (knot_re, knot_im) = (V::load(&k.knot_re), V::load(&k.knot_im));
-        let knot_grid = knot_re.mul(re0).add(knot_im.mul(im0));
-        let knot_next = knot_re.mul(re1).add(knot_im.mul(im1));
+        let knot_grid = knot_re.mul_add(re0, knot_im.mul(im0));
+        let knot_next = knot_re.mul_add(re1, knot_im.mul(im1));
         let (knot_left, input_left) = before.unwrap_or_else(|| {
-            let back = V::load(&k.back_re)
-                .mul(re0)
-                .add(V::load(&k.back_im).mul(im0))
-                .add(V::load(&k.back_noise).mul(z_before));
+            let back = V::load(&k.back_re).mul_add(
+                re0,
+                V::load(&k.back_im).mul_add(im0, V::load(&k.back_noise).mul(z_before)),
+            );
             (back, 0.0)
         });
         let (w_start, w_mid, _) = moments.weigh(self.force_window.0, self.force_window.1, self.h);
-        let g = knot_left
-            .add(knot_mid)
-            .sub(knot_grid.add(knot_grid))
-            .add(V::load(&k.grid_noise).mul(z))
-            .add(V::load(&k.grid_noise_before).mul(z_before));
-        let m = knot_grid
-            .add(knot_next)
-            .sub(knot_mid.add(knot_mid))
-            .add(V::load(&k.mid_input_noise).mul(z));
+        let g = V::load(&k.grid_noise).mul_add(
+            z,
+            V::load(&k.grid_noise_before).mul_add(
+                z_before,
+                knot_left.add(knot_mid).sub(knot_grid.add(knot_grid)),
+            ),
+        );
+        let m = V::load(&k.mid_input_noise)
+            .mul_add(z, knot_grid.add(knot_next).sub(knot_mid.add(knot_mid)));
         (
             drive_grid + g.sum() + (input_left + w_start),
             drive_mid + m.sum() + w_mid,
