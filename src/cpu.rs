@@ -18,10 +18,46 @@ pub(crate) fn align_frame() {
     std::hint::black_box(&mut line);
 }
 
-/// Whether the CPU has AVX2 and FMA.
+/// The widest instruction set the vector kernels may use, capped by the environment
+/// variable `FTAFM_ISA` (`avx512`, `avx2` or `portable`; unset: whatever the CPU has). With
+/// it an AVX-512 machine runs, and measures, the builds an AVX2-only one runs (the same
+/// bits: every build gives the portable build's). Read once.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Isa {
+    /// No vector kernels: the portable code.
+    Portable,
+    /// AVX2 and FMA.
+    Avx2,
+    /// AVX-512F (with AVX2 and FMA).
+    Avx512,
+}
+
+/// The cap `FTAFM_ISA` asks for, or an error naming the variable and its allowed values
+/// (the command line checks it before it starts anything).
+pub fn isa_from_env() -> Result<Isa, String> {
+    match std::env::var("FTAFM_ISA").as_deref() {
+        Err(_) | Ok("") | Ok("avx512") => Ok(Isa::Avx512),
+        Ok("avx2") => Ok(Isa::Avx2),
+        Ok("portable") => Ok(Isa::Portable),
+        Ok(other) => Err(format!(
+            "FTAFM_ISA must be one of avx512, avx2, portable (or unset), not {other:?}"
+        )),
+    }
+}
+
+/// The cap set by `FTAFM_ISA`. Panics with [`isa_from_env`]'s error on any other value: a
+/// benchmark run on the wrong instruction set would report the wrong thing.
+pub fn isa_cap() -> Isa {
+    static CAP: std::sync::OnceLock<Isa> = std::sync::OnceLock::new();
+    *CAP.get_or_init(|| isa_from_env().unwrap_or_else(|e| panic!("{e}")))
+}
+
+/// Whether the CPU has AVX2 and FMA (and `FTAFM_ISA` allows them).
 #[cfg(target_arch = "x86_64")]
 pub fn fma_available() -> bool {
-    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    isa_cap() >= Isa::Avx2
+        && std::arch::is_x86_feature_detected!("avx2")
+        && std::arch::is_x86_feature_detected!("fma")
 }
 
 /// Whether the CPU has AVX2 and FMA (never, off x86-64).
@@ -30,10 +66,10 @@ pub fn fma_available() -> bool {
     false
 }
 
-/// Whether the CPU has AVX2.
+/// Whether the CPU has AVX2 (and `FTAFM_ISA` allows it).
 #[cfg(target_arch = "x86_64")]
 pub fn avx2_available() -> bool {
-    std::arch::is_x86_feature_detected!("avx2")
+    isa_cap() >= Isa::Avx2 && std::arch::is_x86_feature_detected!("avx2")
 }
 
 /// Whether the CPU has AVX2 (never, off x86-64).
@@ -42,10 +78,13 @@ pub fn avx2_available() -> bool {
     false
 }
 
-/// Whether the CPU has AVX-512 (the foundation instructions) and AVX2.
+/// Whether the CPU has AVX-512 (the foundation instructions) and AVX2 (and `FTAFM_ISA`
+/// allows them).
 #[cfg(target_arch = "x86_64")]
 pub fn avx512_available() -> bool {
-    std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("avx2")
+    isa_cap() >= Isa::Avx512
+        && std::arch::is_x86_feature_detected!("avx512f")
+        && std::arch::is_x86_feature_detected!("avx2")
 }
 
 /// Whether the CPU has AVX-512 (never, off x86-64).

@@ -162,6 +162,10 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let command = cli.command.unwrap_or(Command::Serve(cli.serve));
+    if let Err(e) = ftafm::cpu::isa_from_env() {
+        eprintln!("error: {e}");
+        return ExitCode::from(2);
+    }
     if matches!(command, Command::Serve(_)) {
         // Before anything slow (the config's orbit, the pipeline's start): a SIGTERM or
         // Ctrl-C during start-up must stop the daemon cleanly, not kill it by signal.

@@ -341,3 +341,28 @@ fn bench_rejects_bad_durations() {
         assert!(stderr(&out).contains("--seconds"), "{}", stderr(&out));
     }
 }
+
+/// `FTAFM_ISA` caps the vector builds (docs/benchmarks.md): a value it does not know is an
+/// error that names the variable and its values, before anything runs; a known one runs.
+#[test]
+fn an_unknown_instruction_set_cap_is_refused_by_name() {
+    let run = |isa: &str| {
+        Command::new(env!("CARGO_BIN_EXE_ftafm"))
+            .args(["paper", "--engine", "paper", "--json"])
+            .env("FTAFM_ISA", isa)
+            .output()
+            .expect("the binary runs")
+    };
+    let out = run("sse4");
+    assert_eq!(out.status.code(), Some(2));
+    assert!(out.stdout.is_empty());
+    let err = stderr(&out);
+    assert!(
+        err.contains("FTAFM_ISA") && err.contains("avx512, avx2, portable") && err.contains("sse4"),
+        "{err}"
+    );
+    for isa in ["avx512", "avx2", "portable"] {
+        let out = run(isa);
+        assert!(out.status.success(), "FTAFM_ISA={isa}: {}", stderr(&out));
+    }
+}

@@ -41,7 +41,7 @@ impl Build {
     fn detect() -> Self {
         if crate::cpu::avx512_available() {
             Self::Avx512
-        } else if crate::cpu::avx2_available() {
+        } else if crate::cpu::fma_available() {
             Self::Avx2
         } else {
             Self::Portable
@@ -261,11 +261,13 @@ impl SynthPlan {
         self.process_modes::<Avx512x8>(pulse, coupled, state, out);
     }
 
-    /// [`process_with`](Self::process_with) compiled for AVX2: the same operations in the
-    /// same order (no fused multiply-adds), four lanes to a register instead of two, so
-    /// the stream is bit-identical to the portable build's. The CPU must have AVX2.
+    /// [`process_with`](Self::process_with) compiled for AVX2 and FMA: the same operations
+    /// in the same order (the multiply–adds fused where the lanes' `mul_add` asks for it,
+    /// as the portable build's `f64::mul_add`), four lanes to a register, so the stream is
+    /// bit-identical to the portable build's. The CPU must have AVX2 and FMA (without FMA
+    /// the lanes' fused operations could not be inlined: each would be a call).
     #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
+    #[target_feature(enable = "avx2,fma")]
     unsafe fn process_avx2(
         &self,
         pulse: Option<&PulseKernel>,
@@ -776,7 +778,7 @@ mod tests {
             .into_iter()
             .filter(|b| match b {
                 Build::Avx512 => crate::cpu::avx512_available(),
-                _ => crate::cpu::avx2_available(),
+                _ => crate::cpu::fma_available(),
             })
             .collect();
         eprintln!("builds compared with the portable one: {builds:?}");
