@@ -31,6 +31,13 @@ fn synth(c: &mut Criterion) {
             Engine::Coupled,
             true,
         ),
+        // Half the default's sub-steps in contact (`/synth/contact_substeps` = 6).
+        (
+            "coupled_5_modes_noise_on_6_substeps",
+            true,
+            Engine::Coupled,
+            true,
+        ),
     ] {
         let mut settings = default_settings();
         settings.noise.enable = noise;
@@ -38,6 +45,9 @@ fn synth(c: &mut Criterion) {
         settings.synth.anti_alias = anti_alias;
         if name.ends_with("_clear") {
             settings.surface.distance = 100e-9;
+        }
+        if name.ends_with("_6_substeps") {
+            settings.synth.contact_substeps = 6;
         }
         let plan = SynthPlan::new(&settings).expect("default plan");
         let mut state = SynthState::steady(&plan, 1);

@@ -657,6 +657,33 @@ fn spectrum_size_is_a_power_of_two_in_range() {
 }
 
 #[test]
+fn contact_substeps_are_even_and_in_range() {
+    assert_eq!(
+        error_of("[synth]\ncontact_substeps = 7\n"),
+        "test.toml: /synth/contact_substeps = 7 is odd: allowed an even number from 2 to 64"
+    );
+    for n in ["0", "66"] {
+        assert_eq!(
+            error_of(&format!("[synth]\ncontact_substeps = {n}\n")),
+            format!(
+                "test.toml: /synth/contact_substeps = {n} is out of range: allowed an even \
+                 number from 2 to 64"
+            )
+        );
+    }
+    assert_mentions(
+        &error_of("[synth]\ncontact_substeps = 6.5\n"),
+        &["/synth/contact_substeps = 6.5", "not an integer"],
+    );
+    // Absent (older files): the default.
+    assert_eq!(load_str("", "t.toml").unwrap().synth.contact_substeps, 12);
+    for n in [2, 6, 12, 64] {
+        let s = load_str(&format!("[synth]\ncontact_substeps = {n}\n"), "t.toml").unwrap();
+        assert_eq!(s.synth.contact_substeps, n);
+    }
+}
+
+#[test]
 fn spectrum_window_and_rate() {
     assert_eq!(
         error_of("[spectrum]\nwindow = \"kaiser\"\n"),
@@ -2044,8 +2071,8 @@ fn every_node_round_trips_through_set() {
 fn list_entries_have_the_protocol_fields() {
     let nodes = default_settings().nodes();
     assert_eq!(nodes.len(), registry().len());
-    // 66 scalar nodes, 8 inclusions of 10 nodes, 32 demodulators of 5.
-    assert_eq!(nodes.len(), 66 + 8 * 10 + 32 * 5);
+    // 67 scalar nodes, 8 inclusions of 10 nodes, 32 demodulators of 5.
+    assert_eq!(nodes.len(), 67 + 8 * 10 + 32 * 5);
     let entry = serde_json::to_value(&nodes[0]).unwrap();
     let keys: BTreeSet<&str> = entry
         .as_object()

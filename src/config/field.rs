@@ -47,6 +47,11 @@ pub const MAX_CLIENTS: u32 = 4096;
 /// Most threads of the DSP stage (`/dsp/threads`): the lock-in bank splits into shards of at
 /// least 4 of its 32 demodulators.
 pub const MAX_DSP_THREADS: u32 = 8;
+/// Fewest and most sub-steps of a sample in contact (`/synth/contact_substeps`, even): at 2
+/// the contact is one kick each side of the midpoint; beyond 64 the errors no longer fall
+/// (docs/ft-afm.md).
+pub const MIN_CONTACT_SUBSTEPS: u32 = 2;
+pub const MAX_CONTACT_SUBSTEPS: u32 = 64;
 /// Shortest per-client outgoing queue, in messages (`/server/client_queue`).
 pub const MIN_CLIENT_QUEUE: u32 = 16;
 /// Longest per-client outgoing queue, in messages (`/server/client_queue`): 2^16.
@@ -196,6 +201,8 @@ pub enum Field {
     SynthRealtime,
     /// `/synth/anti_alias` (bool).
     SynthAntiAlias,
+    /// `/synth/contact_substeps` (sub-steps, even).
+    SynthContactSubsteps,
     /// `/noise/enable` (bool).
     NoiseEnable,
     /// `/noise/temperature` (K).
@@ -339,6 +346,13 @@ pub enum Kind {
         /// Largest allowed value.
         max: u64,
     },
+    /// An even integer with `min ≤ value ≤ max` (both even).
+    Even {
+        /// Smallest allowed value.
+        min: u64,
+        /// Largest allowed value.
+        max: u64,
+    },
     /// One of these strings.
     Text(&'static [&'static str]),
     /// A list of 1 to `max_len` finite numbers, each inside `entry`.
@@ -365,7 +379,7 @@ impl Kind {
     pub fn type_name(self) -> &'static str {
         match self {
             Kind::Float(_) => "float",
-            Kind::Integer { .. } | Kind::PowerOfTwo { .. } => "integer",
+            Kind::Integer { .. } | Kind::PowerOfTwo { .. } | Kind::Even { .. } => "integer",
             Kind::Bool => "bool",
             Kind::Text(_) => "text",
             Kind::FloatList { .. } => "float_list",
@@ -551,7 +565,7 @@ impl Typed {
 
 impl Field {
     /// Nodes outside the index-keyed tables (inclusions, demodulators), in tree order.
-    pub(crate) const SCALARS: [Field; 66] = [
+    pub(crate) const SCALARS: [Field; 67] = [
         Field::CantileverF1,
         Field::CantileverK,
         Field::CantileverQ,
@@ -573,6 +587,7 @@ impl Field {
         Field::SynthSeed,
         Field::SynthRealtime,
         Field::SynthAntiAlias,
+        Field::SynthContactSubsteps,
         Field::NoiseEnable,
         Field::NoiseTemperature,
         Field::NoiseDetectorDensity,
@@ -671,6 +686,7 @@ impl Field {
             Field::SynthSeed => "/synth/seed",
             Field::SynthRealtime => "/synth/realtime",
             Field::SynthAntiAlias => "/synth/anti_alias",
+            Field::SynthContactSubsteps => "/synth/contact_substeps",
             Field::NoiseEnable => "/noise/enable",
             Field::NoiseTemperature => "/noise/temperature",
             Field::NoiseDetectorDensity => "/noise/detector_density",
@@ -740,7 +756,8 @@ impl Field {
     /// SI unit: `Hz`, `N/m`, `m`, `Pa`, `s`, `1/s`, `K`, `m/√Hz`, `J` (the Hamaker
     /// constant), `1` (dimensionless numbers and counts), `bit` (ADC resolution), `samples`
     /// (FFT and trace lengths, decimation, points of the force waveform), `frames`
-    /// (demodulator frames averaged), `pixels` (per scan line), `clients`, `messages`, or
+    /// (demodulator frames averaged), `pixels` (per scan line), `clients`, `messages`,
+    /// `sub-steps` (the coupled engine's per sample in contact), or
     /// empty for text, lists of text, booleans and the inversion's harmonic numbers.
     pub fn unit(self) -> &'static str {
         match self {
@@ -780,6 +797,7 @@ impl Field {
             Field::ScanPixels => "pixels",
             Field::ServerMaxClients => "clients",
             Field::DspThreads => "threads",
+            Field::SynthContactSubsteps => "sub-steps",
             Field::ServerClientQueue => "messages",
             Field::ServerClientQueueBytes => "bytes",
             Field::TipYoungsModulus
@@ -862,6 +880,10 @@ impl Field {
             Field::SynthSeed => Kind::Integer {
                 min: 0,
                 max: u64::MAX,
+            },
+            Field::SynthContactSubsteps => Kind::Even {
+                min: MIN_CONTACT_SUBSTEPS.into(),
+                max: MAX_CONTACT_SUBSTEPS.into(),
             },
             Field::SynthRealtime
             | Field::SynthAntiAlias
@@ -1031,6 +1053,9 @@ impl Field {
             }
             Field::SynthRealtime => {
                 "Pace synthesis to the wall clock (true) or run as fast as possible (false)."
+            }
+            Field::SynthContactSubsteps => {
+                "Sub-steps of a sample where the coupled engine resolves the contact (near and in contact; clear of the surface a sample is one step), in sub-steps, an even number: fewer is faster and less accurate (errors against the offline orbit per count in docs/ft-afm.md); the paper engine ignores it."
             }
             Field::SynthAntiAlias => {
                 "The ADC's anti-alias filter (true): the signal is integrated over a triangle window (sinc^2, zero at every multiple of 2 x sample_rate), taken at twice the sample rate, decimated by a halfband FIR and the window's droop compensated: flat to 0.4 x sample_rate, >= 88 dB down from 0.6 x sample_rate, delay 21.5 samples (compensated in the drive phase); false samples the signal directly, with every alias."
@@ -1260,6 +1285,7 @@ impl Field {
             Field::SynthSeed => Typed::Integer(s.synth.seed),
             Field::SynthRealtime => Typed::Bool(s.synth.realtime),
             Field::SynthAntiAlias => Typed::Bool(s.synth.anti_alias),
+            Field::SynthContactSubsteps => Typed::Integer(s.synth.contact_substeps.into()),
             Field::NoiseEnable => Typed::Bool(s.noise.enable),
             Field::NoiseTemperature => Typed::Float(s.noise.temperature),
             Field::NoiseDetectorDensity => Typed::Float(s.noise.detector_density),
@@ -1353,6 +1379,9 @@ impl Field {
             (Field::SynthSeed, Typed::Integer(n)) => s.synth.seed = n,
             (Field::SynthRealtime, Typed::Bool(b)) => s.synth.realtime = b,
             (Field::SynthAntiAlias, Typed::Bool(b)) => s.synth.anti_alias = b,
+            (Field::SynthContactSubsteps, Typed::Integer(n)) => {
+                s.synth.contact_substeps = u32::try_from(n).ok()?;
+            }
             (Field::NoiseEnable, Typed::Bool(b)) => s.noise.enable = b,
             (Field::NoiseTemperature, Typed::Float(x)) => s.noise.temperature = x,
             (Field::NoiseDetectorDensity, Typed::Float(x)) => s.noise.detector_density = x,

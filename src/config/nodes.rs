@@ -66,6 +66,7 @@ impl NodeSpec {
             Kind::Float(range) => format!("{range}{}", self.unit_suffix()),
             Kind::Integer { min, max } => format!("{min} ≤ value ≤ {max}"),
             Kind::PowerOfTwo { min, max } => format!("a power of two from {min} to {max}"),
+            Kind::Even { min, max } => format!("an even number from {min} to {max}"),
             Kind::Bool => "true or false".to_owned(),
             Kind::Text(choices) => {
                 let quoted: Vec<String> = choices.iter().map(|c| format!("{c:?}")).collect();
@@ -90,7 +91,7 @@ impl NodeSpec {
     fn expected(&self) -> String {
         match self.kind {
             Kind::Float(_) => format!("a number, {}", self.allowed()),
-            Kind::Integer { .. } | Kind::PowerOfTwo { .. } => {
+            Kind::Integer { .. } | Kind::PowerOfTwo { .. } | Kind::Even { .. } => {
                 format!("an integer, {}", self.allowed())
             }
             Kind::Bool | Kind::Text(_) | Kind::FloatList { .. } | Kind::TextList { .. } => {
@@ -137,7 +138,7 @@ impl NodeSpec {
     pub(crate) fn parse(&self, value: &Value) -> Result<Typed, NodeError> {
         let typed = match self.kind {
             Kind::Float(_) => Typed::Float(value.as_f64().ok_or_else(|| self.wrong_type(value))?),
-            Kind::Integer { .. } | Kind::PowerOfTwo { .. } => {
+            Kind::Integer { .. } | Kind::PowerOfTwo { .. } | Kind::Even { .. } => {
                 Typed::Integer(self.parse_integer(value)?)
             }
             Kind::Bool => Typed::Bool(value.as_bool().ok_or_else(|| self.wrong_type(value))?),
@@ -242,6 +243,19 @@ impl NodeSpec {
                 } else if !n.is_power_of_two() {
                     Err(self.invalid(format!(
                         "{} = {n} is not a power of two: allowed {}",
+                        self.path,
+                        self.allowed()
+                    )))
+                } else {
+                    Ok(())
+                }
+            }
+            (Kind::Even { min, max }, Typed::Integer(n)) => {
+                if !(min..=max).contains(n) {
+                    Err(self.out_of_range(&value.show()))
+                } else if n % 2 != 0 {
+                    Err(self.invalid(format!(
+                        "{} = {n} is odd: allowed {}",
                         self.path,
                         self.allowed()
                     )))
@@ -416,7 +430,9 @@ impl NodeSpec {
                 }
                 (Value::from(min), Value::from(max))
             }
-            Kind::PowerOfTwo { min, max } => (Value::from(min), Value::from(max)),
+            Kind::PowerOfTwo { min, max } | Kind::Even { min, max } => {
+                (Value::from(min), Value::from(max))
+            }
             Kind::Bool | Kind::Text(_) | Kind::TextList { .. } => (Value::Null, Value::Null),
         }
     }

@@ -155,6 +155,14 @@ pub struct SynthSettings {
     /// or sample the signal directly (false).
     #[serde(default = "yes")]
     pub anti_alias: bool,
+    /// Sub-steps of a sample where the coupled engine resolves the contact (even; absent
+    /// from older files: the default, 12).
+    #[serde(default = "default_contact_substeps")]
+    pub contact_substeps: u32,
+}
+
+fn default_contact_substeps() -> u32 {
+    12
 }
 
 fn yes() -> bool {

@@ -13,7 +13,8 @@
 //!
 //! A sample is one step while the tip is well clear of the surface at both of its ends
 //! (where `g = 0` and the step is exact, or with adhesion where the van der Waals pull is
-//! weak and smooth); otherwise it is redone in [`SUBSTEPS`] sub-steps, so that the contact,
+//! weak and smooth); otherwise it is redone in `/synth/contact_substeps` sub-steps
+//! ([`DEFAULT_SUBSTEPS`] by default), so that the contact,
 //! which lasts a few samples, is resolved. The thermal input is held
 //! over the whole sample, and the sub-steps' propagation of it sums to exactly the
 //! one-step value, so the noise does not depend on where the engine sub-steps.
@@ -37,9 +38,9 @@ use crate::physics::contact::{Adhesion, HertzContact};
 /// adhesion (`tests/synth_coupled.rs`).
 pub const ADHESION_REACH: f64 = 10.0;
 
-/// Sub-steps per sample near and in contact. Measured against the offline reference
-/// (`tests/synth_coupled.rs`): see docs/ft-afm.md.
-pub const SUBSTEPS: usize = 12;
+/// Sub-steps per sample near and in contact by default (`/synth/contact_substeps`).
+/// Measured against the offline reference (`tests/synth_coupled.rs`): see docs/ft-afm.md.
+pub const DEFAULT_SUBSTEPS: usize = 12;
 
 /// Propagation of the mode lanes over one step: `q ← e^{λ dt}·q + noise·ξ`.
 #[derive(Clone, Debug, Default)]
@@ -95,10 +96,12 @@ pub(crate) struct CoupledLanes<V> {
 /// [`SynthPlan::coupled_trace`]: super::SynthPlan::coupled_trace
 #[derive(Clone, Debug)]
 pub struct CoupledTrace {
-    /// Tip force at the end of every sub-step, [`SUBSTEPS`] per sample (N).
+    /// Tip force at the end of every sub-step, [`substeps`](Self::substeps) per sample (N).
     pub force: Vec<f64>,
     /// Sub-step length (s).
     pub dt: f64,
+    /// Sub-steps per sample.
+    pub substeps: usize,
     /// Tip position z at the start of every sample (m; the surface is at −A_set).
     pub tip: Vec<f64>,
     /// Drive phase word of the first sample (2^64 = one period; 0 = cosine peak).
@@ -129,6 +132,8 @@ pub struct CoupledKernel {
     /// Whole-sample and sub-step drifts.
     pub(crate) full: Drift,
     pub(crate) sub: Drift,
+    /// Sub-steps of a sample near and in contact (even).
+    pub(crate) substeps: usize,
     /// Half the sample period and half a sub-step (s).
     pub(crate) half_h: f64,
     pub(crate) half_dt: f64,
@@ -165,7 +170,8 @@ impl CoupledKernel {
     /// modal responses `drive_response` (Y⁰_n = Re[Ŷ_n e^{iθ}], m) from a base amplitude
     /// `base_amplitude` (m), the surface at `distance` (m), the `contact` and its
     /// `adhesion`, with the thermal input of each mode held over a sample of standard
-    /// deviation `thermal_sigma`.
+    /// deviation `thermal_sigma`, a sample near and in contact cut into `substeps` (even,
+    /// at least 2).
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn new(
         modes: &[Mode],
@@ -177,7 +183,12 @@ impl CoupledKernel {
         contact: &HertzContact,
         adhesion: Option<Adhesion>,
         thermal_sigma: &[f64],
+        substeps: usize,
     ) -> Self {
+        assert!(
+            substeps >= 2 && substeps.is_multiple_of(2),
+            "sub-steps must be even and at least 2, not {substeps}"
+        );
         let mut tip = [0.0; MAX_MODES];
         let mut kick = [0.0; MAX_MODES];
         // u = U sin θ = Re[−iU e^{iθ}].
@@ -193,7 +204,7 @@ impl CoupledKernel {
             free_tip += y * mode.tip_value;
             curvature += omega * omega * (y * mode.tip_value).norm();
         }
-        let dt = h / SUBSTEPS as f64;
+        let dt = h / substeps as f64;
         // Twice the chord bound a·h²/8, and never below 1 pm.
         let mut margin = (curvature * h * h / 4.0).max(1e-12);
         let (mut strength, mut a0, mut pull_off) = (0.0, 1.0, 0.0);
@@ -248,6 +259,7 @@ impl CoupledKernel {
             kick,
             full: Drift::new(modes, h, thermal_sigma),
             sub,
+            substeps,
             half_h: 0.5 * h,
             half_dt: 0.5 * dt,
             sub_rotation: Complex64::from_polar(1.0, omega * dt),
@@ -341,7 +353,7 @@ impl CoupledKernel {
     /// impulses (N·s) and their first moments over the sample's halves, the kicks at the
     /// sample's ends included. `tip` is the position at `rho` if known (NaN if not: it is
     /// computed), so a loop of steps computes each position once. `record` is handed the
-    /// force at the end of every sub-step ([`SUBSTEPS`] values per sample, the
+    /// force at the end of every sub-step ([`substeps`](Self::substeps) values per sample, the
     /// end-of-sample force repeated where the sample is one step); the real-time loop
     /// passes a no-op, which compiles away.
     #[allow(clippy::too_many_arguments)]
@@ -385,12 +397,17 @@ impl CoupledKernel {
                 r1 = c.kick.mul_add(V::splat(self.half_h * g1), r1);
                 moments.kick(self.half_h * g1, h, true);
             }
-            for _ in 0..SUBSTEPS {
+            for _ in 0..self.substeps {
                 record(g1);
             }
             return (r1, i1, z1, false);
         }
-        self.substeps(c, re, im, rho, z, g0, mid, moments, record)
+        // The default count compiled as a constant: its loop's bounds and midpoint known.
+        if self.substeps == DEFAULT_SUBSTEPS {
+            self.substeps::<V, DEFAULT_SUBSTEPS>(c, re, im, rho, z, g0, mid, moments, record)
+        } else {
+            self.substeps::<V, 0>(c, re, im, rho, z, g0, mid, moments, record)
+        }
     }
 
     /// The sub-steps of [`step_lanes`](Self::step_lanes) from the force `g0` at the
@@ -400,10 +417,11 @@ impl CoupledKernel {
     /// kick, a sum across lanes that runs beside the chain), that kick's part (Φ·impulse)
     /// and sub-step j's own kick's part (C·g, fused into the force law). The chain from one
     /// gap to the next is then the force law's square root and one multiply-add; the lanes'
-    /// arithmetic and the kick's part, a sub-step ahead of it, run beside it.
+    /// arithmetic and the kick's part, a sub-step ahead of it, run beside it. `FIXED`: the
+    /// kernel's count of sub-steps as a constant, or 0 to read it.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn substeps<V: Lanes>(
+    fn substeps<V: Lanes, const FIXED: usize>(
         &self,
         c: &CoupledLanes<V>,
         mut re: V,
@@ -426,14 +444,15 @@ impl CoupledKernel {
             (self.free_tip * r).re + p.sum() + self.distance + self.first_gap_per_force * g0;
         let mut g = g0;
         let mut impulse = self.half_dt * g0;
-        for j in 1..=SUBSTEPS {
+        let substeps = if FIXED > 0 { FIXED } else { self.substeps };
+        for j in 1..=substeps {
             // The lanes before the kick of sub-step j − 1 give the gap at the end of
             // sub-step j, with that kick's part (Φ·impulse) and sub-step j's (C·g) added.
             let two = c
                 .two_gap_re
                 .mul_add(re, c.two_gap_im.mul_add(im, c.two_gap_noise.mul(z)));
             let next_g;
-            if j < SUBSTEPS {
+            if j < substeps {
                 r *= self.sub_rotation;
                 let base = (self.free_tip * r).re
                     + two.sum()
@@ -448,7 +467,7 @@ impl CoupledKernel {
                 re = c.kick.mul_add(V::splat(impulse), re);
             }
             // The kick at (j − 1)·dt: the midpoint's (j = S/2 + 1) is in the second half.
-            moments.kick(impulse, (j - 1) as f64 * dt, j > SUBSTEPS / 2);
+            moments.kick(impulse, (j - 1) as f64 * dt, j > substeps / 2);
             let r1 = c
                 .sub_a_im
                 .neg_mul_add(im, c.sub_a_re.mul_add(re, c.sub_noise_re.mul(z)));
@@ -456,7 +475,7 @@ impl CoupledKernel {
                 .sub_a_im
                 .mul_add(re, c.sub_a_re.mul_add(im, c.sub_noise_im.mul(z)));
             re = r1;
-            if j == SUBSTEPS / 2 {
+            if j == substeps / 2 {
                 // The midpoint, before its kick.
                 *mid = (re, im);
             }
@@ -544,6 +563,7 @@ impl CoupledKernel {
             &self.contact,
             self.adhesion,
             &silent,
+            self.substeps,
         );
         // A scan may have set another surface under the tip.
         kernel.stiffness = self.stiffness;
@@ -619,6 +639,7 @@ mod tests {
             &contact,
             None,
             &sigma,
+            DEFAULT_SUBSTEPS,
         );
         (k, c.modes)
     }

@@ -16,7 +16,7 @@ pub mod scan;
 pub mod synthesizer;
 pub mod window;
 
-pub use coupled::{CoupledKernel, CoupledTrace, SUBSTEPS};
+pub use coupled::{CoupledKernel, CoupledTrace, DEFAULT_SUBSTEPS};
 pub use plan::{Adc, BOLTZMANN, PlanError, SynthPlan, TapForce};
 pub use pulse::PulseTrain;
 pub use raster::{PixelId, Raster};

@@ -336,6 +336,7 @@ impl SynthPlan {
                 &contact,
                 model::adhesion(settings),
                 &thermal_sigma,
+                settings.synth.contact_substeps as usize,
             )
         });
         let scan = settings

@@ -10,7 +10,7 @@
 use rustfft::num_complex::Complex64;
 
 use super::adc::{AdcFilter, COMPENSATOR_HISTORY, GRID_HISTORY, MID_HISTORY};
-use super::coupled::{CoupledKernel, CoupledTrace, SUBSTEPS};
+use super::coupled::{CoupledKernel, CoupledTrace};
 #[cfg(target_arch = "x86_64")]
 use super::lanes::{Avx8, Avx512x8};
 use super::lanes::{Lanes, Portable};
@@ -596,9 +596,10 @@ impl SynthPlan {
         let coupled = self.coupled.as_ref()?;
         let step = self.frequency_word;
         let mut trace = CoupledTrace {
-            force: Vec::with_capacity(samples * SUBSTEPS),
+            force: Vec::with_capacity(samples * coupled.substeps),
             tip: Vec::with_capacity(samples),
-            dt: self.h / SUBSTEPS as f64,
+            dt: self.h / coupled.substeps as f64,
+            substeps: coupled.substeps,
             start_phase: state.phase,
             free_tip: coupled.free_tip,
         };
