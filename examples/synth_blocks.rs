@@ -2,10 +2,15 @@
 //! counts (`benches/synth_instructions.sh`, callgrind), `perf record`, or a quick look at
 //! the throughput.
 //!
-//! `cargo run --release --example synth_blocks -- ENGINE A_SET NOISE BLOCKS`:
+//! `cargo run --release --example synth_blocks -- ENGINE A_SET NOISE BLOCKS [SUBSTEPS] [hash]`:
 //! ENGINE `paper` or `coupled`, A_SET the surface distance in metres (the defaults' 20e-9
-//! taps, 50e-9 is clear of the surface), NOISE `on` or `off`, BLOCKS how many. Everything
-//! else is the default configuration. Prints the samples made and the throughput.
+//! taps, 50e-9 is clear of the surface), NOISE `on` or `off`, BLOCKS how many, SUBSTEPS
+//! `/synth/contact_substeps` (default 12). Everything else is the default configuration.
+//! Prints the samples made, the throughput, and the fastest, tenth-fastest and median
+//! block's: on a shared machine the fastest blocks are the steadier figure for an A/B of
+//! two builds. With `hash`, also an FNV-1a hash of every sample's bits, to check that two
+//! builds give the same stream (it costs a few instructions a sample, so leave it out when
+//! counting instructions).
 
 use std::time::Instant;
 
@@ -14,10 +19,18 @@ use ftafm::synth::{SynthPlan, SynthState};
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let usage = "usage: synth_blocks paper|coupled A_SET on|off BLOCKS";
-    let [engine, distance, noise, blocks] = args.as_slice() else {
-        eprintln!("{usage}");
-        std::process::exit(2);
+    let usage = "usage: synth_blocks paper|coupled A_SET on|off BLOCKS [SUBSTEPS] [hash]";
+    let (hash, args) = match args.split_last() {
+        Some((last, rest)) if last == "hash" => (true, rest),
+        _ => (false, args.as_slice()),
+    };
+    let (engine, distance, noise, blocks, substeps) = match args {
+        [e, d, n, b] => (e, d, n, b, None),
+        [e, d, n, b, s] => (e, d, n, b, Some(s)),
+        _ => {
+            eprintln!("{usage}");
+            std::process::exit(2);
+        }
     };
     let mut settings = default_settings();
     settings.synth.engine = match engine.as_str() {
@@ -44,20 +57,53 @@ fn main() {
         eprintln!("BLOCKS must be a whole number; {usage}");
         std::process::exit(2);
     });
+    if let Some(n) = substeps {
+        // Through the node, so that a bad count gets the daemon's error.
+        let n: u64 = n.parse().unwrap_or_else(|_| {
+            eprintln!("SUBSTEPS must be a whole number; {usage}");
+            std::process::exit(2);
+        });
+        if let Err(e) = settings.apply("/synth/contact_substeps", &n.into()) {
+            eprintln!("{e}");
+            std::process::exit(2);
+        }
+    }
     let plan = SynthPlan::new(&settings).unwrap_or_else(|e| {
         eprintln!("{e}");
         std::process::exit(2);
     });
     let mut state = SynthState::steady(&plan, 1);
     let mut block = vec![0.0; 4096];
-    let start = Instant::now();
+    let mut times = Vec::with_capacity(blocks);
+    let mut fnv: u64 = 0xcbf2_9ce4_8422_2325;
     for _ in 0..blocks {
+        let start = Instant::now();
         plan.process(&mut state, &mut block);
+        times.push(start.elapsed().as_secs_f64());
+        if hash {
+            for x in &block {
+                fnv = (fnv ^ x.to_bits()).wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        }
     }
     let samples = blocks * block.len();
-    let seconds = start.elapsed().as_secs_f64();
+    let seconds: f64 = times.iter().sum();
     println!(
         "{samples} samples in {seconds:.3} s: {:.1} MS/s",
         samples as f64 / seconds / 1e6
     );
+    if blocks > 0 {
+        times.sort_by(f64::total_cmp);
+        let rate = |t: f64| block.len() as f64 / t / 1e6;
+        println!(
+            "blocks of {}: fastest {:.1}, tenth-fastest {:.1}, median {:.1} MS/s",
+            block.len(),
+            rate(times[0]),
+            rate(times[blocks / 10]),
+            rate(times[blocks / 2])
+        );
+    }
+    if hash {
+        println!("stream hash {fnv:016x}");
+    }
 }
