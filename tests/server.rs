@@ -978,3 +978,44 @@ async fn a_small_scan_images_the_softer_disc_in_the_high_harmonics() {
     assert!(body.contains("h17"), "{body}");
     daemon.shutdown().await;
 }
+
+/// A chain that cannot keep real time says so in `status`: what it lost, which thread was
+/// the busier, and what lightens it. Here the DSP is made far slower than real time (a
+/// 2^20-point spectrum 1000 times a second at 10 MS/s), so the ring overruns on any machine.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn status_warns_when_the_chain_falls_behind_real_time_and_names_the_remedy() {
+    let mut s = default_settings();
+    s.synth.realtime = true;
+    s.spectrum.size = 1 << 20;
+    s.spectrum.rate = 1000.0;
+    let d = Daemon::start(s).await;
+    let mut ws = connect(d.addr).await;
+    let r = call(
+        &mut ws,
+        json!({"id": 1, "op": "subscribe", "stream": "status"}),
+    )
+    .await;
+    assert_eq!(r["ok"], true, "{r}");
+    // Waits on status messages; the deadline only guards a hang.
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let warning = loop {
+        let status = next_of(&mut ws, "status").await;
+        let found = status["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(Value::as_str)
+            .find(|w| w.contains("fell behind real time"))
+            .map(str::to_owned);
+        if let Some(w) = found {
+            break w;
+        }
+        assert!(Instant::now() < deadline, "no warning: {status}");
+    };
+    assert!(warning.contains("samples overrun"), "{warning}");
+    assert!(
+        warning.contains("to lighten the DSP") && warning.contains("/spectrum/rate"),
+        "{warning}"
+    );
+    d.shutdown().await;
+}

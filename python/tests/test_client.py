@@ -17,7 +17,9 @@ def test_hello_info_and_nodes(ftafm_instrument: ftafm.Instrument) -> None:
     assert inst.hello["protocol"] == 1
     info = inst.info()
     assert info["sample_rate"] == 10e6
-    assert info["warnings"] == []
+    # The default operating point has no warnings; a machine too busy to keep real time
+    # (CI beside other work) may add the chain's own, which is not the test's subject.
+    assert [w for w in info["warnings"] if "fell behind real time" not in w] == []
     nodes = {n.path: n for n in inst.nodes()}
     modulus = nodes["/sample/youngs_modulus"]
     assert (modulus.unit, modulus.type, modulus.writable) == ("Pa", "float", True)

@@ -17,6 +17,7 @@ use super::memory::release_freed_memory;
 use super::protocol::{self, Format, StreamKind};
 use super::state::{AppState, ClientHandle, PendingBatch, Stamps, stream_index};
 use super::status::StatusReport;
+use crate::config::Engine;
 use crate::pipeline::{CountersSnapshot, FrameSignal, PipelineOutput, ring_samples, unix_ns};
 
 /// How often the hub looks for frames without being woken: the demodulators' 1 kHz output
@@ -381,20 +382,22 @@ pub(crate) async fn run(
         }
         let elapsed = last_status.elapsed();
         if elapsed >= STATUS_PERIOD {
-            let (counters, realtime, mut warnings, adc_range, retired) = match state.control.lock()
-            {
-                Ok(mut c) => (
-                    c.counters(),
-                    c.settings.synth.realtime,
-                    c.settings.warnings(),
-                    c.settings.noise.adc_range,
-                    c.pipeline
-                        .as_mut()
-                        .map(|p| p.take_retired())
-                        .unwrap_or_default(),
-                ),
-                Err(_) => continue,
-            };
+            let (counters, realtime, mut warnings, adc_range, substeps, retired) =
+                match state.control.lock() {
+                    Ok(mut c) => (
+                        c.counters(),
+                        c.settings.synth.realtime,
+                        c.settings.warnings(),
+                        c.settings.noise.adc_range,
+                        (c.settings.synth.engine == Engine::Coupled)
+                            .then_some(c.settings.synth.contact_substeps),
+                        c.pipeline
+                            .as_mut()
+                            .map(|p| p.take_retired())
+                            .unwrap_or_default(),
+                    ),
+                    Err(_) => continue,
+                };
             if let Ok(range) = state.range_warnings.lock() {
                 warnings.extend(range.iter().cloned());
             }
@@ -409,6 +412,11 @@ pub(crate) async fn run(
                     elapsed.as_secs_f64(),
                     adc_range
                 ));
+            }
+            if realtime
+                && let Some(w) = behind_warning(&last_counters, &counters, elapsed, substeps)
+            {
+                warnings.push(w);
             }
             let report = StatusReport {
                 sample_rate: state.sample_rate,
@@ -448,6 +456,94 @@ pub(crate) async fn run(
                     release_freed_memory();
                 });
             }
+        }
+    }
+}
+
+/// The warning of a status interval in which the paced chain fell behind real time
+/// (samples overrun or blocks late, from `before` to `now` over `elapsed`): what was lost,
+/// which thread was the busier, and what lightens it. `substeps`: the coupled engine's
+/// `/synth/contact_substeps` (`None` with the paper engine). `None` if nothing fell behind.
+fn behind_warning(
+    before: &CountersSnapshot,
+    now: &CountersSnapshot,
+    elapsed: Duration,
+    substeps: Option<u32>,
+) -> Option<String> {
+    let overrun = now.overrun_samples - before.overrun_samples;
+    let late = now.late_blocks - before.late_blocks;
+    if overrun == 0 && late == 0 {
+        return None;
+    }
+    let seconds = elapsed.as_secs_f64();
+    let busy = |after: u64, before: u64| (after - before) as f64 * 1e-9 / seconds * 100.0;
+    let synth = busy(now.synth_busy_ns, before.synth_busy_ns);
+    let dsp = busy(now.dsp_busy_ns, before.dsp_busy_ns);
+    let remedy = if synth >= dsp {
+        let fewer = match substeps {
+            Some(n) if n > 6 => format!(
+                "fewer contact sub-steps (/synth/contact_substeps, now {n}; at 6 the coupled \
+                 engine stays within its accuracy goals, docs/ft-afm.md), "
+            ),
+            _ => String::new(),
+        };
+        format!("to lighten the synthesiser: {fewer}a lower /synth/sample_rate (config file)")
+    } else {
+        "to lighten the DSP: a smaller or less frequent spectrum (/spectrum/size, \
+         /spectrum/rate) or fewer demodulators (/demods/N/enable)"
+            .to_owned()
+    };
+    Some(format!(
+        "the chain fell behind real time in the last {seconds:.1} s: {overrun} samples \
+         overrun (dropped before the DSP: the outputs skip them) and {late} blocks late \
+         (synthesised after their time); busy: synthesis {synth:.0} %, DSP {dsp:.0} % of \
+         the time; {remedy}, or fewer other programs on this machine"
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn snapshot(overrun: u64, late: u64, synth_ns: u64, dsp_ns: u64) -> CountersSnapshot {
+        CountersSnapshot {
+            overrun_samples: overrun,
+            late_blocks: late,
+            synth_busy_ns: synth_ns,
+            dsp_busy_ns: dsp_ns,
+            ..CountersSnapshot::default()
+        }
+    }
+
+    #[test]
+    fn a_chain_in_time_has_no_warning() {
+        let a = snapshot(4096, 1, 0, 0);
+        let b = snapshot(4096, 1, 400_000_000, 100_000_000);
+        assert_eq!(
+            behind_warning(&a, &b, Duration::from_secs(1), Some(12)),
+            None
+        );
+    }
+
+    #[test]
+    fn a_late_synthesiser_is_told_its_remedies() {
+        let a = snapshot(0, 0, 0, 0);
+        let b = snapshot(0, 3, 980_000_000, 300_000_000);
+        let w = behind_warning(&a, &b, Duration::from_millis(500), Some(12)).unwrap();
+        assert!(w.contains("in the last 0.5 s"), "{w}");
+        assert!(
+            w.contains("0 samples overrun") && w.contains("3 blocks late"),
+            "{w}"
+        );
+        // Busy fractions of the interval: 0.98 s and 0.3 s of computing in 0.5 s.
+        assert!(w.contains("synthesis 196 %, DSP 60 %"), "{w}");
+        assert!(w.contains("/synth/contact_substeps, now 12"), "{w}");
+        assert!(w.contains("/synth/sample_rate"), "{w}");
+        // The paper engine has no sub-steps to lower; neither has a count already at 6.
+        for substeps in [None, Some(6)] {
+            let w = behind_warning(&a, &b, Duration::from_millis(500), substeps).unwrap();
+            assert!(!w.contains("contact_substeps"), "{w}");
+            assert!(w.contains("/synth/sample_rate"), "{w}");
         }
     }
 }

@@ -171,8 +171,9 @@ class Instrument:
         return reply
 
     async def info(self) -> dict[str, Any]:
-        """Server name, version, protocol version and sample rate (Hz), and the warnings of
-        the operating point now (from ``status``)."""
+        """Server name, version, protocol version and sample rate (Hz), and the warnings now
+        (from ``status``: the operating point's, and the chain's if it fell behind real
+        time in the last interval)."""
         info = {k: v for k, v in self.hello.items() if k not in ("id", "ok")}
         status = await self.next("status")
         info["warnings"] = status.get("warnings", [])
