@@ -528,15 +528,15 @@ mod tests {
     #[test]
     fn a_late_synthesiser_is_told_its_remedies() {
         let a = snapshot(0, 0, 0, 0);
-        let b = snapshot(0, 3, 980_000_000, 300_000_000);
+        let b = snapshot(0, 3, 490_000_000, 150_000_000);
         let w = behind_warning(&a, &b, Duration::from_millis(500), Some(12)).unwrap();
         assert!(w.contains("in the last 0.5 s"), "{w}");
         assert!(
             w.contains("0 samples overrun") && w.contains("3 blocks late"),
             "{w}"
         );
-        // Busy fractions of the interval: 0.98 s and 0.3 s of computing in 0.5 s.
-        assert!(w.contains("synthesis 196 %, DSP 60 %"), "{w}");
+        // Busy fractions of the interval: 0.49 s and 0.15 s of computing in 0.5 s.
+        assert!(w.contains("synthesis 98 %, DSP 30 %"), "{w}");
         assert!(w.contains("/synth/contact_substeps, now 12"), "{w}");
         assert!(w.contains("/synth/sample_rate"), "{w}");
         // The paper engine has no sub-steps to lower; neither has a count already at 6.
