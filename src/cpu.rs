@@ -32,6 +32,48 @@ pub enum Isa {
     Avx512,
 }
 
+impl Isa {
+    /// The name `FTAFM_ISA` takes: `avx512`, `avx2` or `portable`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Isa::Portable => "portable",
+            Isa::Avx2 => "avx2",
+            Isa::Avx512 => "avx512",
+        }
+    }
+}
+
+/// The build the vector kernels run here: the widest the CPU has, capped by `FTAFM_ISA`.
+pub fn vector_build() -> Isa {
+    if avx512_available() {
+        Isa::Avx512
+    } else if fma_available() {
+        Isa::Avx2
+    } else {
+        Isa::Portable
+    }
+}
+
+/// The machine a figure was measured on, for benchmark reports: the CPU's model name with
+/// its family and model numbers where `/proc/cpuinfo` gives them (virtual machines often
+/// name only the vendor's line, "AMD EPYC", and the numbers tell the generation), the CPUs
+/// this process may use, and the vector build.
+pub fn machine() -> String {
+    let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+    let field = |name: &str| {
+        info.lines()
+            .find(|l| l.split(':').next().is_some_and(|k| k.trim() == name))
+            .and_then(|l| l.split_once(':'))
+            .map(|(_, v)| v.trim().to_owned())
+    };
+    let mut cpu = field("model name").unwrap_or_else(|| std::env::consts::ARCH.to_owned());
+    if let (Some(family), Some(model)) = (field("cpu family"), field("model")) {
+        cpu = format!("{cpu} (family {family} model {model})");
+    }
+    let cpus = std::thread::available_parallelism().map_or(1, usize::from);
+    format!("{cpu}, {cpus} CPUs, vector build {}", vector_build().name())
+}
+
 /// The cap `FTAFM_ISA` asks for, or an error naming the variable and its allowed values
 /// (the command line checks it before it starts anything).
 pub fn isa_from_env() -> Result<Isa, String> {

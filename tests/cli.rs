@@ -297,6 +297,14 @@ fn bench_json_reports_throughputs_and_the_realtime_factor() {
     let v: serde_json::Value = serde_json::from_str(text.trim()).unwrap();
     assert_eq!(v["sample_rate"].as_f64(), Some(8e6));
     assert_eq!(v["demodulators"].as_u64(), Some(32));
+    // Where and on what it was measured, so that the figure carries it.
+    let machine = v["machine"].as_str().unwrap();
+    assert!(
+        machine.contains(" CPUs, vector build "),
+        "machine: {machine}"
+    );
+    assert_eq!(v["engine"], "coupled");
+    assert_eq!(v["contact_substeps"].as_u64(), Some(12));
     for key in [
         "synth_samples_per_s",
         "dsp_samples_per_s",

@@ -16,6 +16,12 @@ use crate::pipeline::{CountersSnapshot, Pipeline, PipelineError};
 /// What `ftafm bench` reports; `--json` prints it as one object.
 #[derive(Clone, Debug, Serialize)]
 pub struct BenchReport {
+    /// The machine: CPU model (family and model numbers), CPUs, vector build
+    /// (`crate::cpu::machine`), so that a figure carries where it was measured.
+    pub machine: String,
+    /// Tip-force engine, and the coupled engine's sub-steps per sample in contact.
+    pub engine: &'static str,
+    pub contact_substeps: u32,
     /// Photodiode sample rate (Hz).
     pub sample_rate: f64,
     /// Enabled demodulators.
@@ -89,6 +95,9 @@ pub fn run(
     let dsp_busy = end.dsp_busy_ns - c0.dsp_busy_ns;
     let chain = processed as f64 / wall;
     Ok(BenchReport {
+        machine: crate::cpu::machine(),
+        engine: settings.synth.engine.name(),
+        contact_substeps: settings.synth.contact_substeps,
         sample_rate: settings.synth.sample_rate,
         demodulators: settings.demods.iter().filter(|d| d.enable).count(),
         realtime,
@@ -109,7 +118,8 @@ pub fn render_text(r: &BenchReport) -> String {
     let ms = |x: f64| x / 1e6;
     let c = &r.counters;
     format!(
-        "ftafm bench: {} s {} at {} MS/s, {} demodulators\n\
+        "ftafm bench: {} s {} at {} MS/s, {} demodulators, {}\n\
+         machine {}\n\
          synth  {:>8.1} MS/s per core (load {:.0} %)\n\
          dsp    {:>8.1} MS/s per core (load {:.0} %)\n\
          chain  {:>8.1} MS/s   realtime_factor {:.2}\n\
@@ -123,6 +133,12 @@ pub fn render_text(r: &BenchReport) -> String {
         },
         ms(r.sample_rate),
         r.demodulators,
+        if r.engine == "coupled" {
+            format!("coupled engine, {} contact sub-steps", r.contact_substeps)
+        } else {
+            format!("{} engine", r.engine)
+        },
+        r.machine,
         ms(r.synth_samples_per_s),
         r.synth_load * 100.0,
         ms(r.dsp_samples_per_s),
