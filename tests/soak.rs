@@ -176,6 +176,14 @@ async fn eight_clients_for_twenty_seconds_lose_nothing() {
     for key in ["p50", "p90", "p99", "p999", "max"] {
         assert!(v["latency_ns"][key].is_u64(), "latency_ns.{key} missing");
     }
+    // The CPU the clients ran on, so that the figures carry it.
+    assert!(
+        v["cpu"]
+            .as_str()
+            .is_some_and(|c| c.contains(" CPUs, vector build ")),
+        "cpu: {}",
+        v["cpu"]
+    );
     for key in [
         "overruns",
         "overrun_blocks",

@@ -319,6 +319,10 @@ pub struct MachineReport {
 pub struct SoakReport {
     /// The WebSocket URL.
     pub url: String,
+    /// The CPU the clients ran on (`crate::cpu::machine`: model with its family and model
+    /// numbers, CPUs, vector build); empty in reports written before it was kept.
+    #[serde(default)]
+    pub cpu: String,
     /// Clients run.
     pub clients: usize,
     /// Streams each client subscribed to.
@@ -1087,6 +1091,7 @@ pub async fn run(
     let bytes = per.iter().map(|p| p.2).sum::<u64>();
     Ok(SoakReport {
         url: target.ws_url.clone(),
+        cpu: crate::cpu::machine(),
         clients: options.clients,
         streams: options.streams.clone(),
         seconds,
@@ -1286,12 +1291,18 @@ pub fn render_text(r: &SoakReport) -> String {
     let s = &r.server;
     let mut out = format!(
         "ftafm soak: {} clients on {} for {:.1} s, streams {}\n\
+         cpu       {}\n\
          messages  {} ({:.0}/s), {:.2} MB/s, gaps {}, disconnects {}\n\
          latency   p50 {:.3} ms  p90 {:.3} ms  p99 {:.3} ms  p99.9 {:.3} ms  max {:.3} ms ({} messages)\n",
         r.clients,
         r.url,
         r.seconds,
         r.streams.join(","),
+        if r.cpu.is_empty() {
+            "not recorded"
+        } else {
+            &r.cpu
+        },
         r.messages,
         r.messages_per_s,
         r.bytes_per_s / 1e6,

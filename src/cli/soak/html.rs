@@ -398,6 +398,14 @@ fn summary(out: &mut String, r: &SoakReport) {
     let rows: Vec<(&str, String)> = vec![
         ("daemon", r.url.clone()),
         (
+            "clients' CPU",
+            if r.cpu.is_empty() {
+                "not recorded".to_owned()
+            } else {
+                r.cpu.clone()
+            },
+        ),
+        (
             "clients × streams",
             format!("{} × {}", r.clients, r.streams.join(", ")),
         ),
@@ -566,6 +574,7 @@ mod tests {
     fn an_empty_report_still_renders() {
         let r = SoakReport {
             url: "ws://h:1/ws".into(),
+            cpu: String::new(),
             clients: 1,
             streams: vec!["demods".into()],
             seconds: 1.0,
