@@ -3,34 +3,12 @@
 //! in-band harmonics, and a change of `/cantilever/f1` moves the drive and the band with it.
 
 use std::collections::BTreeSet;
-use std::time::{Duration, Instant};
 
 use ftafm::config::default_settings;
-use futures_util::StreamExt;
 use serde_json::{Value, json};
-use tokio_tungstenite::tungstenite::Message;
 
 mod common;
 use common::*;
-
-/// Waits (on messages, not on time: the deadline only guards a hang) for the first message
-/// of `stream` that satisfies `accept`.
-async fn first_of(ws: &mut Ws, stream: &str, accept: impl Fn(&Value) -> bool) -> Value {
-    let deadline = Instant::now() + Duration::from_secs(120);
-    loop {
-        let msg = tokio::time::timeout_at(deadline.into(), ws.next())
-            .await
-            .unwrap_or_else(|_| panic!("no matching {stream} message"))
-            .unwrap()
-            .unwrap();
-        if let Message::Text(t) = msg {
-            let v: Value = serde_json::from_str(&t).unwrap();
-            if v["stream"] == stream && v.get("ok").is_none() && accept(&v) {
-                return v;
-            }
-        }
-    }
-}
 
 fn harmonics(demods: &Value) -> BTreeSet<u64> {
     demods["demods"]
