@@ -158,9 +158,10 @@ pub struct AdcFilter {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Kernel {
     Portable,
-    /// AVX2 and FMA: sixteen outputs in four registers, the taps streamed past them.
+    /// AVX2 and FMA: thirty-two outputs in [`ACCUMULATORS`] registers, the taps streamed
+    /// past them.
     Avx2Fma,
-    /// AVX-512: thirty-two outputs in four registers.
+    /// AVX-512: sixty-four outputs in [`ACCUMULATORS`] registers.
     Avx512,
 }
 
@@ -176,14 +177,23 @@ impl Kernel {
     }
 }
 
+/// Registers of outputs the fused kernels accumulate at once. Each output is a chain of
+/// dependent multiply-adds (31 for the halfband), so the kernels wait on the multiply-add's
+/// latency (4 cycles on Zen 3 to Zen 5) unless enough chains run side by side to fill its
+/// two pipes: eight, where four left half of them idle. Fits AVX2's sixteen registers
+/// with the tap and the loaded samples.
+#[cfg(target_arch = "x86_64")]
+const ACCUMULATORS: usize = 8;
+
 /// A vector of f64 for the fused kernels. Its functions are for code compiled with the
 /// vector's instructions, on a CPU that has them.
 #[cfg(target_arch = "x86_64")]
 trait FusedVector: Copy {
     /// Lanes.
     const WIDTH: usize;
-    /// The first `WIDTH` of `x` (at least that long).
-    unsafe fn load(x: &[f64]) -> Self;
+    /// The `WIDTH` values from `p` on, which must all be readable: for loops whose
+    /// bounds were checked once for all their loads.
+    unsafe fn load_ptr(p: *const f64) -> Self;
     /// Writes the lanes to the first `WIDTH` of `x` (at least that long).
     unsafe fn store(self, x: &mut [f64]);
     unsafe fn splat(c: f64) -> Self;
@@ -203,8 +213,8 @@ mod fused {
     impl FusedVector for __m256d {
         const WIDTH: usize = 4;
         #[inline(always)]
-        unsafe fn load(x: &[f64]) -> Self {
-            unsafe { _mm256_loadu_pd(x[..4].as_ptr()) }
+        unsafe fn load_ptr(p: *const f64) -> Self {
+            unsafe { _mm256_loadu_pd(p) }
         }
         #[inline(always)]
         unsafe fn store(self, x: &mut [f64]) {
@@ -231,8 +241,8 @@ mod fused {
     impl FusedVector for __m512d {
         const WIDTH: usize = 8;
         #[inline(always)]
-        unsafe fn load(x: &[f64]) -> Self {
-            unsafe { _mm512_loadu_pd(x[..8].as_ptr()) }
+        unsafe fn load_ptr(p: *const f64) -> Self {
+            unsafe { _mm512_loadu_pd(p) }
         }
         #[inline(always)]
         unsafe fn store(self, x: &mut [f64]) {
@@ -352,7 +362,7 @@ impl AdcFilter {
         x.copy_within(n..n + COMPENSATOR_HISTORY, 0);
     }
 
-    /// [`compensate`](Self::compensate), fused, with four registers of `V` holding 4·W
+    /// [`compensate`](Self::compensate), fused, with [`ACCUMULATORS`] registers of `V` holding A·W
     /// outputs while the tap pairs stream past them, then the rest one at a time (the
     /// same operations in the same order per output, so the same bits).
     ///
@@ -363,23 +373,27 @@ impl AdcFilter {
     unsafe fn compensate_fused<V: FusedVector>(&mut self, out: &mut [f64]) {
         let n = out.len();
         let w = V::WIDTH;
-        let blocks = n / (4 * w) * (4 * w);
+        let blocks = n / (ACCUMULATORS * w) * (ACCUMULATORS * w);
         let x = &mut self.compensator;
         x[COMPENSATOR_HISTORY..COMPENSATOR_HISTORY + n].copy_from_slice(out);
         let c = &self.compensator_taps;
-        for i in (0..blocks).step_by(4 * w) {
-            // SAFETY: the CPU has V's instructions (the caller); every load and store is
-            // of `w` f64 inside its slice (bounds-checked): output i + 4w − 1 < n reads
-            // buffer samples up to i + 4w − 1 + 2M < n + COMPENSATOR_HISTORY.
+        // Output j reads buffer samples j … j + 2M: checked once here for the blocks.
+        assert!(blocks + 2 * M <= x.len());
+        let buffer = x.as_ptr();
+        for i in (0..blocks).step_by(ACCUMULATORS * w) {
+            // SAFETY: the CPU has V's instructions (the caller); every load is of `w` f64
+            // that the assertion above found inside the buffer (output i + b·w + w − 1 <
+            // blocks reads up to blocks − 1 + 2M); the stores are bounds-checked.
             unsafe {
-                let at = |j: usize| &x[j..];
+                let at = |j: usize| buffer.add(j);
                 let c0 = V::splat(c[0]);
-                let mut y: [V; 4] = std::array::from_fn(|b| c0.mul(V::load(at(M + i + b * w))));
+                let mut y: [V; ACCUMULATORS] =
+                    std::array::from_fn(|b| c0.mul(V::load_ptr(at(M + i + b * w))));
                 for (k, &ck) in c.iter().enumerate().skip(1) {
                     let ck = V::splat(ck);
                     for (b, y) in y.iter_mut().enumerate() {
                         let o = i + b * w;
-                        let pair = V::load(at(M - k + o)).add(V::load(at(M + k + o)));
+                        let pair = V::load_ptr(at(M - k + o)).add(V::load_ptr(at(M + k + o)));
                         *y = ck.mul_add(pair, *y);
                     }
                 }
@@ -415,7 +429,7 @@ impl AdcFilter {
         unsafe { self.decimate_fused::<std::arch::x86_64::__m512d>(taps, out) };
     }
 
-    /// The fused kernels: four registers of `V` hold 4·W outputs while the taps stream
+    /// The fused kernels: [`ACCUMULATORS`] registers of `V` hold A·W outputs while the taps stream
     /// past them, then the rest one at a time. Inlined into the functions that carry the
     /// target features.
     ///
@@ -426,19 +440,26 @@ impl AdcFilter {
     unsafe fn decimate_fused<V: FusedVector>(&mut self, taps: &[f64; GRID_TAPS], out: &mut [f64]) {
         crate::cpu::align_frame();
         let w = V::WIDTH;
-        let blocks = out.len() / (4 * w) * (4 * w);
+        let blocks = out.len() / (ACCUMULATORS * w) * (ACCUMULATORS * w);
         let (grid, mid) = (&self.grid, &self.mid);
-        for i in (0..blocks).step_by(4 * w) {
-            // SAFETY: the CPU has V's instructions (the caller); every load and store is
-            // of `w` f64 inside its slice (bounds-checked): output i + 4w − 1 < n reads
-            // grid samples up to i + 4w − 1 + 2K + 1 < n + GRID_HISTORY and that midpoint.
+        // Output j reads grid samples j … j + GRID_TAPS − 1 and midpoint j: checked once
+        // here for every output of the blocks, so that the loads below need no checks (one
+        // per load had cost more than the multiply-adds).
+        assert!(blocks + GRID_TAPS - 1 <= grid.len() && blocks <= mid.len());
+        let (grid, mid) = (grid.as_ptr(), mid.as_ptr());
+        for i in (0..blocks).step_by(ACCUMULATORS * w) {
+            // SAFETY: the CPU has V's instructions (the caller); every load is of `w` f64
+            // that the assertion above found inside its slice (output i + b·w + w − 1 <
+            // blocks reads grid samples up to blocks − 1 + GRID_TAPS − 1 and midpoints up
+            // to blocks − 1); the stores are bounds-checked.
             unsafe {
                 let half = V::splat(0.5);
-                let mut y: [V; 4] = std::array::from_fn(|b| half.mul(V::load(&mid[i + b * w..])));
+                let mut y: [V; ACCUMULATORS] =
+                    std::array::from_fn(|b| half.mul(V::load_ptr(mid.add(i + b * w))));
                 for (t, &c) in taps.iter().rev().enumerate() {
                     let c = V::splat(c);
                     for (b, y) in y.iter_mut().enumerate() {
-                        *y = c.mul_add(V::load(&grid[t + i + b * w..]), *y);
+                        *y = c.mul_add(V::load_ptr(grid.add(t + i + b * w)), *y);
                     }
                 }
                 for (b, y) in y.iter().enumerate() {

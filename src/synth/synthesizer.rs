@@ -565,13 +565,18 @@ impl SynthPlan {
         let (knot_re, knot_im) = (V::load(&k.knot_re), V::load(&k.knot_im));
         let knot_grid = knot_re.mul_add(re0, knot_im.mul(im0));
         let knot_next = knot_re.mul_add(re1, knot_im.mul(im1));
-        let (knot_left, input_left) = before.unwrap_or_else(|| {
-            let back = V::load(&k.back_re).mul_add(
-                re0,
-                V::load(&k.back_im).mul_add(im0, V::load(&k.back_noise).mul(z_before)),
-            );
-            (back, 0.0)
-        });
+        // A `match`, not `unwrap_or_else`: a closure is not compiled with the caller's
+        // target features, so its lane arithmetic had been calls to the intrinsics.
+        let (knot_left, input_left) = match before {
+            Some(before) => before,
+            None => {
+                let back = V::load(&k.back_re).mul_add(
+                    re0,
+                    V::load(&k.back_im).mul_add(im0, V::load(&k.back_noise).mul(z_before)),
+                );
+                (back, 0.0)
+            }
+        };
         let (w_start, w_mid, _) = moments.weigh(self.force_window.0, self.force_window.1, self.h);
         let g = V::load(&k.grid_noise).mul_add(
             z,
