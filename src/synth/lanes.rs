@@ -28,6 +28,12 @@ pub(crate) trait Lanes: Copy {
     fn neg_mul_add(self, a: Self, b: Self) -> Self;
     /// The sum, in [`lane_sum`](super::modal::lane_sum)'s tree.
     fn sum(self) -> f64;
+    /// The sums of `self` and `other`, each as [`sum`](Self::sum) (the same bits): for
+    /// two read-outs of one sample, which the vector kinds reduce side by side.
+    #[inline(always)]
+    fn sum2(self, other: Self) -> (f64, f64) {
+        (self.sum(), other.sum())
+    }
 }
 
 /// `L` lanes in an array (`L` a power of two): for CPUs without AVX2, and for more than
@@ -170,6 +176,37 @@ mod avx {
                 _mm_cvtsd_f64(t) + _mm_cvtsd_f64(_mm_unpackhi_pd(t, t))
             }
         }
+        #[inline(always)]
+        fn sum2(self, other: Self) -> (f64, f64) {
+            unsafe {
+                sum2_halves(
+                    _mm256_add_pd(self.0, self.1),
+                    _mm256_add_pd(other.0, other.1),
+                )
+            }
+        }
+    }
+
+    /// The two sums of `s` and `t`, four lanes each, finished in `lane_sum`'s tree (lane m
+    /// with m + 2, then the two) side by side: the halves of both in one register, added,
+    /// then each pair with its neighbour.
+    ///
+    /// # Safety
+    /// The CPU must have AVX.
+    #[inline(always)]
+    unsafe fn sum2_halves(s: __m256d, t: __m256d) -> (f64, f64) {
+        unsafe {
+            // [s0 + s2, s1 + s3, t0 + t2, t1 + t3].
+            let u = _mm256_add_pd(
+                _mm256_permute2f128_pd::<0x20>(s, t),
+                _mm256_permute2f128_pd::<0x31>(s, t),
+            );
+            let v = _mm256_add_pd(u, _mm256_permute_pd::<0b0101>(u));
+            (
+                _mm256_cvtsd_f64(v),
+                _mm_cvtsd_f64(_mm256_extractf128_pd::<1>(v)),
+            )
+        }
     }
     /// Eight lanes in one AVX-512 register. Only made inside code compiled for AVX-512
     /// on a CPU that has it (the synthesiser's `process_avx512`), where these functions
@@ -230,6 +267,13 @@ mod avx {
                 _mm_cvtsd_f64(t) + _mm_cvtsd_f64(_mm_unpackhi_pd(t, t))
             }
         }
+        #[inline(always)]
+        fn sum2(self, other: Self) -> (f64, f64) {
+            let half = |x: __m512d| unsafe {
+                _mm256_add_pd(_mm512_castpd512_pd256(x), _mm512_extractf64x4_pd::<1>(x))
+            };
+            unsafe { sum2_halves(half(self.0), half(other.0)) }
+        }
     }
 }
 
@@ -251,6 +295,18 @@ mod tests {
             [array(x.add(y)), array(x.sub(y)), array(x.mul(y))],
             x.mul(y).add(Avx8::splat(0.1)).sum(),
         )
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn avx_sum2(a: &[f64], b: &[f64]) -> (f64, f64) {
+        Avx8::load(a).sum2(Avx8::load(b))
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx2")]
+    fn avx512_sum2(a: &[f64], b: &[f64]) -> (f64, f64) {
+        Avx512x8::load(a).sum2(Avx512x8::load(b))
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -293,6 +349,46 @@ mod tests {
             let fast = unsafe { avx512_ops(&a, &b) };
             assert_eq!(fast.0, portable.0);
             assert_eq!(fast.1.to_bits(), portable.1.to_bits());
+        }
+    }
+
+    /// Two sums side by side are each `lane_sum`'s, bit for bit, on lanes whose sum
+    /// depends on the order of the additions (magnitudes 1e-3 to 1e13, both signs).
+    #[test]
+    fn two_sums_side_by_side_are_the_sums_one_by_one() {
+        for seed in 0..200u64 {
+            let lanes = |k: u64| -> [f64; 8] {
+                std::array::from_fn(|m| {
+                    let x = ((seed * 8 + m as u64) * 2 + k) as f64;
+                    (x * 0.6173).sin() * 10f64.powi(((x * 1.37) as i32) % 17 - 3)
+                })
+            };
+            let (a, b) = (lanes(0), lanes(1));
+            let want = (
+                super::super::modal::lane_sum(a),
+                super::super::modal::lane_sum(b),
+            );
+            let bits = |p: (f64, f64)| (p.0.to_bits(), p.1.to_bits());
+            let portable = Portable::<8>::load(&a).sum2(Portable::<8>::load(&b));
+            assert_eq!(bits(portable), bits(want));
+            #[cfg(target_arch = "x86_64")]
+            if crate::cpu::avx2_available() {
+                // SAFETY: the CPU has AVX2.
+                assert_eq!(
+                    bits(unsafe { avx_sum2(&a, &b) }),
+                    bits(want),
+                    "AVX2, {seed}"
+                );
+            }
+            #[cfg(target_arch = "x86_64")]
+            if crate::cpu::avx512_available() {
+                // SAFETY: the CPU has AVX-512F and AVX2.
+                assert_eq!(
+                    bits(unsafe { avx512_sum2(&a, &b) }),
+                    bits(want),
+                    "AVX-512, {seed}"
+                );
+            }
         }
     }
 }

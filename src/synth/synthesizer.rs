@@ -480,8 +480,9 @@ impl SynthPlan {
                         );
                         let m = free_mid_re
                             .mul_add(re0, free_mid_im.mul_add(im0, free_mid_noise.mul(z)));
-                        *out = drive_grid + g.sum();
-                        mids[i] = drive_mid + m.sum();
+                        let (g, m) = g.sum2(m);
+                        *out = drive_grid + g;
+                        mids[i] = drive_mid + m;
                     } else {
                         (*out, mids[i]) = self.forced_windows(
                             (re0, im0),
@@ -587,9 +588,10 @@ impl SynthPlan {
         );
         let m = V::load(&k.mid_input_noise)
             .mul_add(z, knot_grid.add(knot_next).sub(knot_mid.add(knot_mid)));
+        let (g, m) = g.sum2(m);
         (
-            drive_grid + g.sum() + (input_left + w_start),
-            drive_mid + m.sum() + w_mid,
+            drive_grid + g + (input_left + w_start),
+            drive_mid + m + w_mid,
         )
     }
 
