@@ -5,7 +5,7 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use ftafm::config::default_settings;
 use ftafm::pipeline::Pipeline;
@@ -100,14 +100,31 @@ fn realtime_threads_do_not_allocate_or_free_on(threads: u32) {
         // A new seed makes the pages of noise drawn ahead stale: thrown away, not freed.
         next.synth.seed = 1 + step as u64 / 2;
         pipeline.apply(&next).unwrap();
-        for _ in 0..50 {
+        // Until both threads have taken the plan up (an event, not a time: a slow build
+        // takes longer).
+        let deadline = Instant::now() + Duration::from_secs(60);
+        loop {
+            let c = pipeline.counters();
+            if c.synth_plans_applied > step as u64 && c.dsp_plans_applied > step as u64 {
+                break;
+            }
+            assert!(Instant::now() < deadline, "plan {step} not taken up: {c:?}");
             output.drain();
             std::thread::sleep(Duration::from_millis(2));
         }
     }
     // A consumer that stops taking frames: the queues fill and frames are dropped (and
-    // counted) on the DSP thread, still without allocating or freeing there.
-    std::thread::sleep(Duration::from_millis(1500));
+    // counted) on the DSP thread, still without allocating or freeing there. Stalled
+    // until spectra were dropped and ten million samples more went through.
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        let c = pipeline.counters();
+        if c.spectrum_frames_dropped > 0 && c.samples_processed > processed + 10_000_000 {
+            break;
+        }
+        assert!(Instant::now() < deadline, "stalled 120 s: {c:?}");
+        std::thread::sleep(Duration::from_millis(10));
+    }
     output.drain();
     let after = REALTIME_ALLOCATIONS.load(Ordering::SeqCst);
     let c = pipeline.counters();

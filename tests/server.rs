@@ -981,11 +981,15 @@ async fn a_small_scan_images_the_softer_disc_in_the_high_harmonics() {
 
 /// A chain that cannot keep real time says so in `status`: what it lost, which thread was
 /// the busier, and what lightens it. Here the DSP is made far slower than real time (a
-/// 2^20-point spectrum 1000 times a second at 10 MS/s), so the ring overruns on any machine.
+/// 2^20-point spectrum 1000 times a second), so the ring overruns on any machine, and the
+/// synthesiser light (the paper engine at 1 MS/s: a fifth of a core even in the portable
+/// build, `FTAFM_ISA=portable`), so that the DSP is the busier thread on any machine.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn status_warns_when_the_chain_falls_behind_real_time_and_names_the_remedy() {
     let mut s = default_settings();
     s.synth.realtime = true;
+    s.synth.sample_rate = 1e6;
+    s.synth.engine = Engine::Paper;
     s.spectrum.size = 1 << 20;
     s.spectrum.rate = 1000.0;
     let d = Daemon::start(s).await;
