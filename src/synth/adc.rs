@@ -179,9 +179,9 @@ impl Kernel {
 
 /// Registers of outputs the fused kernels accumulate at once. Each output is a chain of
 /// dependent multiply-adds (31 for the halfband), so the kernels wait on the multiply-add's
-/// latency (4 cycles on Zen 3 to Zen 5) unless enough chains run side by side to fill its
-/// two pipes: eight, where four left half of them idle. Fits AVX2's sixteen registers
-/// with the tap and the loaded samples.
+/// latency (4 cycles on Zen 3 to Zen 5) unless enough chains run side by side to keep its
+/// two pipes busy: 2 × 4 = 8. Fits AVX2's sixteen registers with the tap and the loaded
+/// samples.
 #[cfg(target_arch = "x86_64")]
 const ACCUMULATORS: usize = 8;
 
@@ -362,9 +362,10 @@ impl AdcFilter {
         x.copy_within(n..n + COMPENSATOR_HISTORY, 0);
     }
 
-    /// [`compensate`](Self::compensate), fused, with [`ACCUMULATORS`] registers of `V` holding A·W
-    /// outputs while the tap pairs stream past them, then the rest one at a time (the
-    /// same operations in the same order per output, so the same bits).
+    /// [`compensate`](Self::compensate), fused, with [`ACCUMULATORS`] registers of `V`
+    /// holding that many times `V::WIDTH` outputs while the tap pairs stream past them,
+    /// then the rest one at a time (the same operations in the same order per output, so
+    /// the same bits).
     ///
     /// # Safety
     /// The CPU must have `V`'s instructions.
@@ -429,9 +430,9 @@ impl AdcFilter {
         unsafe { self.decimate_fused::<std::arch::x86_64::__m512d>(taps, out) };
     }
 
-    /// The fused kernels: [`ACCUMULATORS`] registers of `V` hold A·W outputs while the taps stream
-    /// past them, then the rest one at a time. Inlined into the functions that carry the
-    /// target features.
+    /// The fused kernels: [`ACCUMULATORS`] registers of `V` hold that many times
+    /// `V::WIDTH` outputs while the taps stream past them, then the rest one at a time.
+    /// Inlined into the functions that carry the target features.
     ///
     /// # Safety
     /// The CPU must have `V`'s instructions.
