@@ -236,18 +236,13 @@ impl Drop for TempToml {
 /// Waits (on messages, not on time: the deadline only guards a hang) for the first message
 /// of `stream` that satisfies `accept`.
 pub async fn first_of(ws: &mut Ws, stream: &str, accept: impl Fn(&Value) -> bool) -> Value {
-    let deadline = Instant::now() + Duration::from_secs(120);
-    loop {
-        let msg = tokio::time::timeout_at(deadline.into(), ws.next())
-            .await
-            .unwrap_or_else(|_| panic!("no matching {stream} message"))
-            .unwrap()
-            .unwrap();
-        if let Message::Text(t) = msg {
+    let what = format!("a matching {stream} message");
+    next_where(ws, Duration::from_secs(120), &what, |msg| match msg {
+        Message::Text(t) => {
             let v: Value = serde_json::from_str(&t).unwrap();
-            if v["stream"] == stream && v.get("ok").is_none() && accept(&v) {
-                return v;
-            }
+            (v["stream"] == stream && v.get("ok").is_none() && accept(&v)).then_some(v)
         }
-    }
+        _ => None,
+    })
+    .await
 }
