@@ -345,6 +345,38 @@ impl CoupledKernel {
         (self.free_tip * rho).re + c.tip.mul(im).sum()
     }
 
+    /// The step of a sample clear of the surface at both ends without adhesion, where the
+    /// tip force is zero throughout: the lanes `re`, `im` advanced from the tip position
+    /// `tip` (m) at the sample's start to the phasor `next` with the thermal deviates `z`,
+    /// and the tip position at its end; `None` if adhesion is on, if `tip` is unknown
+    /// (NaN) or near the surface, or if the end is. Where it gives a step,
+    /// [`step_lanes`](Self::step_lanes) gives the same bits with zero moments; this one
+    /// leaves out that step's force law and bookkeeping, which nine samples in ten of
+    /// tapping skip.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    pub(crate) fn clear_step<V: Lanes>(
+        &self,
+        c: &CoupledLanes<V>,
+        re: V,
+        im: V,
+        next: Complex64,
+        z: V,
+        tip: f64,
+    ) -> Option<(V, V, f64)> {
+        // NaN compares false: an unknown start goes to `step_lanes`.
+        if self.strength == 0.0 && tip + self.distance >= self.margin {
+            let r1 = c
+                .a_im
+                .neg_mul_add(im, c.a_re.mul_add(re, c.noise_re.mul(z)));
+            let i1 = c.a_im.mul_add(re, c.a_re.mul_add(im, c.noise_im.mul(z)));
+            let z1 = self.tip_position(c, next, i1);
+            (z1 + self.distance >= self.margin).then_some((r1, i1, z1))
+        } else {
+            None
+        }
+    }
+
     /// Advances the lanes `re`, `im` (Re q, Im q) by one sample from drive phasor `rho` to
     /// `next` with the thermal deviates `z` (one per mode lane), with the constants `c` of
     /// this kernel. Returns the lanes and the tip position at `next`, and whether it
@@ -621,6 +653,12 @@ mod tests {
 
     /// A kernel for the default lever far from the surface, with thermal input.
     fn far_kernel(h: f64) -> (CoupledKernel, Vec<Mode>) {
+        kernel_at(h, 1.0, None)
+    }
+
+    /// A kernel for the default lever with the surface at `distance` (m) and `adhesion`,
+    /// with thermal input.
+    fn kernel_at(h: f64, distance: f64, adhesion: Option<Adhesion>) -> (CoupledKernel, Vec<Mode>) {
         let c = Cantilever::new(100e3, 20.0, &[100.0, 417.0, 340.0, 200.0, 26.0], 0).unwrap();
         let si = Elastic {
             youngs_modulus: 129e9,
@@ -635,9 +673,9 @@ mod tests {
             2.0 * PI * 100e3,
             &response,
             1e-10,
-            1.0,
+            distance,
             &contact,
-            None,
+            adhesion,
             &sigma,
             DEFAULT_SUBSTEPS,
         );
@@ -703,6 +741,73 @@ mod tests {
             assert!(scale > 0.0);
             assert!((a_re[m] - b_re[m]).abs() < 1e-9 * scale, "mode {m} re");
             assert!((a_im[m] - b_im[m]).abs() < 1e-9 * scale, "mode {m} im");
+        }
+    }
+
+    /// Where `clear_step` gives a step, it is `step_lanes`'s bit for bit, with no force and
+    /// no sub-steps; it gives none where the tip nears the surface, nor with adhesion.
+    #[test]
+    fn a_clear_step_is_the_general_step_bit_for_bit() {
+        type P = Portable<8>;
+        let bits = |x: P| {
+            let mut a = [0.0; 8];
+            x.store(&mut a);
+            a.map(f64::to_bits)
+        };
+        let h = 1e-7;
+        let rotation = Complex64::from_polar(1.0, 2.0 * PI * 100e3 * h);
+        let (far, _) = far_kernel(h);
+        // The surface a third of the way into the free swing: the tip taps.
+        let amplitude = far.free_tip.norm();
+        let adhesion = Adhesion {
+            hamaker: 6.4e-20,
+            distance: 0.165e-9,
+        };
+        for adhesion in [None, Some(adhesion)] {
+            let (k, _) = kernel_at(h, amplitude / 3.0, adhesion);
+            let c = k.lanes::<P>();
+            let (mut re, mut im) = (P::splat(0.0), P::splat(0.0));
+            let mut rho = Complex64::new(1.0, 0.0);
+            let mut tip = f64::NAN;
+            let (mut clear, mut near) = (0, 0);
+            for n in 0..20_000 {
+                let z: [f64; 8] = std::array::from_fn(|m| ((n * 7 + m * 13) % 11) as f64 - 5.0);
+                let z = P::load(&z);
+                let next = rho * rotation;
+                let quick = k.clear_step(&c, re, im, next, z, tip);
+                let mut mid = (re, im);
+                let mut moments = Moments::default();
+                let substepped;
+                (re, im, tip, substepped) = k.step_lanes(
+                    &c,
+                    re,
+                    im,
+                    rho,
+                    next,
+                    z,
+                    tip,
+                    &mut mid,
+                    &mut moments,
+                    &mut |_| {},
+                );
+                match quick {
+                    Some((q_re, q_im, q_tip)) => {
+                        clear += 1;
+                        assert!(adhesion.is_none(), "a clear step with adhesion");
+                        assert_eq!(bits(q_re), bits(re), "sample {n}: Re q");
+                        assert_eq!(bits(q_im), bits(im), "sample {n}: Im q");
+                        assert_eq!(q_tip.to_bits(), tip.to_bits(), "sample {n}: tip");
+                        assert!(!substepped, "sample {n}");
+                        assert_eq!(moments, Moments::default(), "sample {n}");
+                    }
+                    None => near += 1,
+                }
+                rho = next;
+            }
+            if adhesion.is_none() {
+                // Both kinds of sample were met, the tapping ones sub-stepped.
+                assert!(clear > 10_000 && near > 1_000, "{clear} clear, {near} not");
+            }
         }
     }
 }

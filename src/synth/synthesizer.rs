@@ -343,17 +343,6 @@ impl SynthPlan {
         let (a_re, a_im) = (V::load(&k.a_re), V::load(&k.a_im));
         let (noise_re, noise_im) = (V::load(&k.noise_re), V::load(&k.noise_im));
         let lever = V::load(&k.lever);
-        let (free_grid_re, free_grid_im, free_grid_noise, free_grid_noise_before) = (
-            V::load(&k.free_grid_re),
-            V::load(&k.free_grid_im),
-            V::load(&k.free_grid_noise),
-            V::load(&k.free_grid_noise_before),
-        );
-        let (free_mid_re, free_mid_im, free_mid_noise) = (
-            V::load(&k.free_mid_re),
-            V::load(&k.free_mid_im),
-            V::load(&k.free_mid_noise),
-        );
         let coupled_lanes = coupled.map(|c| c.lanes::<V>());
         let n = self.modes.len();
         let mut re = V::load(&state.re);
@@ -400,115 +389,134 @@ impl SynthPlan {
                     rho = Complex64::from_polar(1.0, phase_to_radians(phase));
                 }
                 let (re0, im0) = (re, im);
-                // A forced sample's knot at its midpoint, and the force's moments.
-                let mut knot_mid = V::splat(0.0);
-                let mut moments = Moments::default();
-                let mut forced = false;
                 let next = rho * step;
-                if COUPLED && let (Some(coupled), Some(lanes)) = (coupled, &coupled_lanes) {
-                    let mut midq = (re, im);
-                    let substepped;
-                    (re, im, tip, substepped) = coupled.step_lanes(
-                        lanes,
-                        re,
-                        im,
-                        rho,
-                        next,
-                        z,
-                        tip,
-                        &mut midq,
-                        &mut moments,
-                        &mut |_| {},
-                    );
-                    if MID {
-                        forced = moments != Moments::default();
-                        if substepped {
-                            knot_mid = V::load(&k.knot_re)
-                                .mul_add(midq.0, V::load(&k.knot_im).mul(midq.1));
-                        } else if forced {
-                            // The kick at the sample's start, seen at the midpoint.
-                            knot_mid = V::load(&k.mid_kick)
-                                .mul_add(V::splat(moments.s1), self.free_knot_mid(re0, im0, z));
-                        }
-                    }
-                } else if let Some(overlap) =
-                    pulse.and_then(|p| p.overlap(phase, self.frequency_word))
-                {
-                    // A pulse falls in this sample: its exact integrals, mode by mode.
-                    let pulse = pulse.expect("an overlap has a pulse");
-                    let phasors = pulse.phasors(&overlap);
-                    if MID {
-                        let mut dre = [0.0; MAX_MODES];
-                        let mut dim = [0.0; MAX_MODES];
-                        pulse.apply_to_midpoint(
-                            &overlap,
-                            &phasors,
-                            &self.modes,
-                            &mut dre[..n],
-                            &mut dim[..n],
-                        );
-                        knot_mid = V::load(&k.knot_re).mul_add(
-                            V::load(&dre),
-                            V::load(&k.knot_im)
-                                .mul_add(V::load(&dim), self.free_knot_mid(re0, im0, z)),
-                        );
-                        moments = pulse.moments(&overlap, &phasors);
-                        forced = true;
-                    }
-                    let r1 = a_im.neg_mul_add(im, a_re.mul_add(re, noise_re.mul(z)));
-                    let i1 = a_im.mul_add(re, a_re.mul_add(im, noise_im.mul(z)));
-                    let (mut r, mut i) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
-                    r1.store(&mut r);
-                    i1.store(&mut i);
-                    pulse.apply(&overlap, &phasors, &self.modes, &mut r[..n], &mut i[..n]);
-                    (re, im) = (V::load(&r), V::load(&i));
-                } else {
-                    let r1 = a_im.neg_mul_add(im, a_re.mul_add(re, noise_re.mul(z)));
-                    im = a_im.mul_add(re, a_re.mul_add(im, noise_im.mul(z)));
-                    re = r1;
-                }
-                if MID {
-                    let drive_grid = (self.drive_grid * rho).re;
-                    let drive_mid = (self.drive_mid * rho).re;
-                    if !forced && !forced_before {
-                        let g = free_grid_re.mul_add(
-                            re0,
-                            free_grid_im.mul_add(
-                                im0,
-                                free_grid_noise.mul_add(z, free_grid_noise_before.mul(z_before)),
-                            ),
-                        );
-                        let m = free_mid_re
-                            .mul_add(re0, free_mid_im.mul_add(im0, free_mid_noise.mul(z)));
-                        let (g, m) = g.sum2(m);
-                        *out = drive_grid + g;
-                        mids[i] = drive_mid + m;
-                    } else {
-                        (*out, mids[i]) = self.forced_windows(
+                'sample: {
+                    // A sample of the coupled engine clear of the surface after another, the
+                    // common case of tapping: no force and no carry, so none of the bookkeeping
+                    // below (the same bits as the general path).
+                    if COUPLED
+                        && MID
+                        && !forced_before
+                        && let (Some(coupled), Some(lanes)) = (coupled, &coupled_lanes)
+                        && let Some(clear) = coupled.clear_step(lanes, re, im, next, z, tip)
+                    {
+                        (re, im, tip) = clear;
+                        (*out, mids[i]) = self.free_windows(
                             (re0, im0),
-                            (re, im),
                             z,
                             z_before,
-                            if forced {
-                                knot_mid
-                            } else {
-                                self.free_knot_mid(re0, im0, z)
-                            },
-                            forced_before.then_some((knot_before, input_before)),
-                            &moments,
-                            (drive_grid, drive_mid),
+                            (self.drive_grid * rho).re,
+                            (self.drive_mid * rho).re,
                         );
-                        if forced {
-                            knot_before = knot_mid;
-                            input_before = moments
-                                .weigh(self.force_window.0, self.force_window.1, self.h)
-                                .2;
-                        }
+                        z_before = z;
+                        break 'sample;
                     }
-                    forced_before = forced;
-                    z_before = z;
-                } else {
-                    *out = (self.drive_signal * rho).re + lever.mul(im0).sum();
+                    // A forced sample's knot at its midpoint, and the force's moments.
+                    let mut knot_mid = V::splat(0.0);
+                    let mut moments = Moments::default();
+                    let mut forced = false;
+                    if COUPLED
+                        && let (Some(coupled), Some(lanes)) = (coupled, &coupled_lanes)
+                        && let Some(clear) = coupled.clear_step(lanes, re, im, next, z, tip)
+                    {
+                        (re, im, tip) = clear;
+                    } else if COUPLED
+                        && let (Some(coupled), Some(lanes)) = (coupled, &coupled_lanes)
+                    {
+                        let mut midq = (re, im);
+                        let substepped;
+                        (re, im, tip, substepped) = coupled.step_lanes(
+                            lanes,
+                            re,
+                            im,
+                            rho,
+                            next,
+                            z,
+                            tip,
+                            &mut midq,
+                            &mut moments,
+                            &mut |_| {},
+                        );
+                        if MID {
+                            forced = moments != Moments::default();
+                            if substepped {
+                                knot_mid = V::load(&k.knot_re)
+                                    .mul_add(midq.0, V::load(&k.knot_im).mul(midq.1));
+                            } else if forced {
+                                // The kick at the sample's start, seen at the midpoint.
+                                knot_mid = V::load(&k.mid_kick)
+                                    .mul_add(V::splat(moments.s1), self.free_knot_mid(re0, im0, z));
+                            }
+                        }
+                    } else if let Some(overlap) =
+                        pulse.and_then(|p| p.overlap(phase, self.frequency_word))
+                    {
+                        // A pulse falls in this sample: its exact integrals, mode by mode.
+                        let pulse = pulse.expect("an overlap has a pulse");
+                        let phasors = pulse.phasors(&overlap);
+                        if MID {
+                            let mut dre = [0.0; MAX_MODES];
+                            let mut dim = [0.0; MAX_MODES];
+                            pulse.apply_to_midpoint(
+                                &overlap,
+                                &phasors,
+                                &self.modes,
+                                &mut dre[..n],
+                                &mut dim[..n],
+                            );
+                            knot_mid = V::load(&k.knot_re).mul_add(
+                                V::load(&dre),
+                                V::load(&k.knot_im)
+                                    .mul_add(V::load(&dim), self.free_knot_mid(re0, im0, z)),
+                            );
+                            moments = pulse.moments(&overlap, &phasors);
+                            forced = true;
+                        }
+                        let r1 = a_im.neg_mul_add(im, a_re.mul_add(re, noise_re.mul(z)));
+                        let i1 = a_im.mul_add(re, a_re.mul_add(im, noise_im.mul(z)));
+                        let (mut r, mut i) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
+                        r1.store(&mut r);
+                        i1.store(&mut i);
+                        pulse.apply(&overlap, &phasors, &self.modes, &mut r[..n], &mut i[..n]);
+                        (re, im) = (V::load(&r), V::load(&i));
+                    } else {
+                        let r1 = a_im.neg_mul_add(im, a_re.mul_add(re, noise_re.mul(z)));
+                        im = a_im.mul_add(re, a_re.mul_add(im, noise_im.mul(z)));
+                        re = r1;
+                    }
+                    if MID {
+                        let drive_grid = (self.drive_grid * rho).re;
+                        let drive_mid = (self.drive_mid * rho).re;
+                        if !forced && !forced_before {
+                            (*out, mids[i]) =
+                                self.free_windows((re0, im0), z, z_before, drive_grid, drive_mid);
+                        } else {
+                            (*out, mids[i]) = self.forced_windows(
+                                (re0, im0),
+                                (re, im),
+                                z,
+                                z_before,
+                                if forced {
+                                    knot_mid
+                                } else {
+                                    self.free_knot_mid(re0, im0, z)
+                                },
+                                forced_before.then_some((knot_before, input_before)),
+                                &moments,
+                                (drive_grid, drive_mid),
+                            );
+                            if forced {
+                                knot_before = knot_mid;
+                                input_before = moments
+                                    .weigh(self.force_window.0, self.force_window.1, self.h)
+                                    .2;
+                            }
+                        }
+                        forced_before = forced;
+                        z_before = z;
+                    } else {
+                        *out = (self.drive_signal * rho).re + lever.mul(im0).sum();
+                    }
                 }
                 phase = phase.wrapping_add(self.frequency_word);
                 rho = next;
@@ -531,6 +539,35 @@ impl SynthPlan {
         state.rho = rho;
         state.counters.samples = index;
         state.counters.clipped += clipped;
+    }
+
+    /// The windows on grid sample n and on midpoint n + ½ where neither sample n nor n − 1
+    /// has a tap force: fixed functionals of the state `re`, `im` at t_n and the thermal
+    /// deviates `z` and `z_before` of samples n and n − 1, plus the drive's parts.
+    #[inline(always)]
+    fn free_windows<V: Lanes>(
+        &self,
+        (re, im): (V, V),
+        z: V,
+        z_before: V,
+        drive_grid: f64,
+        drive_mid: f64,
+    ) -> (f64, f64) {
+        let k = &self.lanes;
+        let g = V::load(&k.free_grid_re).mul_add(
+            re,
+            V::load(&k.free_grid_im).mul_add(
+                im,
+                V::load(&k.free_grid_noise)
+                    .mul_add(z, V::load(&k.free_grid_noise_before).mul(z_before)),
+            ),
+        );
+        let m = V::load(&k.free_mid_re).mul_add(
+            re,
+            V::load(&k.free_mid_im).mul_add(im, V::load(&k.free_mid_noise).mul(z)),
+        );
+        let (g, m) = g.sum2(m);
+        (drive_grid + g, drive_mid + m)
     }
 
     /// κ at the midpoint of a sample without force, from the state `re`, `im` at its start
