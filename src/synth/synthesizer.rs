@@ -391,9 +391,9 @@ impl SynthPlan {
                 let (re0, im0) = (re, im);
                 let next = rho * step;
                 'sample: {
-                    // A sample of the coupled engine clear of the surface after another, the
-                    // common case of tapping: no force and no carry, so none of the bookkeeping
-                    // below (the same bits as the general path).
+                    // The coupled engine's common case in tapping: a sample clear of the
+                    // surface after a sample without force. It has no force and no carry, so
+                    // none of the bookkeeping below; the same bits as the general path.
                     if COUPLED
                         && MID
                         && !forced_before
@@ -415,6 +415,7 @@ impl SynthPlan {
                     let mut knot_mid = V::splat(0.0);
                     let mut moments = Moments::default();
                     let mut forced = false;
+                    // Clear after a forced sample, or sampled directly: the short step too.
                     if COUPLED
                         && let (Some(coupled), Some(lanes)) = (coupled, &coupled_lanes)
                         && let Some(clear) = coupled.clear_step(lanes, re, im, next, z, tip)
