@@ -682,6 +682,13 @@ mod tests {
         (k, c.modes)
     }
 
+    /// Sample `n`'s stand-ins for the thermal deviates: a fixed pattern, the same every run.
+    fn deviates(n: usize) -> Portable<8> {
+        Portable::load(&std::array::from_fn::<f64, 8, _>(|m| {
+            ((n * 7 + m * 13) % 11) as f64 - 5.0
+        }))
+    }
+
     #[test]
     fn sub_steps_carry_the_same_held_thermal_input_as_one_step() {
         let (one, _) = far_kernel(1e-7);
@@ -697,8 +704,7 @@ mod tests {
         let mut mid = (a_re, a_im);
         let mut moments = Moments::default();
         for n in 0..5000 {
-            let z: [f64; 8] = std::array::from_fn(|m| ((n * 7 + m * 13) % 11) as f64 - 5.0);
-            let z = P::load(&z);
+            let z = deviates(n);
             let next = rho * rotation;
             let substepped;
             (a_re, a_im, _, substepped) = one.step_lanes(
@@ -771,8 +777,7 @@ mod tests {
             let mut tip = f64::NAN;
             let (mut clear, mut near) = (0, 0);
             for n in 0..20_000 {
-                let z: [f64; 8] = std::array::from_fn(|m| ((n * 7 + m * 13) % 11) as f64 - 5.0);
-                let z = P::load(&z);
+                let z = deviates(n);
                 let next = rho * rotation;
                 let quick = k.clear_step(&c, re, im, next, z, tip);
                 let mut mid = (re, im);
