@@ -353,7 +353,6 @@ impl CoupledKernel {
     /// [`step_lanes`](Self::step_lanes) gives the same bits with zero moments; this one
     /// leaves out that step's force law and bookkeeping, which nine samples in ten of
     /// tapping skip.
-    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     pub(crate) fn clear_step<V: Lanes>(
         &self,
