@@ -416,6 +416,9 @@ impl SynthPlan {
                     let mut moments = Moments::default();
                     let mut forced = false;
                     // Clear after a forced sample, or sampled directly: the short step too.
+                    // Where the block above has just failed it, this tries it again, a
+                    // repeat at each approach to the surface only; skipping the repeat
+                    // measured 2–3 % slower in the AVX2 build (code layout), so it stays.
                     if COUPLED
                         && let (Some(coupled), Some(lanes)) = (coupled, &coupled_lanes)
                         && let Some(clear) = coupled.clear_step(lanes, re, im, next, z, tip)
