@@ -2,7 +2,7 @@
 //! counts (`benches/synth_instructions.sh`, callgrind), `perf record`, or a quick look at
 //! the throughput.
 //!
-//! `cargo run --release --example synth_blocks -- ENGINE A_SET NOISE BLOCKS [SUBSTEPS] [hash]`:
+//! `cargo run --release --example synth_blocks -- ENGINE A_SET NOISE BLOCKS [SUBSTEPS] [window] [hash]`:
 //! ENGINE `paper` or `coupled`, A_SET the surface distance in metres (the defaults' 20e-9
 //! taps, 50e-9 is clear of the surface), NOISE `on` or `off`, BLOCKS how many, SUBSTEPS
 //! `/synth/contact_substeps` (default 12). Everything else is the default configuration.
@@ -11,19 +11,26 @@
 //! two builds. With `hash`, also an FNV-1a hash of every sample's bits, to check that two
 //! builds give the same stream (it costs a few instructions a sample, so leave it out when
 //! counting instructions). With the coupled engine, also the share of samples with a tip
-//! force (those it sub-steps), from a noise-free trace after the timing.
+//! force (those it sub-steps), from a noise-free trace after the timing. With `window`, the
+//! synthesiser thread's part in the pipeline: the signal through the ADC's window, its FIRs,
+//! detector noise and quantiser left to the DSP thread (`SynthPlan::process_window`); the
+//! hash is then of the window samples.
 
 use std::time::Instant;
 
 use ftafm::config::{Engine, default_settings};
-use ftafm::synth::{SynthPlan, SynthState};
+use ftafm::synth::{SynthPlan, SynthState, WindowSample};
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let usage = "usage: synth_blocks paper|coupled A_SET on|off BLOCKS [SUBSTEPS] [hash]";
+    let usage = "usage: synth_blocks paper|coupled A_SET on|off BLOCKS [SUBSTEPS] [window] [hash]";
     let (hash, args) = match args.split_last() {
         Some((last, rest)) if last == "hash" => (true, rest),
         _ => (false, args.as_slice()),
+    };
+    let (window, args) = match args.split_last() {
+        Some((last, rest)) if last == "window" => (true, rest),
+        _ => (false, args),
     };
     let (engine, distance, noise, blocks, substeps) = match args {
         [e, d, n, b] => (e, d, n, b, None),
@@ -75,14 +82,25 @@ fn main() {
     });
     let mut state = SynthState::steady(&plan, 1);
     let mut block = vec![0.0; 4096];
+    let mut through_window = vec![WindowSample::default(); block.len()];
     let mut times = Vec::with_capacity(blocks);
     let mut fnv: u64 = 0xcbf2_9ce4_8422_2325;
     for _ in 0..blocks {
         let start = Instant::now();
-        plan.process(&mut state, &mut block);
+        if window {
+            plan.process_window(&mut state, &mut through_window);
+        } else {
+            plan.process(&mut state, &mut block);
+        }
         times.push(start.elapsed().as_secs_f64());
         if hash {
-            for x in &block {
+            let bits = through_window.iter().flat_map(|w| [w.grid, w.mid]);
+            for x in block
+                .iter()
+                .copied()
+                .filter(|_| !window)
+                .chain(bits.filter(|_| window))
+            {
                 fnv = (fnv ^ x.to_bits()).wrapping_mul(0x0000_0100_0000_01b3);
             }
         }

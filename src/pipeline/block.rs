@@ -1,5 +1,6 @@
 //! The header the synthesiser sends with every block of samples: where the block sits in
-//! the stream and the exact drive phase, so the DSP's reference stays locked to it.
+//! the stream and the exact drive phase, so the DSP's reference stays locked to it, and
+//! how to finish its samples.
 
 /// Describes one block of samples in the sample ring.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -22,6 +23,10 @@ pub struct BlockHeader {
     ///
     /// [`Pipeline::apply`]: super::Pipeline::apply
     pub epoch: u64,
+    /// How the DSP thread finishes the block's window samples into samples; `None`: the
+    /// synthesiser finished them (a scan's feedback reads them), and the ring holds them in
+    /// the window samples' `grid`.
+    pub digitise: Option<crate::synth::DigitiserInput>,
 }
 
 /// Unix time in ns now.

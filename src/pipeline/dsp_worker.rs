@@ -1,5 +1,6 @@
-//! The DSP thread: takes blocks from the sample ring, keeps the lock-in's reference locked
-//! to the synthesiser's drive phase, and emits demodulator and spectrum frames.
+//! The DSP thread: takes blocks from the sample ring, finishes their samples (the ADC's
+//! FIRs, detector noise and quantiser), keeps the lock-in's reference locked to the
+//! synthesiser's drive phase, and emits demodulator and spectrum frames.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -14,6 +15,7 @@ use super::dsp_plan::{DspPlan, DspSink};
 use super::dsp_team::DspTeam;
 use super::frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
 use crate::synth::noise_pages::PageFactory;
+use crate::synth::{Digitiser, WindowSample};
 
 /// Longest the DSP thread sleeps when the ring is empty. The synthesiser wakes it as each
 /// block lands, so this only bounds how late it notices a stop or a new plan.
@@ -25,7 +27,12 @@ const NOISE_BACKLOG: usize = 2 * super::BLOCK_SAMPLES;
 
 pub(crate) struct DspWorker {
     pub plan: Box<DspPlan>,
-    pub samples: HeapCons<f64>,
+    /// The signal through the ADC's window, finished here ([`Digitiser`]).
+    pub samples: HeapCons<WindowSample>,
+    /// The ADC's FIRs, detector noise and quantiser.
+    pub digitiser: Digitiser,
+    /// The block's samples, finished.
+    pub finished: Vec<f64>,
     pub headers: HeapCons<BlockHeader>,
     pub plans_in: HeapCons<Box<DspPlan>>,
     pub plans_out: HeapProd<Box<DspPlan>>,
@@ -164,9 +171,27 @@ impl DspWorker {
             let frames_before = self.counters.demod_frames.load(Ordering::Relaxed);
             self.plan.align(header.phase, header.frequency_word);
             let len = header.len as usize;
-            let (a, b) = self.samples.as_slices();
-            let first = len.min(a.len());
-            let (first, second) = (&a[..first], &b[..len - first]);
+            let mut finished = std::mem::take(&mut self.finished);
+            {
+                let (a, b) = self.samples.as_slices();
+                let first = len.min(a.len());
+                let (a, b) = (&a[..first], &b[..len - first]);
+                let out = &mut finished[..len];
+                match &header.digitise {
+                    Some(input) => {
+                        let clipped = self.digitiser.finish(input, header.index, [a, b], out);
+                        Counters::add(&self.counters.clipped_samples, clipped);
+                    }
+                    None => {
+                        for (o, w) in out.iter_mut().zip(a.iter().chain(b)) {
+                            *o = w.grid;
+                        }
+                    }
+                }
+            }
+            // The ring's room is free again before the rest of the block's work.
+            self.samples.skip(len);
+            let (first, second) = (&finished[..len], &[][..]);
             let mut emit = Emitter {
                 demods: &mut self.demods,
                 spectra: &mut self.spectra,
@@ -305,7 +330,7 @@ impl DspWorker {
                     self.scope_spare = Some(buf);
                 }
             }
-            self.samples.skip(len);
+            self.finished = finished;
             self.counters
                 .dsp_beat_ns
                 .store(monotonic_ns(), Ordering::Relaxed);

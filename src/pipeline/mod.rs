@@ -1,9 +1,9 @@
 //! The signal chain's threads and what connects them.
 //!
 //! ```text
-//! control (any thread) ──plans──► synth thread ──samples + headers (SPSC rings)──► dsp thread ──frames──► output
-//!        ◄──old plans (freed here)──┘                                                 │
-//!        ◄──────────────────────────────────────────old plans─────────────────────────┘
+//! control (any thread) ──plans──► synth thread ──window samples + headers (SPSC rings)──► dsp thread ──frames──► output
+//!        ◄──old plans (freed here)──┘                                                        │
+//!        ◄──────────────────────────────────────────old plans────────────────────────────────┘
 //! ```
 //!
 //! New settings become plans off the real-time threads ([`Pipeline::apply`]); the threads
@@ -11,6 +11,12 @@
 //! on a real-time thread. The synthesiser never waits in real time: a full ring drops the
 //! block and counts it. Every header carries the exact drive phase, so the lock-in
 //! reference follows the synthesiser through frequency changes and overruns.
+//!
+//! The ring carries the signal through the ADC's window, not samples: the DSP thread runs
+//! the ADC's FIRs, detector noise and quantiser ([`crate::synth::digitiser`]) from the
+//! filter's histories in each header, which takes them off the busier synthesiser and
+//! leaves every block self-contained. A scan's blocks are the exception: its feedback reads
+//! the samples, so the synthesiser finishes them and the header says so.
 
 mod block;
 mod counters;
@@ -45,7 +51,10 @@ pub use synth_worker::BLOCK_SAMPLES;
 
 use crate::config::{MAX_SPECTRUM_SIZE, Settings};
 use crate::dsp::DspError;
-use crate::synth::{PixelTopography, PlanError, ScanRuntime, SynthPlan, SynthState, TapTables};
+use crate::synth::{
+    Digitiser, PixelTopography, PlanError, ScanRuntime, SynthPlan, SynthState, TapTables,
+    WindowSample,
+};
 use dsp_worker::DspWorker;
 use synth_worker::SynthWorker;
 
@@ -56,13 +65,14 @@ use synth_worker::SynthWorker;
 pub const RING_SECONDS: f64 = 0.5;
 /// The sample ring's least capacity (samples): 1.05 s at 2 MS/s.
 pub const SAMPLE_RING: usize = 1 << 21;
-/// The sample ring's largest capacity (samples, 128 MiB): 0.67 s at 25 MS/s, 0.17 s at
-/// 100 MS/s (rates that run in real time nowhere yet).
+/// The sample ring's largest capacity (samples, 256 MiB of window samples): 0.67 s at
+/// 25 MS/s, 0.17 s at 100 MS/s (rates that run in real time nowhere yet).
 pub const SAMPLE_RING_MAX: usize = 1 << 24;
 
 /// The sample ring's capacity (samples) at `sample_rate` (S/s): [`RING_SECONDS`] of the
 /// stream in whole blocks, within [`SAMPLE_RING`] … [`SAMPLE_RING_MAX`]. 5 001 216 samples
-/// (40 MB) at the defaults' 10 MS/s, 12 500 992 (100 MB) at 25 MS/s.
+/// (80 MB of 16-byte window samples) at the defaults' 10 MS/s, 12 500 992 (200 MB) at
+/// 25 MS/s.
 pub fn ring_samples(sample_rate: f64) -> usize {
     let blocks = (RING_SECONDS * sample_rate / BLOCK_SAMPLES as f64).ceil();
     // `as` saturates a NaN or huge product, which the clamp then bounds.
@@ -312,7 +322,7 @@ impl Pipeline {
         state.attach_noise_supply(noise_supply);
 
         let ring = ring_samples(settings.synth.sample_rate);
-        let (samples_in, samples_out) = HeapRb::<f64>::new(ring).split();
+        let (samples_in, samples_out) = HeapRb::<WindowSample>::new(ring).split();
         let (headers_in, headers_out) =
             HeapRb::<BlockHeader>::new(ring / BLOCK_SAMPLES + 1).split();
         let (demods_in, demods_out) = HeapRb::<DemodFrame>::new(DEMOD_QUEUE).split();
@@ -385,6 +395,8 @@ impl Pipeline {
             epochs: epochs.clone(),
             team,
             noise: noise_factory,
+            digitiser: Digitiser::new(BLOCK_SAMPLES),
+            finished: vec![0.0; BLOCK_SAMPLES],
         };
         let mut pipeline = Self {
             settings: settings.clone(),

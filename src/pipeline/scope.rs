@@ -133,6 +133,7 @@ mod tests {
                 t_synth_ns: 0,
                 raster: None,
                 epoch: 0,
+                digitise: None,
             };
             capture.feed(
                 &header,

@@ -1,5 +1,6 @@
-//! The synthesiser thread: fills blocks, hands them to the sample ring, paces itself to the
-//! wall clock (or runs free), and swaps in new plans between blocks.
+//! The synthesiser thread: fills blocks with the signal through the ADC's window (a scan's
+//! with finished samples), hands them to the sample ring, paces itself to the wall clock
+//! (or runs free), and swaps in new plans between blocks.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -11,7 +12,7 @@ use ringbuf::{HeapCons, HeapProd};
 use super::block::{BlockHeader, unix_ns};
 use super::counters::Counters;
 use super::epochs::Epochs;
-use crate::synth::{PixelTopography, ScanRuntime, SynthPlan, SynthState};
+use crate::synth::{PixelTopography, ScanRuntime, SynthPlan, SynthState, WindowSample};
 
 /// Samples per block: 0.41 ms at 10 MS/s, short against the 1 ms output period.
 pub const BLOCK_SAMPLES: usize = 4096;
@@ -22,7 +23,8 @@ pub(crate) struct SynthWorker {
     pub scan: ScanRuntime,
     /// Finished pixels' topography, to the consumer.
     pub topography: HeapProd<PixelTopography>,
-    pub samples: HeapProd<f64>,
+    /// The signal through the ADC's window, which the DSP thread finishes.
+    pub samples: HeapProd<WindowSample>,
     pub headers: HeapProd<BlockHeader>,
     pub plans_in: HeapCons<Box<SynthPlan>>,
     pub plans_out: HeapProd<Box<SynthPlan>>,
@@ -41,7 +43,9 @@ pub(crate) struct SynthWorker {
 
 impl SynthWorker {
     pub fn run(mut self) {
-        let mut block = vec![0.0; BLOCK_SAMPLES];
+        let mut block = vec![WindowSample::default(); BLOCK_SAMPLES];
+        // A scan's samples, finished here for its feedback.
+        let mut finished = vec![0.0; BLOCK_SAMPLES];
         // Pacing reference: wall time at which sample `paced_index` was due.
         let mut paced_from = Instant::now();
         let mut paced_index = self.state.sample_index();
@@ -94,26 +98,31 @@ impl SynthWorker {
             let clipped_before = self.state.counters.clipped;
             let pages_before = self.state.noise_pages();
             let busy = Instant::now();
-            if self.plan.scan.is_some() {
+            let digitise = if self.plan.scan.is_some() {
                 let (out, counters) = (&mut self.topography, &self.counters);
                 self.plan
-                    .process_scan(&mut self.state, &mut self.scan, &mut block, &mut |p| {
+                    .process_scan(&mut self.state, &mut self.scan, &mut finished, &mut |p| {
                         if out.try_push(p).is_ok() {
                             Counters::add(&counters.topography_pixels, 1);
                         } else {
                             Counters::add(&counters.topography_pixels_dropped, 1);
                         }
                     });
+                for (w, &s) in block.iter_mut().zip(&finished) {
+                    w.grid = s;
+                }
+                Counters::add(
+                    &self.counters.clipped_samples,
+                    self.state.counters.clipped - clipped_before,
+                );
+                None
             } else {
-                self.plan.process(&mut self.state, &mut block);
-            }
+                // The ADC's FIRs, detector noise and quantiser run on the DSP thread.
+                Some(self.plan.process_window(&mut self.state, &mut block))
+            };
             Counters::add(
                 &self.counters.synth_busy_ns,
                 busy.elapsed().as_nanos() as u64,
-            );
-            Counters::add(
-                &self.counters.clipped_samples,
-                self.state.counters.clipped - clipped_before,
             );
             let pages = self.state.noise_pages();
             Counters::add(
@@ -140,6 +149,7 @@ impl SynthWorker {
                 t_synth_ns: unix_ns(),
                 raster: self.plan.scan.as_ref().and(self.scan.raster),
                 epoch,
+                digitise,
             };
             if !self.push(&block, header, realtime) {
                 Counters::add(&self.counters.overrun_samples, BLOCK_SAMPLES as u64);
@@ -153,7 +163,7 @@ impl SynthWorker {
 
     /// Hands a block to the DSP. In real time a full ring drops the block (the caller counts
     /// it); free-running waits for room, since nothing is due by the clock.
-    fn push(&mut self, block: &[f64], header: BlockHeader, realtime: bool) -> bool {
+    fn push(&mut self, block: &[WindowSample], header: BlockHeader, realtime: bool) -> bool {
         loop {
             if self.samples.vacant_len() >= block.len() && self.headers.vacant_len() >= 1 {
                 self.samples.push_slice(block);

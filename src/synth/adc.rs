@@ -136,6 +136,29 @@ pub fn halfband_gain(taps: &[f64; GRID_TAPS], frequency: f64) -> f64 {
     g
 }
 
+/// The signal through the ADC's window at grid sample n and at midpoint n + ½ ([`super::window`]),
+/// before the FIRs; with the filter off, `grid` is the sample itself. What the synthesiser
+/// hands to the thread that finishes the ADC ([`super::digitiser`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct WindowSample {
+    /// At the grid sample t_n (m).
+    pub grid: f64,
+    /// At the midpoint t_n + h/2 (m).
+    pub mid: f64,
+}
+
+/// What the filter's next output needs of the past ([`AdcFilter::history`]): the last
+/// grid samples and midpoints, and the halfband's last outputs (m).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AdcHistory {
+    /// The last [`GRID_HISTORY`] grid samples, oldest first.
+    pub grid: [f64; GRID_HISTORY],
+    /// The last [`MID_HISTORY`] midpoints, oldest first.
+    pub mid: [f64; MID_HISTORY],
+    /// The halfband's last [`COMPENSATOR_HISTORY`] outputs, oldest first.
+    pub compensator: [f64; COMPENSATOR_HISTORY],
+}
+
 /// The filter's state: the grid and midpoint samples of the current chunk behind their
 /// histories. Allocated once, off the real-time thread.
 #[derive(Clone, Debug)]
@@ -293,6 +316,74 @@ impl AdcFilter {
         }
     }
 
+    /// What the next output needs of the past: the histories at the chunk's start.
+    pub fn history(&self) -> AdcHistory {
+        AdcHistory {
+            grid: std::array::from_fn(|i| self.grid[i]),
+            mid: std::array::from_fn(|i| self.mid[i]),
+            compensator: std::array::from_fn(|i| self.compensator[i]),
+        }
+    }
+
+    /// Continues from `history` (another filter's [`history`](Self::history)).
+    pub fn set_history(&mut self, history: &AdcHistory) {
+        self.grid[..GRID_HISTORY].copy_from_slice(&history.grid);
+        self.mid[..MID_HISTORY].copy_from_slice(&history.mid);
+        self.compensator[..COMPENSATOR_HISTORY].copy_from_slice(&history.compensator);
+    }
+
+    /// The longest chunk the filter takes at once.
+    pub fn chunk(&self) -> usize {
+        self.grid.len() - GRID_HISTORY
+    }
+
+    /// The next `n` grid samples and midpoints, to be written before a
+    /// [`decimate`](Self::decimate) or [`pass`](Self::pass) of `n` outputs.
+    pub(crate) fn chunk_mut(&mut self, n: usize) -> (&mut [f64], &mut [f64]) {
+        (
+            &mut self.grid[GRID_HISTORY..GRID_HISTORY + n],
+            &mut self.mid[MID_HISTORY..MID_HISTORY + n],
+        )
+    }
+
+    /// Hands the `out.len()` grid and midpoint samples written behind the histories to
+    /// `out` unfiltered, for a filter on another thread to take them from this one's
+    /// [`history`](Self::history), and keeps the histories as [`decimate`](Self::decimate)
+    /// (`taps`) or [`remember`](Self::remember) (no taps) would have, bit for bit: the
+    /// halfband's outputs for the compensator's history are its last [`COMPENSATOR_HISTORY`]
+    /// outputs, each the same operations in the same order as in the kernels. Inlined, so
+    /// that in the synthesiser's loop the fused multiply-adds are instructions, not calls.
+    #[inline(always)]
+    pub(crate) fn pass(&mut self, taps: Option<&[f64; GRID_TAPS]>, out: &mut [WindowSample]) {
+        let n = out.len();
+        for (i, o) in out.iter_mut().enumerate() {
+            *o = WindowSample {
+                grid: self.grid[GRID_HISTORY + i],
+                mid: self.mid[MID_HISTORY + i],
+            };
+        }
+        let Some(taps) = taps else {
+            self.grid.copy_within(n..n + GRID_HISTORY, 0);
+            self.remembered();
+            return;
+        };
+        let fused = self.kernel != Kernel::Portable;
+        for i in n.saturating_sub(COMPENSATOR_HISTORY)..n {
+            let mut acc = 0.5 * self.mid[i];
+            for (t, &c) in taps.iter().rev().enumerate() {
+                acc = if fused {
+                    c.mul_add(self.grid[t + i], acc)
+                } else {
+                    acc + c * self.grid[t + i]
+                };
+            }
+            self.compensator[COMPENSATOR_HISTORY + i] = acc;
+        }
+        self.compensator.copy_within(n..n + COMPENSATOR_HISTORY, 0);
+        self.grid.copy_within(n..n + GRID_HISTORY, 0);
+        self.mid.copy_within(n..n + MID_HISTORY, 0);
+    }
+
     /// Keeps the newest of `signal` (grid samples, taken without the filter) as history,
     /// with the midpoints between them interpolated, so that turning the filter on while
     /// running starts from the signal, not from a stale history.
@@ -300,6 +391,12 @@ impl AdcFilter {
         let n = signal.len().min(GRID_HISTORY);
         self.grid.copy_within(n..GRID_HISTORY, 0);
         self.grid[GRID_HISTORY - n..GRID_HISTORY].copy_from_slice(&signal[signal.len() - n..]);
+        self.remembered();
+    }
+
+    /// [`remember`](Self::remember)'s midpoints and compensator history, from the grid
+    /// history.
+    fn remembered(&mut self) {
         for i in 0..MID_HISTORY {
             let g = GRID_HISTORY - MID_HISTORY + i;
             self.mid[i] = if g + 1 < GRID_HISTORY {

@@ -5,6 +5,7 @@
 
 pub mod adc;
 pub mod coupled;
+pub mod digitiser;
 mod lanes;
 pub mod modal;
 pub mod noise_pages;
@@ -16,7 +17,9 @@ pub mod scan;
 pub mod synthesizer;
 pub mod window;
 
+pub use adc::{AdcHistory, WindowSample};
 pub use coupled::{CoupledKernel, CoupledTrace, DEFAULT_SUBSTEPS};
+pub use digitiser::{Digitiser, DigitiserInput};
 pub use plan::{Adc, BOLTZMANN, PlanError, SynthPlan, TapForce};
 pub use pulse::PulseTrain;
 pub use raster::{PixelId, Raster};

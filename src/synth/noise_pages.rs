@@ -72,6 +72,12 @@ impl PageKey {
     }
 }
 
+/// Draws the detector's deviates of page `page` of seed `seed` into `out` ([`PAGE`] long):
+/// the same bits as a page drawn with them. Allocation-free.
+pub fn draw_detector(seed: u64, page: u64, out: &mut [f32]) {
+    NormalSource::splitmix_range(seed, 4 + 64 * page + 32).fill(&mut out[..PAGE]);
+}
+
 /// One page of deviates, in single precision: they are drawn in it
 /// ([`super::normals`]), and half the bytes of `f64` is half the traffic between the thread
 /// that draws a page and the one that reads it. Its buffers are allocated once
@@ -127,7 +133,7 @@ impl NoisePage {
             NormalSource::splitmix_range(key.seed, first).fill(&mut self.thermal[..len]);
         }
         if key.detector {
-            NormalSource::splitmix_range(key.seed, first + 32).fill(&mut self.detector);
+            draw_detector(key.seed, key.page, &mut self.detector);
         }
         self.key = Some(key);
     }

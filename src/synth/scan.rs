@@ -22,6 +22,7 @@ use super::coupled::CoupledKernel;
 use super::plan::{PlanError, SynthPlan, TURN};
 use super::pulse::{PulseKernel, PulseTrain};
 use super::raster::{PixelId, Raster};
+use super::synthesizer::Output;
 use crate::config::{FeedbackSettings, Material, ScanSettings, Settings};
 use crate::model;
 use crate::physics::spectrum::{cut_cosine_train, photodiode_transfer};
@@ -507,8 +508,10 @@ impl SynthPlan {
             let segment = &mut out[done..done + n];
             let phase = state.phase();
             match &rt.coupled {
-                Some(coupled) => self.process_with(None, Some(coupled), state, segment),
-                None => self.process_with(Some(&rt.pulse), None, state, segment),
+                Some(coupled) => {
+                    self.process_with(None, Some(coupled), state, Output::Samples(segment))
+                }
+                None => self.process_with(Some(&rt.pulse), None, state, Output::Samples(segment)),
             }
             // The feedback's demodulator: Σ s·e^{−iθ} over the period.
             let mut rho = Complex64::from_polar(1.0, -phase_to_radians(phase));

@@ -9,8 +9,9 @@
 
 use rustfft::num_complex::Complex64;
 
-use super::adc::{AdcFilter, COMPENSATOR_HISTORY, GRID_HISTORY, MID_HISTORY};
+use super::adc::{AdcFilter, COMPENSATOR_HISTORY, GRID_HISTORY, WindowSample};
 use super::coupled::{CoupledKernel, CoupledTrace};
+use super::digitiser::{DigitiserInput, detect_and_quantise};
 #[cfg(target_arch = "x86_64")]
 use super::lanes::{Avx8, Avx512x8};
 use super::lanes::{Lanes, Portable};
@@ -54,7 +55,9 @@ impl Build {
 pub struct SynthCounters {
     /// Samples produced.
     pub samples: u64,
-    /// Samples clipped by the ADC's full scale.
+    /// Samples clipped by the ADC's full scale, of those finished here
+    /// ([`SynthPlan::process`]; [`SynthPlan::process_window`] leaves them to its
+    /// [`Digitiser`](super::digitiser::Digitiser)).
     pub clipped: u64,
 }
 
@@ -76,6 +79,23 @@ struct WindowCarry {
 /// Samples per chunk: the loop writes a chunk's grid and midpoint samples, then the ADC
 /// filter decimates them. A chunk never straddles two pages of deviates.
 const CHUNK: usize = 256;
+
+/// Where the loop's samples go: finished here (the ADC's FIRs, detector noise and
+/// quantisation on this thread), or as the signal through the ADC's window, for another
+/// thread to finish ([`super::digitiser`]).
+pub(crate) enum Output<'a> {
+    Samples(&'a mut [f64]),
+    Window(&'a mut [WindowSample]),
+}
+
+impl Output<'_> {
+    fn len(&self) -> usize {
+        match self {
+            Self::Samples(s) => s.len(),
+            Self::Window(w) => w.len(),
+        }
+    }
+}
 
 /// Mutable state of the synthesiser. Build it off the real-time thread.
 #[derive(Clone, Debug)]
@@ -223,7 +243,37 @@ impl SynthPlan {
     /// The tip rests over the base material at `/surface/distance`; a scan runs through
     /// [`process_scan`](Self::process_scan).
     pub fn process(&self, state: &mut SynthState, out: &mut [f64]) {
-        self.process_with(self.pulse.as_ref(), self.coupled.as_ref(), state, out);
+        self.process_with(
+            self.pulse.as_ref(),
+            self.coupled.as_ref(),
+            state,
+            Output::Samples(out),
+        );
+    }
+
+    /// The next samples through the ADC's window, unfinished: a
+    /// [`Digitiser`](super::digitiser::Digitiser) given them and the returned input
+    /// makes of them the samples [`process`](Self::process) would have given, bit for bit.
+    /// For the pipeline, whose DSP thread finishes them. Allocation-free, lock-free.
+    pub fn process_window(
+        &self,
+        state: &mut SynthState,
+        out: &mut [WindowSample],
+    ) -> DigitiserInput {
+        let input = DigitiserInput {
+            filter: self.anti_alias.is_some(),
+            detector_sigma: self.detector_sigma,
+            adc: self.adc,
+            seed: state.seed,
+            history: state.adc.history(),
+        };
+        self.process_with(
+            self.pulse.as_ref(),
+            self.coupled.as_ref(),
+            state,
+            Output::Window(out),
+        );
+        input
     }
 
     /// [`process`](Self::process) with the tap force of `pulse` on the paper engine, or of
@@ -233,7 +283,7 @@ impl SynthPlan {
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
-        out: &mut [f64],
+        out: Output<'_>,
     ) {
         match state.build {
             // SAFETY: `build` names an instruction set only where the CPU has it.
@@ -255,7 +305,7 @@ impl SynthPlan {
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
-        out: &mut [f64],
+        out: Output<'_>,
     ) {
         crate::cpu::align_frame();
         self.process_modes::<Avx512x8>(pulse, coupled, state, out);
@@ -273,7 +323,7 @@ impl SynthPlan {
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
-        out: &mut [f64],
+        out: Output<'_>,
     ) {
         crate::cpu::align_frame();
         self.process_modes::<Avx8>(pulse, coupled, state, out);
@@ -286,7 +336,7 @@ impl SynthPlan {
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
-        out: &mut [f64],
+        out: Output<'_>,
     ) {
         if self.modes.len() <= 8 {
             self.process_engines::<V>(pulse, coupled, state, out);
@@ -304,7 +354,7 @@ impl SynthPlan {
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
-        out: &mut [f64],
+        out: Output<'_>,
     ) {
         match (coupled, self.anti_alias.is_some()) {
             (Some(c), true) => self.process_lanes::<V, true, true>(None, Some(c), state, out),
@@ -333,7 +383,7 @@ impl SynthPlan {
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
-        out: &mut [f64],
+        out: Output<'_>,
     ) {
         let k = &self.lanes;
         let step = Complex64::from_polar(
@@ -365,21 +415,22 @@ impl SynthPlan {
         let mut rho = state.rho;
         let mut index = state.counters.samples;
         let mut clipped = 0u64;
-        let mut rest = out;
-        while !rest.is_empty() {
+        let mut out = out;
+        let total = out.len();
+        // The detector's deviates are drawn where the samples are finished.
+        let finish_here = matches!(out, Output::Samples(_));
+        let mut done = 0;
+        while done < total {
             let within = index as usize % PAGE;
-            let len = rest.len().min(CHUNK).min(PAGE - within);
-            let (chunk, later) = std::mem::take(&mut rest).split_at_mut(len);
-            rest = later;
-            self.prepare_noise(state, index);
+            let len = (total - done).min(CHUNK).min(PAGE - within);
+            self.prepare_noise(state, index, finish_here);
             let thermal = state.noise.page().thermal(within, n);
-            let (grid, mids) = if MID {
-                (
-                    &mut state.adc.grid[GRID_HISTORY..GRID_HISTORY + len],
-                    &mut state.adc.mid[MID_HISTORY..MID_HISTORY + len],
-                )
-            } else {
-                (&mut chunk[..], &mut [][..])
+            let (grid, mids) = match &mut out {
+                Output::Samples(samples) if !MID => (&mut samples[done..done + len], &mut [][..]),
+                _ => {
+                    let (grid, mids) = state.adc.chunk_mut(len);
+                    (grid, if MID { mids } else { &mut [][..] })
+                }
             };
             for (i, out) in grid.iter_mut().enumerate() {
                 // Lanes past the plan's modes read the next samples' deviates (zero
@@ -526,12 +577,25 @@ impl SynthPlan {
                 rho = next;
                 index += 1;
             }
-            if MID && let Some(taps) = &self.anti_alias {
-                state.adc.decimate(taps, chunk);
-            } else {
-                state.adc.remember(chunk);
+            let taps = if MID { self.anti_alias.as_ref() } else { None };
+            match &mut out {
+                Output::Samples(samples) => {
+                    let chunk = &mut samples[done..done + len];
+                    if let Some(taps) = taps {
+                        state.adc.decimate(taps, chunk);
+                    } else {
+                        state.adc.remember(chunk);
+                    }
+                    clipped += detect_and_quantise(
+                        chunk,
+                        self.detector_sigma,
+                        state.noise.page().detector(within),
+                        self.adc,
+                    );
+                }
+                Output::Window(window) => state.adc.pass(taps, &mut window[done..done + len]),
             }
-            clipped += self.detect_and_quantise(chunk, state.noise.page().detector(within));
+            done += len;
         }
         re.store(&mut state.re);
         im.store(&mut state.im);
@@ -727,14 +791,14 @@ impl SynthPlan {
             quiet.pulse.as_ref(),
             quiet.coupled.as_ref(),
             &mut temp,
-            &mut scratch,
+            Output::Samples(&mut scratch),
         );
         (std::array::from_fn(|m| temp.q(m)), temp.adc, temp.window)
     }
 
     /// Makes the page of deviates that holds sample `index` current, if the plan has noise.
     #[inline(always)]
-    fn prepare_noise(&self, state: &mut SynthState, index: u64) {
+    fn prepare_noise(&self, state: &mut SynthState, index: u64, detector: bool) {
         let key = PageKey {
             seed: state.seed,
             page: index / PAGE as u64,
@@ -743,40 +807,12 @@ impl SynthPlan {
             } else {
                 0
             },
-            detector: self.detector_sigma > 0.0,
+            detector: detector && self.detector_sigma > 0.0,
         };
         if key.needs_deviates() {
             state.noise.prepare(key);
         }
     }
-
-    /// The detector noise and the ADC, which act on the signal only, not on the modes: a
-    /// separate branch-free pass over the chunk. Returns the samples clipped.
-    fn detect_and_quantise(&self, chunk: &mut [f64], detector: &[f32]) -> u64 {
-        if self.detector_sigma > 0.0 {
-            for (out, z) in chunk.iter_mut().zip(detector) {
-                *out += self.detector_sigma * f64::from(*z);
-            }
-        }
-        let mut clipped = 0;
-        if let Some(adc) = self.adc {
-            for out in chunk.iter_mut() {
-                let s = out.clamp(-adc.range, adc.range);
-                clipped += u64::from(s != *out);
-                *out = round_to_step(s, adc.lsb, adc.codes_per_metre);
-            }
-        }
-        clipped
-    }
-}
-
-/// `x` rounded to the nearest multiple of `step` = 1/`inverse` (ties to even). Adding and
-/// subtracting 1.5·2^52 rounds in the FPU's default mode; `f64::round` is a library call on
-/// baseline x86-64. Valid while |x/step| < 2^51, far beyond any ADC's 2^32 codes.
-#[inline]
-fn round_to_step(x: f64, step: f64, inverse: f64) -> f64 {
-    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5·2^52
-    ((x * inverse + MAGIC) - MAGIC) * step
 }
 
 #[cfg(test)]
@@ -808,7 +844,7 @@ mod tests {
                 plan.pulse.as_ref(),
                 plan.coupled.as_ref(),
                 &mut sixteen,
-                &mut b,
+                Output::Samples(&mut b),
             );
             assert!(
                 a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()),
