@@ -1,11 +1,12 @@
 //! Photodiode synthesis throughput (goal: ≥ 50 MS/s on one core, 5 modes, noise on), for
 //! both engines at the default (Table 1) operating point, with the ADC's anti-alias filter
-//! (the default) and sampling directly (`_direct`).
+//! (the default) and sampling directly (`_direct`); and the pipeline's split of it: the
+//! synthesiser thread's part (`_window`) and the DSP thread's (`digitise`).
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ftafm::config::{Engine, default_settings};
 use ftafm::synth::normals::NormalSource;
-use ftafm::synth::{SynthPlan, SynthState};
+use ftafm::synth::{Digitiser, SynthPlan, SynthState, WindowSample};
 
 fn synth(c: &mut Criterion) {
     let mut group = c.benchmark_group("synth");
@@ -54,6 +55,26 @@ fn synth(c: &mut Criterion) {
         let mut block = vec![0.0; BLOCK];
         group.bench_function(name, |b| b.iter(|| plan.process(&mut state, &mut block)));
     }
+    // The synthesiser thread's part in the pipeline: the signal through the ADC's window,
+    // whose FIRs, detector noise and quantiser the DSP thread runs (`_digitise`).
+    let plan = SynthPlan::new(&default_settings()).expect("default plan");
+    let mut state = SynthState::steady(&plan, 1);
+    let mut window = vec![WindowSample::default(); BLOCK];
+    group.bench_function("coupled_5_modes_noise_on_window", |b| {
+        b.iter(|| plan.process_window(&mut state, &mut window))
+    });
+    let mut at = state.sample_index();
+    let input = plan.process_window(&mut state, &mut window);
+    let mut digitiser = Digitiser::new(BLOCK);
+    let mut out = vec![0.0; BLOCK];
+    let (a, b) = window.split_at(BLOCK / 2);
+    // A new page of the detector's deviates every block, as in the pipeline.
+    group.bench_function("digitise", |bench| {
+        bench.iter(|| {
+            at += BLOCK as u64;
+            digitiser.finish(&input, at, [a, b], &mut out)
+        })
+    });
     // The noise sources' standard normal deviates alone (vectorised where the CPU has
     // AVX2), in the synthesiser's chunks of 256 samples of five modes.
     let mut source = NormalSource::new(1);
