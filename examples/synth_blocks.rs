@@ -24,15 +24,15 @@ use ftafm::synth::{SynthPlan, SynthState, WindowSample};
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let usage = "usage: synth_blocks paper|coupled A_SET on|off BLOCKS [SUBSTEPS] [window] [hash]";
-    let (hash, args) = match args.split_last() {
-        Some((last, rest)) if last == "hash" => (true, rest),
-        _ => (false, args.as_slice()),
-    };
-    let (window, args) = match args.split_last() {
-        Some((last, rest)) if last == "window" => (true, rest),
-        _ => (false, args),
-    };
-    let (engine, distance, noise, blocks, substeps) = match args {
+    // The flags may stand anywhere after ENGINE (`benches/synth_instructions.sh` appends
+    // BLOCKS to whatever it is given).
+    let hash = args.iter().any(|a| a == "hash");
+    let window = args.iter().any(|a| a == "window");
+    let args: Vec<String> = args
+        .into_iter()
+        .filter(|a| a != "hash" && a != "window")
+        .collect();
+    let (engine, distance, noise, blocks, substeps) = match args.as_slice() {
         [e, d, n, b] => (e, d, n, b, None),
         [e, d, n, b, s] => (e, d, n, b, Some(s)),
         _ => {
