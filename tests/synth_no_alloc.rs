@@ -1,12 +1,13 @@
 //! The synthesiser's hot loop allocates nothing: a counting global allocator around
-//! `process` on warmed-up state, for every noise configuration and both engines, and across
+//! `process` (and the pipeline's `process_window` with the DSP thread's `Digitiser`) on
+//! warmed-up state, for every noise configuration and both engines, and across
 //! plan changes, a switch of engine included.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
 use ftafm::config::{Engine, default_settings};
-use ftafm::synth::{ScanRuntime, SynthPlan, SynthState};
+use ftafm::synth::{Digitiser, ScanRuntime, SynthPlan, SynthState, WindowSample};
 
 struct Counting;
 
@@ -78,6 +79,26 @@ fn process_and_retarget_allocate_nothing() {
             n,
             0,
             "process allocated {n} times ({} modes, noise {}, {:?} engine)",
+            plan.mode_count(),
+            settings.noise.enable,
+            settings.synth.engine
+        );
+        // The pipeline's split: the signal through the ADC's window here, finished by the
+        // DSP thread's stage (its first page of detector deviates drawn in its buffer).
+        let mut window = vec![WindowSample::default(); 4096];
+        let mut digitiser = Digitiser::new(4096);
+        let n = allocations_in(|| {
+            for len in [4096, 1, 777, 4096] {
+                let index = state.sample_index();
+                let input = plan.process_window(&mut state, &mut window[..len]);
+                let (a, b) = window[..len].split_at(len / 2);
+                digitiser.finish(&input, index, [a, b], &mut block[..len]);
+            }
+        });
+        assert_eq!(
+            n,
+            0,
+            "process_window or finish allocated {n} times ({} modes, noise {}, {:?} engine)",
             plan.mode_count(),
             settings.noise.enable,
             settings.synth.engine
