@@ -353,8 +353,19 @@ impl AdcFilter {
     /// halfband's outputs for the compensator's history are its last [`COMPENSATOR_HISTORY`]
     /// outputs, each the same operations in the same order as in the kernels. Inlined, so
     /// that in the synthesiser's loop the fused multiply-adds are instructions, not calls.
+    ///
+    /// `settle`: whether the histories must hold after this chunk. The grid and midpoint
+    /// histories always are; the compensator's (and, without taps, the midpoints derived
+    /// from the grid) only where `settle` is set, which the caller must set for every chunk
+    /// followed by fewer than [`COMPENSATOR_HISTORY`] samples before the histories are read,
+    /// so that the newest halfband outputs are all computed from a settled start.
     #[inline(always)]
-    pub(crate) fn pass(&mut self, taps: Option<&[f64; GRID_TAPS]>, out: &mut [WindowSample]) {
+    pub(crate) fn pass(
+        &mut self,
+        taps: Option<&[f64; GRID_TAPS]>,
+        out: &mut [WindowSample],
+        settle: bool,
+    ) {
         let n = out.len();
         for (i, o) in out.iter_mut().enumerate() {
             *o = WindowSample {
@@ -364,22 +375,26 @@ impl AdcFilter {
         }
         let Some(taps) = taps else {
             self.grid.copy_within(n..n + GRID_HISTORY, 0);
-            self.remembered();
+            if settle {
+                self.remembered();
+            }
             return;
         };
-        let fused = self.kernel != Kernel::Portable;
-        for i in n.saturating_sub(COMPENSATOR_HISTORY)..n {
-            let mut acc = 0.5 * self.mid[i];
-            for (t, &c) in taps.iter().rev().enumerate() {
-                acc = if fused {
-                    c.mul_add(self.grid[t + i], acc)
-                } else {
-                    acc + c * self.grid[t + i]
-                };
+        if settle {
+            let fused = self.kernel != Kernel::Portable;
+            for i in n.saturating_sub(COMPENSATOR_HISTORY)..n {
+                let mut acc = 0.5 * self.mid[i];
+                for (t, &c) in taps.iter().rev().enumerate() {
+                    acc = if fused {
+                        c.mul_add(self.grid[t + i], acc)
+                    } else {
+                        acc + c * self.grid[t + i]
+                    };
+                }
+                self.compensator[COMPENSATOR_HISTORY + i] = acc;
             }
-            self.compensator[COMPENSATOR_HISTORY + i] = acc;
+            self.compensator.copy_within(n..n + COMPENSATOR_HISTORY, 0);
         }
-        self.compensator.copy_within(n..n + COMPENSATOR_HISTORY, 0);
         self.grid.copy_within(n..n + GRID_HISTORY, 0);
         self.mid.copy_within(n..n + MID_HISTORY, 0);
     }

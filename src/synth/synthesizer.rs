@@ -593,7 +593,12 @@ impl SynthPlan {
                         self.adc,
                     );
                 }
-                Output::Window(window) => state.adc.pass(taps, &mut window[done..done + len]),
+                Output::Window(window) => {
+                    // The histories are read at the call's end: only the chunks whose
+                    // halfband outputs can be among its last few need them.
+                    let settle = total - (done + len) < COMPENSATOR_HISTORY;
+                    state.adc.pass(taps, &mut window[done..done + len], settle);
+                }
             }
             done += len;
         }
