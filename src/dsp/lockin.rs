@@ -116,6 +116,13 @@ impl LockInSample {
 /// Sixteen lanes of one quantity.
 type Lanes = [f64; BLOCK];
 
+/// One row of the pre-decimator's table over a block of lanes: `[re, im]` (see
+/// [`Plan::coef`]). Aligned to a cache line, as [`BlockConstants`]: it is the stream of
+/// loads the kernel's multiply–adds read.
+#[derive(Clone, Copy, Debug)]
+#[repr(align(64))]
+struct Row([Lanes; 2]);
+
 /// Constants of one block of lanes. Aligned to a cache line, so that no vector load of
 /// its lanes splits across two (the heap gives 16 bytes otherwise: the bank's speed then
 /// depended on where its blocks happened to land).
@@ -188,7 +195,7 @@ struct Plan {
     /// Pre-decimator taps h_{c+u}, u = 0…c.
     taps: Vec<f64>,
     /// `[block][u]` → `[g·h_u·cos(kωu), g·h_u·sin(kωu)]` over the block's lanes.
-    coef: Vec<[Lanes; 2]>,
+    coef: Vec<Row>,
     blocks: Vec<BlockConstants>,
 }
 
@@ -326,7 +333,7 @@ impl LockInBank {
             period: vec![0; count],
             sections,
             taps: PREDECIMATOR.taps()[HALF..].to_vec(),
-            coef: vec![[[0.0; BLOCK]; 2]; nblocks * (HALF + 1)],
+            coef: vec![Row([[0.0; BLOCK]; 2]); nblocks * (HALF + 1)],
             blocks: vec![idle; nblocks],
         };
         for (lane, (_, d, filter)) in filters.iter().enumerate() {
@@ -784,7 +791,7 @@ unsafe fn all_blocks<V: F64s, const NV: usize, const S: usize>(
 #[inline(always)]
 unsafe fn lane_block<V: F64s, const NV: usize, const S: usize>(
     sub: usize,
-    coef: &[[Lanes; 2]],
+    coef: &[Row],
     (sums, diffs): (&[f64], &[f64]),
     k: &BlockConstants,
     st: &mut BlockState,
@@ -803,7 +810,7 @@ unsafe fn lane_block<V: F64s, const NV: usize, const S: usize>(
 
         let mut fr = [V::splat(0.0); NV];
         let mut fi = [V::splat(0.0); NV];
-        for ([row_re, row_im], (p, q)) in coef.iter().zip(sums.iter().zip(diffs)) {
+        for (Row([row_re, row_im]), (p, q)) in coef.iter().zip(sums.iter().zip(diffs)) {
             let (p, q) = (V::splat(*p), V::splat(*q));
             for j in 0..NV {
                 fr[j] = V::load(at(row_re, j)).mul_add(p, fr[j]);
@@ -865,8 +872,8 @@ impl Plan {
             for (u, (h, row)) in self.taps.iter().zip(rows).enumerate() {
                 let theta = phase_to_radians(harmonic_phase(word.wrapping_mul(u as u64), k));
                 let (s, c) = theta.sin_cos();
-                row[0][i] = g * h * c;
-                row[1][i] = g * h * s;
+                row.0[0][i] = g * h * c;
+                row.0[1][i] = g * h * s;
             }
             let step = word.wrapping_mul(PREDECIMATION as u64);
             let (s, c) = phase_to_radians(harmonic_phase(step, k)).sin_cos();
