@@ -968,6 +968,19 @@ mod tests {
     }
 
     #[test]
+    fn the_kernel_reads_its_lanes_from_whole_cache_lines() {
+        // A vector load that splits across two lines costs the bank up to a quarter of its
+        // speed (docs/benchmarks.md), so the heap's 16-byte alignment is not enough.
+        let bank = LockInBank::new(10e6, 1e5, &[Demodulator::new(1, 4, 1e-4, 1e3); 32]).unwrap();
+        let line = |p: *const u8| p as usize % 64;
+        assert_eq!(line(bank.plan.coef.as_ptr().cast()), 0);
+        assert_eq!(line(bank.plan.blocks.as_ptr().cast()), 0);
+        assert_eq!(line(bank.state.blocks.as_ptr().cast()), 0);
+        assert!(align_of::<Row>() >= 64 && align_of::<BlockState>() >= 64);
+        assert!(align_of::<BlockConstants>() >= 64);
+    }
+
+    #[test]
     fn blocks_can_move_to_the_real_time_thread() {
         fn send<T: Send + 'static>() {}
         send::<LockInBank>();
