@@ -134,3 +134,56 @@ pub fn avx512_available() -> bool {
 pub fn avx512_available() -> bool {
     false
 }
+
+/// The core's clock while it runs this thread (GHz), estimated: a chain of dependent
+/// integer additions, one a cycle on every x86-64 core, timed by the wall clock, the best
+/// of five runs of 40 million additions (≈ 10 ms each at 4 GHz) so that a run the thread
+/// lost the core in counts least. Under a hypervisor `/proc/cpuinfo` often gives only the
+/// nominal clock, and without hardware counters there is no other: with it a benchmark's
+/// throughput can be read as cycles a sample, which compares machines (docs/benchmarks.md).
+/// `None` off x86-64.
+#[cfg(target_arch = "x86_64")]
+pub fn clock_ghz() -> Option<f64> {
+    const ITERATIONS: u64 = 10_000_000;
+    let mut best = f64::INFINITY;
+    for _ in 0..5 {
+        let start = std::time::Instant::now();
+        let (mut x, mut n) = (0u64, ITERATIONS);
+        // SAFETY: register arithmetic and a loop on registers only: no memory, no stack.
+        unsafe {
+            std::arch::asm!(
+                "2:",
+                "add {x}, 1",
+                "add {x}, 1",
+                "add {x}, 1",
+                "add {x}, 1",
+                "sub {n}, 1",
+                "jnz 2b",
+                x = inout(reg) x,
+                n = inout(reg) n,
+                options(nomem, nostack),
+            );
+        }
+        std::hint::black_box((x, n));
+        best = best.min(start.elapsed().as_secs_f64());
+    }
+    (best > 0.0).then(|| 4.0 * ITERATIONS as f64 / best / 1e9)
+}
+
+/// The core's clock (never estimated off x86-64).
+#[cfg(not(target_arch = "x86_64"))]
+pub fn clock_ghz() -> Option<f64> {
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn the_clock_estimate_is_a_clock() {
+        // One dependent addition a cycle at most, so never above the clock; a loaded
+        // machine may halve it, no more than that in the best of five runs.
+        let ghz = super::clock_ghz().expect("x86-64 has an estimate");
+        assert!((0.1..8.0).contains(&ghz), "{ghz} GHz");
+    }
+}

@@ -19,6 +19,9 @@ pub struct BenchReport {
     /// The machine: CPU model (family and model numbers), CPUs, vector build
     /// (`crate::cpu::machine`), so that a figure carries where it was measured.
     pub machine: String,
+    /// The core's clock measured before the run (GHz; `crate::cpu::clock_ghz`), `null` where
+    /// it cannot be: with it a throughput reads as cycles a sample.
+    pub clock_ghz: Option<f64>,
     /// Tip-force engine, and the coupled engine's sub-steps per sample in contact.
     pub engine: &'static str,
     pub contact_substeps: u32,
@@ -59,6 +62,8 @@ pub fn run(
 ) -> Result<BenchReport, PipelineError> {
     let mut settings = settings.clone();
     settings.synth.realtime = realtime;
+    // Before the threads start, so that it has a core to itself.
+    let clock_ghz = crate::cpu::clock_ghz();
     let (pipeline, mut output) = Pipeline::start(&settings)?;
     let start = Instant::now();
     let duration = Duration::from_secs_f64(seconds);
@@ -96,6 +101,7 @@ pub fn run(
     let chain = processed as f64 / wall;
     Ok(BenchReport {
         machine: crate::cpu::machine(),
+        clock_ghz,
         engine: settings.synth.engine.name(),
         contact_substeps: settings.synth.contact_substeps,
         sample_rate: settings.synth.sample_rate,
@@ -119,7 +125,7 @@ pub fn render_text(r: &BenchReport) -> String {
     let c = &r.counters;
     format!(
         "ftafm bench: {} s {} at {} MS/s, {} demodulators, {}\n\
-         machine {}\n\
+         machine {}{}\n\
          synth  {:>8.1} MS/s per core (load {:.0} %)\n\
          dsp    {:>8.1} MS/s per core (load {:.0} %)\n\
          chain  {:>8.1} MS/s   realtime_factor {:.2}\n\
@@ -139,6 +145,8 @@ pub fn render_text(r: &BenchReport) -> String {
             format!("{} engine", r.engine)
         },
         r.machine,
+        r.clock_ghz
+            .map_or(String::new(), |g| format!(", clock {g:.2} GHz")),
         ms(r.synth_samples_per_s),
         r.synth_load * 100.0,
         ms(r.dsp_samples_per_s),

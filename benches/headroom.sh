@@ -1,0 +1,171 @@
+#!/usr/bin/env bash
+# Issue 15's goals of real-time headroom, measured on this machine in one go, and printed
+# as a Markdown table for docs/benchmarks.md with the machine, its flags and its clock:
+#
+#   - the chain at the defaults, free-running: realtime_factor >= 4;
+#   - tap300 (300 kHz, 40 N/m) at 25 MS/s, coupled engine: realtime_factor >= 1.5;
+#   - criterion, one core: synthesis (coupled, 5 modes, noise on) >= 50 MS/s, and the
+#     lock-in bank (32 demodulators, order 4) with the spectrum at the defaults >= 75 MS/s;
+#   - with --soak S: tap300 at 25 MS/s paced for S seconds (the goal: 600) with the
+#     dashboard open in headless Chromium, zero overruns (needs node and chromium, as the
+#     browser tests: see .ci/run).
+#
+# Each chain figure is the median of three runs, alternating the cases; each is measured in
+# the build this CPU runs and, on an AVX-512 CPU, also in the AVX2 build that AVX2-only
+# machines run (FTAFM_ISA=avx2: the same bits). The figures depend on the machine's load:
+# run it on a quiet machine and quote medians.
+#
+#   bash benches/headroom.sh                # ≈ 6 minutes
+#   bash benches/headroom.sh --soak 600     # and the ten-minute soak
+#   bash benches/headroom.sh --quick        # one short run of each: that the script works (CI)
+set -euo pipefail
+trap 'echo "headroom.sh: failed at line ${LINENO}: ${BASH_COMMAND}" >&2' ERR
+cd "$(dirname "$0")/.."
+
+quick=0
+soak=0
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --quick) quick=1 ;;
+    --soak)
+      soak="${2:-}"
+      if ! [[ "${soak}" =~ ^[0-9]+$ ]] || [ "${soak}" -lt 1 ]; then
+        echo "headroom.sh: --soak takes a whole number of seconds >= 1, not '${soak}'" >&2
+        exit 2
+      fi
+      shift
+      ;;
+    *)
+      echo "usage: bash benches/headroom.sh [--quick] [--soak SECONDS]" >&2
+      exit 2
+      ;;
+  esac
+  shift
+done
+
+if [ "${quick}" = 1 ]; then
+  runs=1 seconds=1 crit=(--warm-up-time 0.1 --measurement-time 0.3 --sample-size 10)
+else
+  runs=3 seconds=8 crit=(--warm-up-time 1 --measurement-time 4)
+fi
+
+cargo build --release --quiet
+bin=target/release/ftafm
+work=$(mktemp -d)
+trap 'rm -rf "${work}"' EXIT
+cat > "${work}/tap300_25MSs.toml" <<'EOF'
+# tap300 with all 32 harmonics in band (issue 15): 25 MS/s, the coupled engine.
+[synth]
+sample_rate = 25e6
+engine = "coupled"
+EOF
+
+isas=(native)
+if grep -qw avx512f /proc/cpuinfo 2>/dev/null; then isas+=(avx2); fi
+isa_env() { if [ "$1" = native ]; then echo ""; else echo "$1"; fi; }
+
+# realtime_factor of one free-running run: ISA, then the flags for `ftafm bench`.
+factor() {
+  local isa=$1
+  shift
+  FTAFM_ISA=$(isa_env "${isa}") "${bin}" bench --seconds "${seconds}" --json "$@" 2>/dev/null |
+    python3 -c 'import json, sys; print(json.load(sys.stdin)["realtime_factor"])'
+}
+
+declare -A chain
+for ((run = 0; run < runs; run++)); do
+  for isa in "${isas[@]}"; do
+    echo "run $((run + 1))/${runs}, ${isa}: defaults, tap300 at 25 MS/s" >&2
+    chain[${isa},defaults]+="$(factor "${isa}") "
+    chain[${isa},tap300]+="$(factor "${isa}" --preset tap300 --config "${work}/tap300_25MSs.toml") "
+  done
+done
+
+# Criterion's median throughput of one row (MS/s): ISA, bench, row (an exact name).
+criterion_row() {
+  local isa=$1 bench=$2 row=$3
+  echo "criterion ${bench} ${row}, ${isa}" >&2
+  FTAFM_ISA=$(isa_env "${isa}") cargo bench --quiet --bench "${bench}" -- "${crit[@]}" "^${row}\$" 2>/dev/null |
+    python3 -c '
+import re, sys
+units = {"elem/s": 1e-6, "Kelem/s": 1e-3, "Melem/s": 1.0, "Gelem/s": 1e3}
+# All of it read: criterion writes on after the first figure, and a closed pipe fails it.
+m = re.search(r"thrpt:\s+\[\S+ \S+ (\S+) (\S+)", sys.stdin.read())
+if not m:
+    sys.exit("no throughput in criterion output")
+print(float(m.group(1)) * units[m.group(2)])
+'
+}
+
+declare -A kernel
+for isa in "${isas[@]}"; do
+  kernel[${isa},synth]=$(criterion_row "${isa}" synth synth/coupled_5_modes_noise_on)
+  kernel[${isa},lockin]=$(criterion_row "${isa}" dsp lockin_and_spectrum/32_demods_order4_default_spectrum)
+done
+
+soak_line=""
+if [ "${soak}" -gt 0 ]; then
+  # The narrowest build measured: the one the slowest machines run.
+  isa=${isas[-1]}
+  echo "soak: tap300 at 25 MS/s paced for ${soak} s with the dashboard open, ${isa}" >&2
+  if out=$(FTAFM_ISA=$(isa_env "${isa}") node tests/e2e/dashboard_soak.mjs --seconds "${soak}" -- \
+    --preset tap300 --config "${work}/tap300_25MSs.toml"); then
+    verdict=yes
+  else
+    verdict=no
+  fi
+  soak_line=$(python3 -c '
+import json, sys
+r = json.loads(sys.argv[1])
+d = r["daemon"]
+over = d.get("ftafm_overrun_samples_total", 0)
+late = d.get("ftafm_late_blocks_total", 0)
+secs = r["seconds"]
+print(f"| tap300 at 25 MS/s, {secs} s paced, dashboard open: overruns | {sys.argv[2]} | "
+      f"{over:.0f} samples, {late:.0f} late blocks | 0 | {sys.argv[3]} |")
+' "$(echo "${out}" | tail -1)" "${isa}" "${verdict}")
+fi
+
+# The table.
+python3 - "${quick}" "${runs}" "$(git rev-parse --short HEAD 2>/dev/null || echo unknown)" \
+  "$("${bin}" bench --seconds 0.2 --json 2>/dev/null | python3 -c 'import json,sys; r=json.load(sys.stdin); print(r["machine"].split(", vector build")[0]); print(r["clock_ghz"] or "")')" \
+  "$(grep -m1 -o -w -E 'avx512f' /proc/cpuinfo 2>/dev/null || true) $(grep -m1 -o -w -E 'avx2' /proc/cpuinfo 2>/dev/null || true) $(grep -m1 -o -w -E 'fma' /proc/cpuinfo 2>/dev/null || true)" \
+  "${isas[*]}" "$(for k in "${!chain[@]}"; do echo "${k}=${chain[${k}]}"; done)" \
+  "$(for k in "${!kernel[@]}"; do echo "${k}=${kernel[${k}]}"; done)" "${soak_line}" <<'EOF'
+import datetime, statistics, sys
+
+quick, runs, rev, machine, flags, isas, chain, kernel, soak = sys.argv[1:]
+machine, clock = (machine.split("\n") + [""])[:2]
+parse = lambda text: dict(line.split("=", 1) for line in text.split("\n") if "=" in line)
+chain, kernel = parse(chain), parse(kernel)
+build = lambda isa: "this CPU's" if isa == "native" else f"{isa} (`FTAFM_ISA={isa}`)"
+clock_text = f", clock {float(clock):.2f} GHz (dependent adds)" if clock else ""
+print(f"Machine: {machine}; flags {' '.join(flags.split()) or 'none of avx512f, avx2, fma'}"
+      f"{clock_text}; build {rev}; {datetime.date.today()}"
+      + (" (--quick: one short run each, not figures to quote)" if quick == "1" else ""))
+print()
+print("| goal | build | measured | target | met |")
+print("|---|---|---|---|---|")
+rows = [
+    ("chain `realtime_factor`, defaults", "defaults", 4.0, ""),
+    ("chain `realtime_factor`, tap300 at 25 MS/s", "tap300", 1.5, ""),
+]
+for isa in isas.split():
+    for label, key, target, _ in rows:
+        values = [float(x) for x in chain[f"{isa},{key}"].split()]
+        median = statistics.median(values)
+        spread = f" ({', '.join(f'{v:.2f}' for v in values)})" if len(values) > 1 else ""
+        print(f"| {label} | {build(isa)} | {median:.2f}{spread} | ≥ {target:g} | "
+              f"{'yes' if median >= target else 'no'} |")
+for isa in isas.split():
+    for label, key, target in [
+        ("criterion: synthesis, coupled, 5 modes, noise on (MS/s)", "synth", 50.0),
+        ("criterion: lock-in bank + spectrum at the defaults (MS/s)", "lockin", 75.0),
+    ]:
+        value = float(kernel[f"{isa},{key}"])
+        cycles = f"; {float(clock) * 1e3 / value:.0f} cycles a sample" if clock else ""
+        print(f"| {label} | {build(isa)} | {value:.1f}{cycles} | ≥ {target:g} | "
+              f"{'yes' if value >= target else 'no'} |")
+if soak:
+    print(soak)
+EOF
