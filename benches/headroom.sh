@@ -105,6 +105,10 @@ done
 
 soak_line=""
 if [ "${soak}" -gt 0 ]; then
+  if ! command -v node >/dev/null || [ ! -d tests/e2e/node_modules/playwright-core ] || [ ! -x /usr/bin/chromium ]; then
+    echo "headroom.sh: --soak needs node, /usr/bin/chromium and (cd tests/e2e && npm ci), as .ci/run installs them" >&2
+    exit 1
+  fi
   # The narrowest build measured: the one the slowest machines run.
   isa=${isas[-1]}
   echo "soak: tap300 at 25 MS/s paced for ${soak} s with the dashboard open, ${isa}" >&2
