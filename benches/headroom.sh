@@ -43,6 +43,14 @@ while [ $# -gt 0 ]; do
   shift
 done
 
+# Checked before the minutes of measuring, not after.
+if [ "${soak}" -gt 0 ]; then
+  if ! command -v node >/dev/null || [ ! -d tests/e2e/node_modules/playwright-core ] || [ ! -x /usr/bin/chromium ]; then
+    echo "headroom.sh: --soak needs node, /usr/bin/chromium and (cd tests/e2e && npm ci), as .ci/run installs them" >&2
+    exit 1
+  fi
+fi
+
 if [ "${quick}" = 1 ]; then
   runs=1 seconds=1 crit=(--warm-up-time 0.1 --measurement-time 0.3 --sample-size 10)
 else
@@ -105,10 +113,6 @@ done
 
 soak_line=""
 if [ "${soak}" -gt 0 ]; then
-  if ! command -v node >/dev/null || [ ! -d tests/e2e/node_modules/playwright-core ] || [ ! -x /usr/bin/chromium ]; then
-    echo "headroom.sh: --soak needs node, /usr/bin/chromium and (cd tests/e2e && npm ci), as .ci/run installs them" >&2
-    exit 1
-  fi
   # The narrowest build measured: the one the slowest machines run.
   isa=${isas[-1]}
   echo "soak: tap300 at 25 MS/s paced for ${soak} s with the dashboard open, ${isa}" >&2
