@@ -73,11 +73,16 @@ if grep -qw avx512f /proc/cpuinfo 2>/dev/null; then isas+=(avx2); fi
 isa_env() { if [ "$1" = native ]; then echo ""; else echo "$1"; fi; }
 
 # realtime_factor of one free-running run: ISA, then the flags for `ftafm bench`.
+# Its progress lines on stderr are kept, and shown only if it fails.
 factor() {
-  local isa=$1
+  local isa=$1 json
   shift
-  FTAFM_ISA=$(isa_env "${isa}") "${bin}" bench --seconds "${seconds}" --json "$@" 2>/dev/null |
-    python3 -c 'import json, sys; print(json.load(sys.stdin)["realtime_factor"])'
+  if ! json=$(FTAFM_ISA=$(isa_env "${isa}") "${bin}" bench --seconds "${seconds}" --json "$@" \
+    2>"${work}/stderr"); then
+    cat "${work}/stderr" >&2
+    return 1
+  fi
+  python3 -c 'import json, sys; print(json.load(sys.stdin)["realtime_factor"])' <<<"${json}"
 }
 
 declare -A chain
@@ -93,16 +98,20 @@ done
 criterion_row() {
   local isa=$1 bench=$2 row=$3
   echo "criterion ${bench} ${row}, ${isa}" >&2
-  FTAFM_ISA=$(isa_env "${isa}") cargo bench --quiet --bench "${bench}" -- "${crit[@]}" "^${row}\$" 2>/dev/null |
-    python3 -c '
+  local out
+  if ! out=$(FTAFM_ISA=$(isa_env "${isa}") cargo bench --quiet --bench "${bench}" -- "${crit[@]}" \
+    "^${row}\$" 2>"${work}/stderr"); then
+    cat "${work}/stderr" >&2
+    return 1
+  fi
+  python3 -c '
 import re, sys
 units = {"elem/s": 1e-6, "Kelem/s": 1e-3, "Melem/s": 1.0, "Gelem/s": 1e3}
-# All of it read: criterion writes on after the first figure, and a closed pipe fails it.
 m = re.search(r"thrpt:\s+\[\S+ \S+ (\S+) (\S+)", sys.stdin.read())
 if not m:
     sys.exit("no throughput in criterion output")
 print(float(m.group(1)) * units[m.group(2)])
-'
+' <<<"${out}"
 }
 
 declare -A kernel
