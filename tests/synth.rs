@@ -173,6 +173,41 @@ fn same_seed_same_stream_whatever_the_block_size() {
     );
 }
 
+/// The coupled engine tapping, with noise and the ADC's filter: its runs of samples clear of
+/// the surface are taken in a loop of their own, which stops at a block's end. One sample
+/// a call never enters it; the stream must not change.
+#[test]
+fn the_coupled_stream_is_the_same_one_sample_at_a_time() {
+    let settings = default_settings();
+    assert_eq!(settings.synth.engine, Engine::Coupled);
+    let plan = SynthPlan::new(&settings).unwrap();
+    let mut a = SynthState::steady(&plan, 11);
+    let whole = run(&plan, &mut a, 6_000);
+    let mut b = SynthState::steady(&plan, 11);
+    let mut pieces = Vec::new();
+    for _ in 0..700 {
+        pieces.extend(run(&plan, &mut b, 1));
+    }
+    for len in [255, 256, 3, 1000, 3786] {
+        pieces.extend(run(&plan, &mut b, len));
+    }
+    assert_eq!(whole.len(), pieces.len());
+    let first_difference = whole
+        .iter()
+        .zip(&pieces)
+        .position(|(x, y)| x.to_bits() != y.to_bits());
+    assert_eq!(first_difference, None, "bit-identical");
+    // The stream taps: the samples clear of the surface come in runs between taps.
+    let trace = plan.coupled_trace(&mut SynthState::steady(&plan, 11), 700);
+    let forced = trace
+        .expect("coupled")
+        .force
+        .iter()
+        .filter(|f| **f != 0.0)
+        .count();
+    assert!(forced > 0, "the defaults tap");
+}
+
 #[test]
 fn thermal_noise_obeys_equipartition() {
     for engine in [Engine::Paper, Engine::Coupled] {

@@ -498,7 +498,9 @@ impl CoupledKernel {
                 re = c.kick.mul_add(V::splat(impulse), re);
             }
             // The kick at (j − 1)·dt: the midpoint's (j = S/2 + 1) is in the second half.
-            moments.kick(impulse, (j - 1) as f64 * dt, j > substeps / 2);
+            // Through u32 (the count is a u32 in the settings): one conversion instruction,
+            // where a u64's takes five without AVX-512. The same value.
+            moments.kick(impulse, f64::from((j - 1) as u32) * dt, j > substeps / 2);
             let r1 = c
                 .sub_a_im
                 .neg_mul_add(im, c.sub_a_re.mul_add(re, c.sub_noise_re.mul(z)));

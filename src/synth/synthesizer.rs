@@ -432,7 +432,9 @@ impl SynthPlan {
                     (grid, if MID { mids } else { &mut [][..] })
                 }
             };
-            for (i, out) in grid.iter_mut().enumerate() {
+            let mut i = 0;
+            while i < len {
+                let out = &mut grid[i];
                 // Lanes past the plan's modes read the next samples' deviates (zero
                 // coefficients).
                 let z = V::load_f32(&thermal[i * n..]);
@@ -440,7 +442,7 @@ impl SynthPlan {
                     rho = Complex64::from_polar(1.0, phase_to_radians(phase));
                 }
                 let (re0, im0) = (re, im);
-                let next = rho * step;
+                let mut next = rho * step;
                 'sample: {
                     // The coupled engine's common case in tapping: a sample clear of the
                     // surface after a sample without force. It has no force and no carry, so
@@ -460,6 +462,39 @@ impl SynthPlan {
                             (self.drive_mid * rho).re,
                         );
                         z_before = z;
+                        // The run of clear samples after it, in a loop of its own: its few
+                        // live values stay in registers and the checks the run has passed
+                        // are not repeated. It stops before the chunk's end, the drive
+                        // phasor's next re-anchoring and the first sample not clear, which
+                        // the loop above takes up. The same bits as one sample at a time.
+                        let stop = len.min(i + (REANCHOR - index % REANCHOR) as usize);
+                        let mut rho_run = next;
+                        let mut j = i + 1;
+                        while j < stop {
+                            let z = V::load_f32(&thermal[j * n..]);
+                            let next_run = rho_run * step;
+                            let Some(clear) = coupled.clear_step(lanes, re, im, next_run, z, tip)
+                            else {
+                                break;
+                            };
+                            (grid[j], mids[j]) = self.free_windows(
+                                (re, im),
+                                z,
+                                z_before,
+                                (self.drive_grid * rho_run).re,
+                                (self.drive_mid * rho_run).re,
+                            );
+                            (re, im, tip) = clear;
+                            z_before = z;
+                            rho_run = next_run;
+                            j += 1;
+                        }
+                        // Samples i + 1 … j − 1; the common tail below adds sample i's step.
+                        let more = (j - i - 1) as u64;
+                        phase = phase.wrapping_add(self.frequency_word.wrapping_mul(more));
+                        next = rho_run;
+                        index += more;
+                        i += more as usize;
                         break 'sample;
                     }
                     // A forced sample's knot at its midpoint, and the force's moments.
@@ -576,6 +611,7 @@ impl SynthPlan {
                 phase = phase.wrapping_add(self.frequency_word);
                 rho = next;
                 index += 1;
+                i += 1;
             }
             let taps = if MID { self.anti_alias.as_ref() } else { None };
             match &mut out {
