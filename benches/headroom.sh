@@ -8,7 +8,10 @@
 #     lock-in bank (32 demodulators, order 4) with the spectrum at the defaults >= 75 MS/s;
 #   - with --soak S: tap300 at 25 MS/s paced for S seconds (the goal: 600) with the
 #     dashboard open in headless Chromium, zero overruns (needs node and chromium, as the
-#     browser tests: see .ci/run).
+#     browser tests: see .ci/run);
+#   - the lock-in bank against NumPy/SciPy on the same samples, as a ratio taken in the
+#     same run (benches/lockin_numpy.py; python3 with numpy and scipy, or else a venv
+#     under target/ with them installed from PyPI).
 #
 # Each chain figure is the median of three runs, alternating the cases; each is measured in
 # the build this CPU runs and, on an AVX-512 CPU, also in the AVX2 build that AVX2-only
@@ -53,8 +56,24 @@ fi
 
 if [ "${quick}" = 1 ]; then
   runs=1 seconds=1 crit=(--warm-up-time 0.1 --measurement-time 0.3 --sample-size 10)
+  numpy_flags=(--repeats 1 --rust-repeats 2)
 else
   runs=3 seconds=8 crit=(--warm-up-time 1 --measurement-time 4)
+  numpy_flags=()
+fi
+
+# A python with NumPy and SciPy for the comparison, found or made before the minutes of
+# measuring: python3 if it has them, else a venv under target/ (pinned versions).
+if python3 -c 'import numpy, scipy' 2>/dev/null; then
+  python_numpy=python3
+else
+  venv=target/bench-venv
+  if ! "${venv}/bin/python" -c 'import numpy, scipy' 2>/dev/null; then
+    echo "headroom.sh: python3 has no numpy/scipy; installing them into ${venv}" >&2
+    python3 -m venv --clear "${venv}"
+    "${venv}/bin/pip" install --quiet --disable-pip-version-check numpy==2.4.6 scipy==1.17.1
+  fi
+  python_numpy="${venv}/bin/python"
 fi
 
 cargo build --release --quiet
@@ -120,6 +139,13 @@ for isa in "${isas[@]}"; do
   kernel[${isa},lockin]=$(criterion_row "${isa}" dsp lockin_and_spectrum/32_demods_order4_default_spectrum)
 done
 
+# The lock-in bank against NumPy/SciPy on the same samples, in this CPU's build.
+echo "lock-in bank against NumPy/SciPy (benches/lockin_numpy.py)" >&2
+if ! numpy_json=$("${python_numpy}" benches/lockin_numpy.py --json "${numpy_flags[@]}" 2>"${work}/stderr"); then
+  cat "${work}/stderr" >&2
+  false
+fi
+
 soak_line=""
 if [ "${soak}" -gt 0 ]; then
   # The narrowest build measured: the one the slowest machines run.
@@ -148,10 +174,11 @@ python3 - "${quick}" "${runs}" "$(git rev-parse --short HEAD 2>/dev/null || echo
   "$("${bin}" bench --seconds 0.2 --json 2>/dev/null | python3 -c 'import json,sys; r=json.load(sys.stdin); print(r["machine"].split(", vector build")[0]); print(r["clock_ghz"] or "")')" \
   "$(grep -m1 -o -w -E 'avx512f' /proc/cpuinfo 2>/dev/null || true) $(grep -m1 -o -w -E 'avx2' /proc/cpuinfo 2>/dev/null || true) $(grep -m1 -o -w -E 'fma' /proc/cpuinfo 2>/dev/null || true)" \
   "${isas[*]}" "$(for k in "${!chain[@]}"; do echo "${k}=${chain[${k}]}"; done)" \
-  "$(for k in "${!kernel[@]}"; do echo "${k}=${kernel[${k}]}"; done)" "${soak_line}" <<'EOF'
-import datetime, statistics, sys
+  "$(for k in "${!kernel[@]}"; do echo "${k}=${kernel[${k}]}"; done)" "${soak_line}" \
+  "${numpy_json}" <<'EOF'
+import datetime, json, statistics, sys
 
-quick, runs, rev, machine, flags, isas, chain, kernel, soak = sys.argv[1:]
+quick, runs, rev, machine, flags, isas, chain, kernel, soak, numpy = sys.argv[1:]
 machine, clock = (machine.split("\n") + [""])[:2]
 parse = lambda text: dict(line.split("=", 1) for line in text.split("\n") if "=" in line)
 chain, kernel = parse(chain), parse(kernel)
@@ -185,4 +212,21 @@ for isa in isas.split():
               f"{'yes' if value >= target else 'no'} |")
 if soak:
     print(soak)
+n = json.loads(numpy)
+rust, np = n["rust"], n["numpy"]
+# lockin_numpy.py compares the amplitudes after the filters' first 0.1 s only.
+compared = n["samples"] / n["sample_rate"] > 0.1
+difference = lambda key: f"{n[key]:.1e}" if compared else "not compared (under 0.1 s)"
+print()
+print(f"The lock-in bank against NumPy {np['numpy']} / SciPy {np['scipy']} (Python "
+      f"{np['python']}) on the same {n['samples']} samples, {n['demodulators']} demodulators, "
+      f"this run (`benches/lockin_numpy.py`, medians):")
+print()
+print("| lock-in | MS/s | the Rust bank's ratio | largest amplitude difference |")
+print("|---|---|---|---|")
+print(f"| Rust bank ({rust['kernel']} kernel) | {rust['samples_per_s_median'] / 1e6:.1f} | 1 | – |")
+print(f"| `scipy.signal.sosfilt` | {np['sosfilt_samples_per_s_median'] / 1e6:.3f} | "
+      f"{n['ratio_rust_over_numpy_sosfilt']:.0f}× | {difference('amplitude_max_relative_difference_sosfilt')} |")
+print(f"| `scipy.signal.lfilter` (b/a) | {np['lfilter_samples_per_s_median'] / 1e6:.3f} | "
+      f"{n['ratio_rust_over_numpy_lfilter']:.0f}× | {difference('amplitude_max_relative_difference_lfilter')} |")
 EOF
