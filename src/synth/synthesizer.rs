@@ -467,6 +467,9 @@ impl SynthPlan {
                         // are not repeated. It stops before the chunk's end, the drive
                         // phasor's next re-anchoring and the first sample not clear, which
                         // the loop above takes up. The same bits as one sample at a time.
+                        // It repeats the first sample's body above on purpose: the two
+                        // folded into one loop from sample i took 15 more instructions a
+                        // clear sample (172 against 157 through the window, callgrind, AVX2).
                         let stop = len.min(i + (REANCHOR - index % REANCHOR) as usize);
                         let mut rho_run = next;
                         let mut j = i + 1;
