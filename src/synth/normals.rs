@@ -249,9 +249,98 @@ fn next_words(s: &mut [[u64; LANES]; 4]) -> [u64; LANES] {
     out
 }
 
+/// The constants of the vector builds' transforms ([`avx2`], [`avx512`]), in a table.
+#[cfg(target_arch = "x86_64")]
+mod table {
+    /// One constant in all eight 32-bit lanes, as its bits, in a whole 32-byte line.
+    #[repr(C, align(32))]
+    pub(super) struct Row(pub(super) [u32; 8]);
+
+    const fn f(x: f32) -> Row {
+        Row([x.to_bits(); 8])
+    }
+
+    const fn i(x: u32) -> Row {
+        Row([x; 8])
+    }
+
+    // Where each constant of the transforms sits in `CONSTANTS`.
+    pub(super) const HALF: usize = 0;
+    pub(super) const INV_2_31: usize = 1;
+    pub(super) const LOW_30: usize = 2;
+    pub(super) const INV_2_30: usize = 3;
+    pub(super) const EXPONENT: usize = 4;
+    pub(super) const BIAS: usize = 5;
+    pub(super) const MANTISSA: usize = 6;
+    pub(super) const HALF_BITS: usize = 7;
+    pub(super) const ROOT_HALF: usize = 8;
+    pub(super) const ONE: usize = 9;
+    pub(super) const LN_LEAD: usize = 10;
+    pub(super) const LN_POLY: usize = 11;
+    pub(super) const LN2_LOW: usize = 19;
+    pub(super) const MINUS_HALF: usize = 20;
+    pub(super) const LN2_HIGH: usize = 21;
+    pub(super) const MINUS_TWO: usize = 22;
+    pub(super) const QUARTER_TURN: usize = 23;
+    pub(super) const SIN: usize = 24;
+    pub(super) const COS: usize = 27;
+    pub(super) const SIGN: usize = 30;
+    pub(super) const ONE_BITS: usize = 31;
+
+    /// The vector transforms' constants. The transforms read them through a reference
+    /// the compiler cannot see into ([`constants`]), so that it takes each as a memory
+    /// operand of the instruction that uses it. Seen as constants, each was broadcast into
+    /// a register of its own before every use, since the loop has more of them than the
+    /// sixteen AVX2 registers: 50 of the 281 instructions of the AVX2 loop's two batches,
+    /// 243 without them (docs/benchmarks.md). The same values, so the same bits.
+    static CONSTANTS: [Row; 32] = [
+        f(0.5),
+        f(1.0 / 2_147_483_648.0),
+        i(0x3fff_ffff),
+        f(1.0 / 1_073_741_824.0),
+        i(0xff),
+        i(126),
+        i(0x807f_ffff),
+        i(0x3f00_0000),
+        f(std::f32::consts::FRAC_1_SQRT_2),
+        f(1.0),
+        f(7.037_683_6e-2),
+        f(super::LN_POLY[0]),
+        f(super::LN_POLY[1]),
+        f(super::LN_POLY[2]),
+        f(super::LN_POLY[3]),
+        f(super::LN_POLY[4]),
+        f(super::LN_POLY[5]),
+        f(super::LN_POLY[6]),
+        f(super::LN_POLY[7]),
+        f(-2.121_944_4e-4),
+        f(-0.5),
+        f(0.693_359_4),
+        f(-2.0),
+        f(std::f32::consts::FRAC_PI_2),
+        f(-1.951_529_6e-4),
+        f(8.332_161e-3),
+        f(-1.666_665_5e-1),
+        f(2.443_315_7e-5),
+        f(-1.388_731_6e-3),
+        f(4.166_664_6e-2),
+        i(0x8000_0000),
+        i(1),
+    ];
+
+    /// The table of the transforms' constants, opaque to the optimiser. Taken once per
+    /// transform: taken once for the two batches of a pass, each load had two uses and
+    /// went to a register again (277 instructions).
+    #[inline(always)]
+    pub(super) fn constants() -> &'static [Row; 32] {
+        std::hint::black_box(&CONSTANTS)
+    }
+}
+
 /// The same arithmetic in AVX2 and FMA instructions, operation for operation.
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
+    use super::table::*;
     use super::{BATCH, LANES};
     use std::arch::x86_64::*;
 
@@ -278,68 +367,67 @@ mod avx2 {
     }
 
     /// Two words of each stream (`x` from streams 0–3, `y` from 4–7) turned into the batch's
-    /// cosines and sines (lane j from stream [`super::interleaved`]`(j)`).
+    /// cosines and sines (lane j from stream [`super::interleaved`]`(j)`), with the
+    /// constants `k` ([`constants`]).
     #[inline]
     #[target_feature(enable = "avx2,fma")]
-    fn transform(x: __m256i, y: __m256i) -> (__m256, __m256) {
-        let f = _mm256_set1_ps;
+    fn transform(k: &[Row; 32], x: __m256i, y: __m256i) -> (__m256, __m256) {
+        // SAFETY: a `Row` is 32 aligned bytes.
+        let f = |n: usize| unsafe { _mm256_load_ps(k[n].0.as_ptr().cast()) };
+        let i = |n: usize| unsafe { _mm256_load_si256(k[n].0.as_ptr().cast()) };
         // 32-bit lane j: the high (radius) or low (angle) half of stream interleaved(j).
         let hi = _mm256_blend_epi32::<0b1010_1010>(_mm256_srli_epi64::<32>(x), y);
         let lo = _mm256_blend_epi32::<0b1010_1010>(x, _mm256_slli_epi64::<32>(y));
         let radius_u = _mm256_mul_ps(
-            _mm256_add_ps(_mm256_cvtepi32_ps(_mm256_srli_epi32::<1>(hi)), f(0.5)),
-            f(1.0 / 2_147_483_648.0),
+            _mm256_add_ps(_mm256_cvtepi32_ps(_mm256_srli_epi32::<1>(hi)), f(HALF)),
+            f(INV_2_31),
         );
         let angle = _mm256_mul_ps(
-            _mm256_cvtepi32_ps(_mm256_and_si256(lo, _mm256_set1_epi32(0x3fff_ffff))),
-            f(1.0 / 1_073_741_824.0),
+            _mm256_cvtepi32_ps(_mm256_and_si256(lo, i(LOW_30))),
+            f(INV_2_30),
         );
         // ln, as `super::ln`.
         let bits = _mm256_castps_si256(radius_u);
         let e = _mm256_sub_epi32(
-            _mm256_and_si256(_mm256_srli_epi32::<23>(bits), _mm256_set1_epi32(0xff)),
-            _mm256_set1_epi32(126),
+            _mm256_and_si256(_mm256_srli_epi32::<23>(bits), i(EXPONENT)),
+            i(BIAS),
         );
         let m = _mm256_castsi256_ps(_mm256_or_si256(
-            _mm256_and_si256(bits, _mm256_set1_epi32(0x807f_ffff_u32 as i32)),
-            _mm256_set1_epi32(0x3f00_0000),
+            _mm256_and_si256(bits, i(MANTISSA)),
+            i(HALF_BITS),
         ));
-        let below = _mm256_cmp_ps::<_CMP_LT_OQ>(m, f(std::f32::consts::FRAC_1_SQRT_2));
+        let below = _mm256_cmp_ps::<_CMP_LT_OQ>(m, f(ROOT_HALF));
         let e = _mm256_add_epi32(e, _mm256_castps_si256(below));
         let t = _mm256_blendv_ps(
-            _mm256_sub_ps(m, f(1.0)),
-            _mm256_sub_ps(_mm256_add_ps(m, m), f(1.0)),
+            _mm256_sub_ps(m, f(ONE)),
+            _mm256_sub_ps(_mm256_add_ps(m, m), f(ONE)),
             below,
         );
         let z = _mm256_mul_ps(t, t);
-        let mut p = f(7.037_683_6e-2);
-        for c in super::LN_POLY {
-            p = _mm256_fmadd_ps(p, t, f(c));
+        let mut p = f(LN_LEAD);
+        for c in 0..8 {
+            p = _mm256_fmadd_ps(p, t, f(LN_POLY + c));
         }
         let ef = _mm256_cvtepi32_ps(e);
-        let a = _mm256_fmadd_ps(ef, f(-2.121_944_4e-4), _mm256_mul_ps(f(-0.5), z));
+        let a = _mm256_fmadd_ps(ef, f(LN2_LOW), _mm256_mul_ps(f(MINUS_HALF), z));
         let y = _mm256_fmadd_ps(_mm256_mul_ps(p, t), z, a);
-        let ln = _mm256_fmadd_ps(ef, f(0.693_359_4), _mm256_add_ps(t, y));
-        let r = _mm256_sqrt_ps(_mm256_mul_ps(f(-2.0), ln));
+        let ln = _mm256_fmadd_ps(ef, f(LN2_HIGH), _mm256_add_ps(t, y));
+        let r = _mm256_sqrt_ps(_mm256_mul_ps(f(MINUS_TWO), ln));
         // sin and cos, as `super::sin_cos_quarter`.
-        let phi = _mm256_mul_ps(_mm256_sub_ps(angle, f(0.5)), f(std::f32::consts::FRAC_PI_2));
+        let phi = _mm256_mul_ps(_mm256_sub_ps(angle, f(HALF)), f(QUARTER_TURN));
         let z = _mm256_mul_ps(phi, phi);
-        let sp = _mm256_fmadd_ps(
-            _mm256_fmadd_ps(f(-1.951_529_6e-4), z, f(8.332_161e-3)),
-            z,
-            f(-1.666_665_5e-1),
-        );
+        let sp = _mm256_fmadd_ps(_mm256_fmadd_ps(f(SIN), z, f(SIN + 1)), z, f(SIN + 2));
         let s = _mm256_fmadd_ps(_mm256_mul_ps(sp, z), phi, phi);
-        let cp = _mm256_fmadd_ps(
-            _mm256_fmadd_ps(f(2.443_315_7e-5), z, f(-1.388_731_6e-3)),
+        let cp = _mm256_fmadd_ps(_mm256_fmadd_ps(f(COS), z, f(COS + 1)), z, f(COS + 2));
+        let c = _mm256_fmadd_ps(
+            _mm256_mul_ps(cp, z),
             z,
-            f(4.166_664_6e-2),
+            _mm256_fmadd_ps(f(MINUS_HALF), z, f(ONE)),
         );
-        let c = _mm256_fmadd_ps(_mm256_mul_ps(cp, z), z, _mm256_fmadd_ps(f(-0.5), z, f(1.0)));
-        let root_half = f(std::f32::consts::FRAC_1_SQRT_2);
+        let root_half = f(ROOT_HALF);
         let cos = _mm256_mul_ps(_mm256_mul_ps(_mm256_sub_ps(c, s), root_half), r);
         let sin = _mm256_mul_ps(_mm256_mul_ps(_mm256_add_ps(c, s), root_half), r);
-        let sign = _mm256_set1_epi32(0x8000_0000_u32 as i32);
+        let sign = i(SIGN);
         let cos = _mm256_xor_ps(cos, _mm256_castsi256_ps(_mm256_and_si256(lo, sign)));
         let sin_sign = _mm256_and_si256(_mm256_slli_epi32::<1>(lo), sign);
         let sin = _mm256_xor_ps(sin, _mm256_castsi256_ps(sin_sign));
@@ -375,6 +463,7 @@ mod avx2 {
     #[target_feature(enable = "avx2,fma")]
     pub(super) unsafe fn fill_batches<T: super::Deviate>(s: &mut [[u64; LANES]; 4], out: &mut [T]) {
         crate::cpu::align_frame();
+        let k = constants();
         let load = |w: &[u64; LANES], half: usize| {
             // SAFETY: four u64 in bounds; unaligned load.
             unsafe { _mm256_loadu_si256(w[4 * half..].as_ptr().cast()) }
@@ -398,8 +487,8 @@ mod avx2 {
         for o in &mut pairs {
             let (x0, y0) = (step(&mut a), step(&mut b));
             let (x1, y1) = (step(&mut a), step(&mut b));
-            let (c0, s0) = transform(x0, y0);
-            let (c1, s1) = transform(x1, y1);
+            let (c0, s0) = transform(constants(), x0, y0);
+            let (c1, s1) = transform(constants(), x1, y1);
             let (o0, o1) = o.split_at_mut(BATCH);
             store_batch(o0, c0, s0);
             store_batch(o1, c1, s1);
@@ -407,7 +496,7 @@ mod avx2 {
         let rest = pairs.into_remainder();
         if !rest.is_empty() {
             let (x, y) = (step(&mut a), step(&mut b));
-            let (c, s) = transform(x, y);
+            let (c, s) = transform(k, x, y);
             store_batch(rest, c, s);
         }
         let store = |w: &mut [u64; LANES], half: usize, v: __m256i| {
@@ -427,6 +516,7 @@ mod avx2 {
 /// register, the next in the high half), each half laid out as [`avx2::transform`]'s.
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
+    use super::table::*;
     use super::{BATCH, LANES};
     use std::arch::x86_64::*;
 
@@ -449,68 +539,65 @@ mod avx512 {
     /// sines, the first batch's in the low halves.
     #[inline]
     #[target_feature(enable = "avx512f")]
-    fn transform(w0: __m512i, w1: __m512i) -> (__m512, __m512) {
-        let f = _mm512_set1_ps;
-        let i = _mm512_set1_epi32;
+    fn transform(k: &[Row; 32], w0: __m512i, w1: __m512i) -> (__m512, __m512) {
+        // Each constant broadcast from its row's first lane: a memory operand.
+        let f = |n: usize| _mm512_set1_ps(f32::from_bits(k[n].0[0]));
+        let i = |n: usize| _mm512_set1_epi32(k[n].0[0] as i32);
         // [streams 0–3 of w0, of w1] and [streams 4–7 of w0, of w1]: the AVX2 code's x, y.
         let x = _mm512_shuffle_i64x2::<0b01_00_01_00>(w0, w1);
         let y = _mm512_shuffle_i64x2::<0b11_10_11_10>(w0, w1);
         let hi = _mm512_mask_blend_epi32(0xaaaa, _mm512_srli_epi64::<32>(x), y);
         let lo = _mm512_mask_blend_epi32(0xaaaa, x, _mm512_slli_epi64::<32>(y));
         let radius_u = _mm512_mul_ps(
-            _mm512_add_ps(_mm512_cvtepi32_ps(_mm512_srli_epi32::<1>(hi)), f(0.5)),
-            f(1.0 / 2_147_483_648.0),
+            _mm512_add_ps(_mm512_cvtepi32_ps(_mm512_srli_epi32::<1>(hi)), f(HALF)),
+            f(INV_2_31),
         );
         let angle = _mm512_mul_ps(
-            _mm512_cvtepi32_ps(_mm512_and_si512(lo, i(0x3fff_ffff))),
-            f(1.0 / 1_073_741_824.0),
+            _mm512_cvtepi32_ps(_mm512_and_si512(lo, i(LOW_30))),
+            f(INV_2_30),
         );
         // ln, as `super::ln`.
         let bits = _mm512_castps_si512(radius_u);
         let e = _mm512_sub_epi32(
-            _mm512_and_si512(_mm512_srli_epi32::<23>(bits), i(0xff)),
-            i(126),
+            _mm512_and_si512(_mm512_srli_epi32::<23>(bits), i(EXPONENT)),
+            i(BIAS),
         );
         let m = _mm512_castsi512_ps(_mm512_or_si512(
-            _mm512_and_si512(bits, i(0x807f_ffff_u32 as i32)),
-            i(0x3f00_0000),
+            _mm512_and_si512(bits, i(MANTISSA)),
+            i(HALF_BITS),
         ));
-        let below = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(m, f(std::f32::consts::FRAC_1_SQRT_2));
-        let e = _mm512_mask_sub_epi32(e, below, e, i(1));
+        let below = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(m, f(ROOT_HALF));
+        let e = _mm512_mask_sub_epi32(e, below, e, i(ONE_BITS));
         let t = _mm512_mask_blend_ps(
             below,
-            _mm512_sub_ps(m, f(1.0)),
-            _mm512_sub_ps(_mm512_add_ps(m, m), f(1.0)),
+            _mm512_sub_ps(m, f(ONE)),
+            _mm512_sub_ps(_mm512_add_ps(m, m), f(ONE)),
         );
         let z = _mm512_mul_ps(t, t);
-        let mut p = f(7.037_683_6e-2);
-        for c in super::LN_POLY {
-            p = _mm512_fmadd_ps(p, t, f(c));
+        let mut p = f(LN_LEAD);
+        for c in 0..8 {
+            p = _mm512_fmadd_ps(p, t, f(LN_POLY + c));
         }
         let ef = _mm512_cvtepi32_ps(e);
-        let a = _mm512_fmadd_ps(ef, f(-2.121_944_4e-4), _mm512_mul_ps(f(-0.5), z));
+        let a = _mm512_fmadd_ps(ef, f(LN2_LOW), _mm512_mul_ps(f(MINUS_HALF), z));
         let y = _mm512_fmadd_ps(_mm512_mul_ps(p, t), z, a);
-        let ln = _mm512_fmadd_ps(ef, f(0.693_359_4), _mm512_add_ps(t, y));
-        let r = _mm512_sqrt_ps(_mm512_mul_ps(f(-2.0), ln));
+        let ln = _mm512_fmadd_ps(ef, f(LN2_HIGH), _mm512_add_ps(t, y));
+        let r = _mm512_sqrt_ps(_mm512_mul_ps(f(MINUS_TWO), ln));
         // sin and cos, as `super::sin_cos_quarter`.
-        let phi = _mm512_mul_ps(_mm512_sub_ps(angle, f(0.5)), f(std::f32::consts::FRAC_PI_2));
+        let phi = _mm512_mul_ps(_mm512_sub_ps(angle, f(HALF)), f(QUARTER_TURN));
         let z = _mm512_mul_ps(phi, phi);
-        let sp = _mm512_fmadd_ps(
-            _mm512_fmadd_ps(f(-1.951_529_6e-4), z, f(8.332_161e-3)),
-            z,
-            f(-1.666_665_5e-1),
-        );
+        let sp = _mm512_fmadd_ps(_mm512_fmadd_ps(f(SIN), z, f(SIN + 1)), z, f(SIN + 2));
         let s = _mm512_fmadd_ps(_mm512_mul_ps(sp, z), phi, phi);
-        let cp = _mm512_fmadd_ps(
-            _mm512_fmadd_ps(f(2.443_315_7e-5), z, f(-1.388_731_6e-3)),
+        let cp = _mm512_fmadd_ps(_mm512_fmadd_ps(f(COS), z, f(COS + 1)), z, f(COS + 2));
+        let c = _mm512_fmadd_ps(
+            _mm512_mul_ps(cp, z),
             z,
-            f(4.166_664_6e-2),
+            _mm512_fmadd_ps(f(MINUS_HALF), z, f(ONE)),
         );
-        let c = _mm512_fmadd_ps(_mm512_mul_ps(cp, z), z, _mm512_fmadd_ps(f(-0.5), z, f(1.0)));
-        let root_half = f(std::f32::consts::FRAC_1_SQRT_2);
+        let root_half = f(ROOT_HALF);
         let cos = _mm512_mul_ps(_mm512_mul_ps(_mm512_sub_ps(c, s), root_half), r);
         let sin = _mm512_mul_ps(_mm512_mul_ps(_mm512_add_ps(c, s), root_half), r);
-        let sign = i(0x8000_0000_u32 as i32);
+        let sign = i(SIGN);
         let cos = _mm512_castsi512_ps(_mm512_xor_si512(
             _mm512_castps_si512(cos),
             _mm512_and_si512(lo, sign),
@@ -566,8 +653,8 @@ mod avx512 {
         for o in &mut quads {
             let (w0, w1) = (step(&mut w), step(&mut w));
             let (w2, w3) = (step(&mut w), step(&mut w));
-            let (c0, s0) = transform(w0, w1);
-            let (c1, s1) = transform(w2, w3);
+            let (c0, s0) = transform(constants(), w0, w1);
+            let (c1, s1) = transform(constants(), w2, w3);
             let (o0, o1) = o.split_at_mut(2 * BATCH);
             store_batches(o0, c0, s0);
             store_batches(o1, c1, s1);
@@ -580,7 +667,7 @@ mod avx512 {
             } else {
                 w0
             };
-            let (c, s) = transform(w0, w1);
+            let (c, s) = transform(constants(), w0, w1);
             store_batches(o, c, s);
         }
         for (k, v) in w.iter().enumerate() {
