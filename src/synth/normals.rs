@@ -276,7 +276,7 @@ mod table {
     pub(super) const ROOT_HALF: usize = 8;
     pub(super) const ONE: usize = 9;
     pub(super) const LN_LEAD: usize = 10;
-    pub(super) const LN_POLY: usize = 11;
+    pub(super) const LN_POLY_AT: usize = 11;
     pub(super) const LN2_LOW: usize = 19;
     pub(super) const MINUS_HALF: usize = 20;
     pub(super) const LN2_HIGH: usize = 21;
@@ -406,7 +406,7 @@ mod avx2 {
         let z = _mm256_mul_ps(t, t);
         let mut p = f(LN_LEAD);
         for c in 0..8 {
-            p = _mm256_fmadd_ps(p, t, f(LN_POLY + c));
+            p = _mm256_fmadd_ps(p, t, f(LN_POLY_AT + c));
         }
         let ef = _mm256_cvtepi32_ps(e);
         let a = _mm256_fmadd_ps(ef, f(LN2_LOW), _mm256_mul_ps(f(MINUS_HALF), z));
@@ -576,7 +576,7 @@ mod avx512 {
         let z = _mm512_mul_ps(t, t);
         let mut p = f(LN_LEAD);
         for c in 0..8 {
-            p = _mm512_fmadd_ps(p, t, f(LN_POLY + c));
+            p = _mm512_fmadd_ps(p, t, f(LN_POLY_AT + c));
         }
         let ef = _mm512_cvtepi32_ps(e);
         let a = _mm512_fmadd_ps(ef, f(LN2_LOW), _mm512_mul_ps(f(MINUS_HALF), z));
