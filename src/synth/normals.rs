@@ -304,7 +304,7 @@ mod table {
         i(0x3f00_0000),
         f(std::f32::consts::FRAC_1_SQRT_2),
         f(1.0),
-        f(7.037_683_6e-2),
+        f(super::LN_LEADING),
         f(super::LN_POLY[0]),
         f(super::LN_POLY[1]),
         f(super::LN_POLY[2]),
@@ -313,17 +313,17 @@ mod table {
         f(super::LN_POLY[5]),
         f(super::LN_POLY[6]),
         f(super::LN_POLY[7]),
-        f(-2.121_944_4e-4),
+        f(super::LN2_LOW_PART),
         f(-0.5),
-        f(0.693_359_4),
+        f(super::LN2_HIGH_PART),
         f(-2.0),
         f(std::f32::consts::FRAC_PI_2),
-        f(-1.951_529_6e-4),
-        f(8.332_161e-3),
-        f(-1.666_665_5e-1),
-        f(2.443_315_7e-5),
-        f(-1.388_731_6e-3),
-        f(4.166_664_6e-2),
+        f(super::SIN_POLY[0]),
+        f(super::SIN_POLY[1]),
+        f(super::SIN_POLY[2]),
+        f(super::COS_POLY[0]),
+        f(super::COS_POLY[1]),
+        f(super::COS_POLY[2]),
         i(0x8000_0000),
         i(1),
     ];
@@ -463,7 +463,6 @@ mod avx2 {
     #[target_feature(enable = "avx2,fma")]
     pub(super) unsafe fn fill_batches<T: super::Deviate>(s: &mut [[u64; LANES]; 4], out: &mut [T]) {
         crate::cpu::align_frame();
-        let k = constants();
         let load = |w: &[u64; LANES], half: usize| {
             // SAFETY: four u64 in bounds; unaligned load.
             unsafe { _mm256_loadu_si256(w[4 * half..].as_ptr().cast()) }
@@ -496,7 +495,7 @@ mod avx2 {
         let rest = pairs.into_remainder();
         if !rest.is_empty() {
             let (x, y) = (step(&mut a), step(&mut b));
-            let (c, s) = transform(k, x, y);
+            let (c, s) = transform(constants(), x, y);
             store_batch(rest, c, s);
         }
         let store = |w: &mut [u64; LANES], half: usize, v: __m256i| {
@@ -722,7 +721,18 @@ fn jump(s: &mut [u64; 4]) {
     *s = acc;
 }
 
-/// Cephes `logf`'s polynomial in t = m − 1 after its leading coefficient 7.0376836e-2,
+/// Cephes `logf`'s leading coefficient, before [`LN_POLY`].
+const LN_LEADING: f32 = 7.037_683_6e-2;
+
+/// ln 2 = 0.693359375 − 2.12194440e-4, the first part exact in few bits.
+const LN2_HIGH_PART: f32 = 0.693_359_4;
+const LN2_LOW_PART: f32 = -2.121_944_4e-4;
+
+/// Cephes `sinf`'s and `cosf`'s polynomials in φ², highest power first (Horner).
+const SIN_POLY: [f32; 3] = [-1.951_529_6e-4, 8.332_161e-3, -1.666_665_5e-1];
+const COS_POLY: [f32; 3] = [2.443_315_7e-5, -1.388_731_6e-3, 4.166_664_6e-2];
+
+/// Cephes `logf`'s polynomial in t = m − 1 after its leading coefficient [`LN_LEADING`],
 /// highest power first (Horner).
 const LN_POLY: [f32; 8] = [
     -1.151_461e-1,
@@ -749,14 +759,13 @@ fn ln(x: [f32; LANES]) -> [f32; LANES] {
         e -= i32::from(below);
         let t = if below { m + m - 1.0 } else { m - 1.0 };
         let z = t * t;
-        let mut p = 7.037_683_6e-2f32;
+        let mut p = LN_LEADING;
         for c in LN_POLY {
             p = p.mul_add(t, c);
         }
         let ef = e as f32;
-        // ln 2 = 0.693359375 − 2.12194440e-4, the first part exact in few bits.
-        let y = (p * t).mul_add(z, ef.mul_add(-2.121_944_4e-4, -0.5 * z));
-        out[i] = ef.mul_add(0.693_359_4, t + y);
+        let y = (p * t).mul_add(z, ef.mul_add(LN2_LOW_PART, -0.5 * z));
+        out[i] = ef.mul_add(LN2_HIGH_PART, t + y);
     }
     out
 }
@@ -765,13 +774,9 @@ fn ln(x: [f32; LANES]) -> [f32; LANES] {
 #[inline(always)]
 fn sin_cos_quarter(phi: f32) -> (f32, f32) {
     let z = phi * phi;
-    let sp = (-1.951_529_6e-4f32)
-        .mul_add(z, 8.332_161e-3)
-        .mul_add(z, -1.666_665_5e-1);
+    let sp = SIN_POLY[0].mul_add(z, SIN_POLY[1]).mul_add(z, SIN_POLY[2]);
     let s = (sp * z).mul_add(phi, phi);
-    let cp = 2.443_315_7e-5f32
-        .mul_add(z, -1.388_731_6e-3)
-        .mul_add(z, 4.166_664_6e-2);
+    let cp = COS_POLY[0].mul_add(z, COS_POLY[1]).mul_add(z, COS_POLY[2]);
     let c = (cp * z).mul_add(z, (-0.5f32).mul_add(z, 1.0));
     (s, c)
 }
