@@ -7,6 +7,7 @@
 #   bash benches/synth_instructions.sh                 # the four cases of docs/benchmarks.md
 #   bash benches/synth_instructions.sh coupled 20e-9 on
 #   bash benches/synth_instructions.sh coupled 20e-9 on window   # the synthesiser thread's part
+#   bash benches/synth_instructions.sh coupled 20e-9 on window substeps=6   # at 6 sub-steps
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --example synth_blocks >&2

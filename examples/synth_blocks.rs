@@ -5,7 +5,8 @@
 //! `cargo run --release --example synth_blocks -- ENGINE A_SET NOISE BLOCKS [SUBSTEPS] [window] [hash]`:
 //! ENGINE `paper` or `coupled`, A_SET the surface distance in metres (the defaults' 20e-9
 //! taps, 50e-9 is clear of the surface), NOISE `on` or `off`, BLOCKS how many, SUBSTEPS
-//! `/synth/contact_substeps` (default 12). Everything else is the default configuration.
+//! `/synth/contact_substeps` (default 12; also as a flag `substeps=N` anywhere, for
+//! `benches/synth_instructions.sh`, which appends BLOCKS). Everything else is the default configuration.
 //! Prints the samples made, the throughput, and the fastest, tenth-fastest and median
 //! block's: on a shared machine the fastest blocks are the steadier figure for an A/B of
 //! two builds. With `hash`, also an FNV-1a hash of every sample's bits, to check that two
@@ -23,18 +24,21 @@ use ftafm::synth::{SynthPlan, SynthState, WindowSample};
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let usage = "usage: synth_blocks paper|coupled A_SET on|off BLOCKS [SUBSTEPS] [window] [hash]";
+    let usage = "usage: synth_blocks paper|coupled A_SET on|off BLOCKS [SUBSTEPS] [window] [hash] [substeps=N]";
     // The flags may stand anywhere after ENGINE (`benches/synth_instructions.sh` appends
     // BLOCKS to whatever it is given).
     let hash = args.iter().any(|a| a == "hash");
     let window = args.iter().any(|a| a == "window");
+    let flag_substeps = args
+        .iter()
+        .find_map(|a| a.strip_prefix("substeps=").map(str::to_owned));
     let args: Vec<String> = args
         .into_iter()
-        .filter(|a| a != "hash" && a != "window")
+        .filter(|a| a != "hash" && a != "window" && !a.starts_with("substeps="))
         .collect();
     let (engine, distance, noise, blocks, substeps) = match args.as_slice() {
-        [e, d, n, b] => (e, d, n, b, None),
-        [e, d, n, b, s] => (e, d, n, b, Some(s)),
+        [e, d, n, b] => (e, d, n, b, flag_substeps.as_ref()),
+        [e, d, n, b, s] if flag_substeps.is_none() => (e, d, n, b, Some(s)),
         _ => {
             eprintln!("{usage}");
             std::process::exit(2);
