@@ -75,6 +75,12 @@ pub struct ForceEstimate {
     pub pulse_phase: f64,
     /// The force over one period at equally spaced drive phases from 0 (N).
     pub waveform: Vec<f64>,
+    /// The settings epoch the estimate reflects: of the settings its model was built for,
+    /// and of the frames it averaged (set by the daemon; 0 offline).
+    pub epoch: u64,
+    /// True when settings the model depends on changed since it was built: the estimate
+    /// belongs to the old settings and is not to be read as current (set by the daemon).
+    pub stale: bool,
 }
 
 /// The periodic orbits of a coupled engine's modulus table, node by node: where the next
@@ -422,7 +428,16 @@ impl ForceEstimator {
             table_range: modulus.range,
             pulse_phase: reconstruction.pulse_phase,
             waveform: reconstruction.force,
+            epoch: 0,
+            stale: false,
         })
+    }
+
+    /// Drops the running average: the next estimate averages only frames pushed from now on
+    /// (after a settings change, so no estimate mixes frames of two settings).
+    pub fn reset_window(&mut self) {
+        self.sum.fill(Complex64::new(0.0, 0.0));
+        self.summed = 0;
     }
 }
 

@@ -11,6 +11,7 @@ pub mod config;
 pub mod cpu;
 pub mod dsp;
 pub mod imaging;
+pub mod instrument;
 pub mod inversion;
 pub mod model;
 pub mod physics;

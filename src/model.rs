@@ -1,10 +1,140 @@
 //! The physical model the settings describe: settings (SI, validated) → physics types.
 
-use crate::config::{Material, Settings};
+use crate::config::quantity::{number, quantity};
+use crate::config::{Material, NodeError, Settings};
 use crate::physics::beam::BeamError;
+use crate::physics::impact::ImpactError;
 use crate::physics::{
-    Adhesion, Cantilever, CoupledProblem, Elastic, HertzContact, ImpactOscillator,
+    Adhesion, Cantilever, CoupledProblem, Elastic, HertzContact, ImpactOscillator, ImpactSolution,
 };
+
+/// Whether the physics of `settings` can run: the checks no node's range can express,
+/// which need the model (a cantilever built from the Q values, the 1-DOF tapping orbit,
+/// a tune's free amplitude at every point). `Settings::validate` (the schema) comes first;
+/// the config loader runs only that, and every command and every change of a running
+/// daemon runs this after it, off the request path. Its cost is bounded whatever the
+/// settings (milliseconds at an instrument's settings, at most the orbit solver's
+/// transient budget, a fraction of a second): a setting it cannot decide is refused with
+/// an error naming the nodes, never waited for.
+pub fn check(settings: &Settings) -> Result<Feasible, NodeError> {
+    let solution = check_orbit(settings)?;
+    check_tune(settings)?;
+    Ok(Feasible {
+        range_warnings: warnings_of(settings, &solution),
+    })
+}
+
+/// What [`check`] learnt of settings it accepts.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Feasible {
+    /// Where the operating point leaves the model's range ([`range_warnings`]).
+    pub range_warnings: Vec<String>,
+}
+
+fn invalid(path: impl Into<String>, message: String) -> NodeError {
+    NodeError::InvalidValue {
+        path: path.into(),
+        message,
+    }
+}
+
+/// A cantilever that can be built from `[cantilever]` and a 1-DOF tapping problem whose
+/// periodic orbit the solver finds within its budget (`SolveOptions::max_transient_periods`).
+fn check_orbit(s: &Settings) -> Result<ImpactSolution, NodeError> {
+    let cantilever = cantilever(s).map_err(|e| {
+        invalid(
+            "/cantilever/extra_modes",
+            format!(
+                "/cantilever/q = {} with /cantilever/extra_modes = {} gives no cantilever: {e}",
+                list_of_numbers(&s.cantilever.q),
+                s.cantilever.extra_modes
+            ),
+        )
+    })?;
+    let oscillator = impact_oscillator(s, &cantilever, s.sample);
+    oscillator.solve().map_err(|e| {
+        // A transient longer than the solver's budget is Q's doing: name it first.
+        let (path, hint) = match e {
+            ImpactError::NoSteadyOrbit { .. } => (
+                "/cantilever/q",
+                "lower Q1 (/cantilever/q), or bring /drive/free_amplitude and \
+                 /surface/distance closer to an instrument's",
+            ),
+            _ => (
+                "/cantilever",
+                "bring these closer to an instrument's (the embedded default is one)",
+            ),
+        };
+        invalid(
+            path,
+            format!(
+                "the 1-DOF tapping problem has no periodic solution ({e}) for /cantilever/f1 = \
+                 {}, /cantilever/k = {}, Q1 = {}, /drive/frequency = {}, \
+                 /drive/free_amplitude = {}, /surface/distance = {} (with \
+                 /cantilever/tip_radius, [tip] and [sample]): {hint}",
+                quantity(s.cantilever.f1, "Hz"),
+                quantity(s.cantilever.k, "N/m"),
+                number(cantilever.fundamental().q),
+                quantity(s.drive.frequency, "Hz"),
+                quantity(s.drive.free_amplitude, "m"),
+                quantity(s.surface.distance, "m"),
+            ),
+        )
+    })
+}
+
+/// A short list of numbers for a message: `[100, 417, 340]`, cut after 8 entries.
+fn list_of_numbers(list: &[f64]) -> String {
+    let shown: Vec<String> = list.iter().take(8).map(|x| number(*x)).collect();
+    let more = if list.len() > 8 {
+        format!(", … ({} entries)", list.len())
+    } else {
+        String::new()
+    };
+    format!("[{}{more}]", shown.join(", "))
+}
+
+/// For a tune of the drive frequency at a constant base amplitude: the free amplitude at
+/// every point within its allowed range (part of [`check`]; alone for a change that leaves
+/// the orbit's nodes as they were).
+pub fn check_tune(s: &Settings) -> Result<(), NodeError> {
+    let w = &s.sweeper;
+    if !w.enable {
+        return Ok(());
+    }
+    if w.parameter == crate::config::SweepParameter::DriveFrequency
+        && let Ok(cantilever) = cantilever(s)
+    {
+        let base = s.drive.free_amplitude / free_response_per_base(&cantilever, s.drive.frequency);
+        let n = w.points as usize;
+        let log = w.scale == crate::config::SweepScale::Log;
+        let free_max = crate::config::registry::node("/drive/free_amplitude")
+            .map(|spec| spec.bounds(s).1.as_f64().unwrap_or(f64::INFINITY))
+            .unwrap_or(f64::INFINITY);
+        for p in crate::sweep::points(w.start, w.stop, n, log, true, false) {
+            let free = base * free_response_per_base(&cantilever, p.value);
+            if free > free_max {
+                return Err(invalid(
+                    "/sweeper/stop",
+                    format!(
+                        "a tune from /sweeper/start = {} to /sweeper/stop = {} Hz at the base \
+                         amplitude that gives /drive/free_amplitude = {} at /drive/frequency \
+                         = {} reaches a free amplitude of {} at {}, above the largest allowed \
+                         {}: lower /drive/free_amplitude or narrow the sweep",
+                        number(w.start),
+                        number(w.stop),
+                        quantity(s.drive.free_amplitude, "m"),
+                        quantity(s.drive.frequency, "Hz"),
+                        quantity(free, "m"),
+                        quantity(p.value, "Hz"),
+                        quantity(free_max, "m")
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
 
 /// The cantilever of `/cantilever/...`.
 pub fn cantilever(settings: &Settings) -> Result<Cantilever, BeamError> {
@@ -31,7 +161,7 @@ pub const HERTZ_RANGE: f64 = 0.1;
 
 /// Where the operating point of `settings` leaves the model's range, in words (empty when it
 /// does not): the 1-DOF orbit's maximum indentation against the tip radius. Costs one 1-DOF
-/// solve (milliseconds): call it when the settings change, not per message.
+/// solve (milliseconds; at most the solver's transient budget): [`check`] gives them too.
 pub fn range_warnings(settings: &Settings) -> Vec<String> {
     let Ok(cantilever) = cantilever(settings) else {
         return Vec::new();
@@ -40,6 +170,11 @@ pub fn range_warnings(settings: &Settings) -> Vec<String> {
     let Ok(solution) = oscillator.solve() else {
         return Vec::new();
     };
+    warnings_of(settings, &solution)
+}
+
+/// [`range_warnings`] of the 1-DOF orbit `solution` of `settings`.
+fn warnings_of(settings: &Settings, solution: &ImpactSolution) -> Vec<String> {
     let radius = settings.cantilever.tip_radius;
     let ratio = solution.max_indentation / radius;
     if ratio > HERTZ_RANGE {

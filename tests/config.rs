@@ -204,6 +204,43 @@ fn settings_serialise_to_toml_that_loads_back() {
     assert_eq!(load_str(&text, "roundtrip.toml").unwrap(), s);
 }
 
+/// Every seed `set` accepts is saved so that it loads again: TOML's integers end at
+/// 2⁶³ − 1, so a larger seed is written as the string of its digits, which a file (and so
+/// `--config` and `load_settings`) may give; smaller ones stay integers.
+#[test]
+fn the_largest_seed_is_saved_and_loaded_again() {
+    for seed in [u64::MAX, 1 << 63, (1 << 63) - 1, 0] {
+        let mut s = default_settings();
+        s.set("/synth/seed", &json!(seed)).unwrap();
+        let text = ftafm::config::settings_toml(&s).unwrap();
+        let written = if seed > i64::MAX as u64 {
+            format!("seed = \"{seed}\"")
+        } else {
+            format!("seed = {seed}")
+        };
+        assert!(text.contains(&written), "{written}: {text}");
+        let back = load_str(&text, "saved.toml").unwrap_or_else(|e| panic!("{seed}: {e}"));
+        assert_eq!(back.synth.seed, seed);
+        assert_eq!(back, s);
+        // serde alone (the complete file, as the embedded default is read) agrees.
+        assert_eq!(toml::from_str::<Settings>(&text).unwrap(), s);
+    }
+    // Only a value beyond TOML's integers may be a string; nothing else is taken for one.
+    for (text, shown) in [
+        ("[synth]\nseed = \"12\"\n", "\"12\""),
+        (
+            "[synth]\nseed = \"18446744073709551616\"\n",
+            "18446744073709551616",
+        ),
+        (
+            "[synth]\nseed = \"+9223372036854775808\"\n",
+            "+9223372036854775808",
+        ),
+    ] {
+        assert_mentions(&error_of(text), &["/synth/seed", shown, "wrong type"]);
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Overlays
 
@@ -2678,10 +2715,11 @@ fn list_ranges_are_what_set_accepts() {
     );
 }
 
-/// In-range values whose 1-DOF orbit cannot be found are refused by a config file as by
-/// `set`, with the same message, so `serve` and `paper` never start on them.
+/// In-range values whose 1-DOF orbit cannot be found pass the schema (`Settings::set`,
+/// a config file) and are refused by the model's check with the same message, so `serve`
+/// and `paper` never start on them; the schema itself runs no physics.
 #[test]
-fn physics_failures_are_refused_by_files_and_sets_alike() {
+fn physics_failures_are_refused_by_the_model_for_files_and_commands_alike() {
     for (path, table, key, value) in [
         ("/cantilever/f1", "cantilever", "f1", 1e8),
         ("/cantilever/k", "cantilever", "k", 5e-324),
@@ -2689,13 +2727,18 @@ fn physics_failures_are_refused_by_files_and_sets_alike() {
         // The drive stays at 100 kHz: a drive following f1 = 1e8 would be above Nyquist.
         let mut base = default_settings();
         base.set("/drive/follow_f1", &json!(false)).unwrap();
-        let set_error = base.set(path, &json!(value)).expect_err(path).to_string();
-        assert!(set_error.contains("1-DOF tapping problem"), "{set_error}");
+        base.set(path, &json!(value)).expect(path);
+        let model_error = ftafm::model::check(&base).expect_err(path).to_string();
+        assert!(
+            model_error.contains("1-DOF tapping problem"),
+            "{model_error}"
+        );
         let text = format!("[drive]\nfollow_f1 = false\n[{table}]\n{key} = {value:e}\n");
-        let file_error = load_str(&text, "t.toml").expect_err(path).to_string();
-        // The set names the value it tried, then says what the file says.
-        let (_, reason) = set_error.split_once(": ").unwrap();
-        assert_eq!(file_error, format!("t.toml: {reason}"), "{path}");
+        let loaded = load_str(&text, "t.toml").expect(path);
+        assert_eq!(
+            ftafm::model::check(&loaded).unwrap_err().to_string(),
+            model_error
+        );
 
         let dir = std::env::temp_dir().join(format!("ftafm-physics-{}-{key}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
@@ -2717,9 +2760,53 @@ fn physics_failures_are_refused_by_files_and_sets_alike() {
                 .unwrap();
             let stderr = String::from_utf8_lossy(&out.stderr);
             assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
-            assert!(stderr.contains(reason), "{args:?}: {stderr}");
+            assert!(stderr.contains(&model_error), "{args:?}: {stderr}");
             assert!(out.stdout.is_empty(), "{args:?} printed {:?}", out.stdout);
         }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
+
+/// The values that spun the 1-DOF solver for more than ten minutes before the port was
+/// bound (Q = 1e7 with a 1 µm free amplitude, Q = 3e6 with 0.3 µm): the solver's transient
+/// is bounded, so `serve --config` decides in its bounded time, binds, prints its URL and
+/// stops on SIGTERM.
+#[test]
+fn serve_decides_a_high_q_configuration_and_binds() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    for (q, amplitude) in [(1e7, 1e-6), (3e6, 3e-7)] {
+        let dir = std::env::temp_dir().join(format!("ftafm-wedge-{}-{q}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("c.toml");
+        std::fs::write(
+            &file,
+            format!("[cantilever]\nq = [{q:e}]\n[drive]\nfree_amplitude = {amplitude:e}\n"),
+        )
+        .unwrap();
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_ftafm"))
+            .args([
+                "serve",
+                "--config",
+                file.to_str().unwrap(),
+                "--bind",
+                "127.0.0.1:0",
+            ])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        assert!(line.contains("http://127.0.0.1:"), "Q = {q:e}: {line:?}");
+        let kill = std::process::Command::new("kill")
+            .args(["-TERM", &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(kill.success());
+        assert_eq!(child.wait().unwrap().code(), Some(0), "Q = {q:e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

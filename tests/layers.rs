@@ -50,3 +50,13 @@ fn the_synthesiser_and_the_dsp_meet_only_through_the_ring() {
 fn the_physics_depends_on_nothing_above_it() {
     assert_uses_only("physics", &[]);
 }
+
+#[test]
+fn the_schema_uses_no_physics_and_the_control_plane_no_transport() {
+    // Whether settings can run is the model's question, never the schema's.
+    assert_uses_only("config", &[]);
+    assert_uses_only(
+        "instrument",
+        &["config", "model", "physics", "pipeline", "timebase", "cpu"],
+    );
+}

@@ -261,6 +261,7 @@ fn the_solution_converges_under_step_refinement() {
             initial_steps: n,
             max_steps: n,
             tolerance: 0.0,
+            ..SolveOptions::default()
         })
         .unwrap()
     };

@@ -1320,9 +1320,15 @@ fn force_messages_carry_the_estimate_in_both_formats() {
         table_range: TableRange::Inside,
         pulse_phase: 5.46,
         waveform: vec![0.0, 1e-9, f64::NAN],
+        epoch: 12,
+        stale: true,
     };
     let v: serde_json::Value = serde_json::from_str(&force_json(7, &estimate)).unwrap();
     assert_eq!(v["stream"], "force");
+    assert_eq!(
+        (v["epoch"].as_u64(), v["stale"].as_bool()),
+        (Some(12), Some(true))
+    );
     assert_eq!(v["seq"], 7);
     assert_eq!(v["t"], 1e-3);
     assert_eq!(v["t_synth_ns"], 1_700_000_000_000_000_000u64);
@@ -1343,4 +1349,50 @@ fn force_messages_carry_the_estimate_in_both_formats() {
     );
     let payload: serde_json::Value = serde_json::from_slice(&bin[BINARY_HEADER_BYTES..]).unwrap();
     assert_eq!(payload, v, "the binary payload is the same JSON object");
+}
+
+/// A batch `set` that gives a node twice is refused, naming the node: a JSON object keeps
+/// one of the values, and which one the client meant cannot be known. Keys are compared as
+/// decoded (`"\/a"` is `"/a"`), and `values` itself given twice is refused too.
+#[test]
+fn a_batch_set_that_gives_a_node_twice_is_refused() {
+    assert_error(
+        r#"{"id":9,"op":"set","values":{"/a":1,"/a":2}}"#,
+        ErrorCode::BadRequest,
+        json!(9),
+        &["\"values\"", "\"/a\" 2 times", "once"],
+    );
+    let (_, e) =
+        parse_err(r#"{"op":"set","values":{"/b":1,"/a":1,"/b":2,"/a":[3],"/a":4,"/c":5}}"#);
+    assert!(
+        e.message.contains("\"/a\" 3 times") && e.message.contains("\"/b\" 2 times"),
+        "{e}"
+    );
+    assert!(!e.message.contains("/c"), "{e}");
+    assert_error(
+        r#"{"id":"x","op":"set","values":{"/a":1,"\/a":2}}"#,
+        ErrorCode::BadRequest,
+        json!("x"),
+        &["\"/a\" 2 times"],
+    );
+    assert_error(
+        r#"{"op":"set","values":{"/a":1},"values":{"/b":2}}"#,
+        ErrorCode::BadRequest,
+        Value::Null,
+        &["\"values\"", "twice"],
+    );
+    assert_error(
+        r#"{"op":"set","values":7,"values":{"/b":2}}"#,
+        ErrorCode::BadRequest,
+        Value::Null,
+        &["\"values\"", "twice"],
+    );
+    // The same path nested in a value, or in another field, is no repeat.
+    let ok = parse_ok(r#"{"op":"set","values":{"/a":{"/a":1},"/b":2},"x":{"/a":1,"/a":2}}"#);
+    assert_eq!(
+        ok.op,
+        Op::SetMany {
+            values: vec![("/a".into(), json!({"/a": 1})), ("/b".into(), json!(2))]
+        }
+    );
 }

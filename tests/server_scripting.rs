@@ -433,3 +433,34 @@ async fn batched_demods_carry_every_point_of_the_stream_byte_for_byte() {
     }
     d.shutdown().await;
 }
+
+/// The largest seed `set` takes comes back from `settings` through `load_settings` (and
+/// `--config`): TOML's integers end at 2⁶³ − 1, so the file carries it as its digits.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_largest_seed_survives_settings_and_load_settings() {
+    let d = Daemon::start(light()).await;
+    let mut ws = connect(d.addr).await;
+    let set = call(
+        &mut ws,
+        json!({"op": "set", "path": "/synth/seed", "value": u64::MAX}),
+    )
+    .await;
+    assert_eq!(set["value"], u64::MAX, "{set}");
+    let saved = call(&mut ws, json!({"op": "settings"})).await;
+    let toml = saved["toml"].as_str().expect("the settings").to_owned();
+    assert_eq!(
+        ftafm::config::load_str(&toml, "saved").unwrap().synth.seed,
+        u64::MAX,
+        "--config reads it"
+    );
+    call(
+        &mut ws,
+        json!({"op": "set", "path": "/synth/seed", "value": 7}),
+    )
+    .await;
+    let loaded = call(&mut ws, json!({"op": "load_settings", "toml": toml})).await;
+    assert_eq!(loaded["ok"], true, "{loaded}");
+    let get = call(&mut ws, json!({"op": "get", "path": "/synth/seed"})).await;
+    assert_eq!(get["value"], u64::MAX, "{get}");
+    d.shutdown().await;
+}

@@ -99,6 +99,12 @@ export class ForcePanel {
 
   onData(m) {
     this.latest = m;
+    // An estimate of the old settings' model (the new one is being built) is shown as
+    // such, and kept out of the trends and their means.
+    if (m.stale) {
+      this.version++;
+      return;
+    }
     const i = this.head;
     this.t[i] = num(m.t);
     this.E[i] = num(m.youngs_modulus);
@@ -263,6 +269,9 @@ export class ForcePanel {
       ? ` · <span class="bad">table range: ${m.table_range === "below_table" ? "below the table (E < 1 GPa)" : m.table_range === "above_table" ? "above the table (E > 1 TPa)" : String(m.table_range).replace(/[<>&]/g, "")}</span>`
       : "";
     const method = m.method === "two_harmonic" ? "two-harmonic (cut-cosine pulse)" : "full (Fourier series)";
-    this.foot.innerHTML = `method <b>${method}</b> · ${forceWaveform(m)?.length ?? 0} points · t = ${num(m.t).toFixed(3)} s${range}`;
+    const stale = m.stale
+      ? ` · <span class="bad" data-stale="true">stale: made with the model of the previous settings (epoch ${Number(m.epoch)}); the new model is being built</span>`
+      : "";
+    this.foot.innerHTML = `method <b>${method}</b> · ${forceWaveform(m)?.length ?? 0} points · t = ${num(m.t).toFixed(3)} s${range}${stale}`;
   }
 }

@@ -49,3 +49,19 @@ def test_a_bad_sweep_raises_naming_the_node(ftafm_instrument: ftafm.Instrument) 
     with pytest.raises(ftafm.InstrumentError) as e:
         ftafm_instrument.sweep("/cantilever/k", 1, 2, 5)
     assert "/sweeper/parameter" in e.value.message or "/surface/distance" in e.value.message
+
+
+def test_a_sweep_that_times_out_is_aborted_and_the_next_gets_its_own_points(
+    ftafm_instrument: ftafm.Instrument,
+) -> None:
+    inst = ftafm_instrument
+    inst.set("/surface/distance", 200e-9)
+    # Long enough that its first point cannot come within the timeout.
+    with pytest.raises(ftafm.InstrumentError) as e:
+        inst.sweep("/drive/frequency", 99e3, 101e3, 400, settling=0.5, timeout=0.05)
+    assert e.value.code == "timeout"
+    assert inst.get("/sweeper/enable") is False, "the interrupted sweep was aborted"
+    tune = inst.sweep("/drive/frequency", 99.5e3, 100.5e3, 5)
+    assert tune.outcome == "done" and len(tune) == 5
+    assert list(tune.value) == [99.5e3, 99.75e3, 100e3, 100.25e3, 100.5e3]
+    assert inst.get("/drive/frequency") == 100e3, "restored"

@@ -30,12 +30,24 @@ pub struct ConfigArg {
 /// Exit status for bad arguments or an invalid configuration (contract.md).
 pub const EXIT_USAGE: u8 = 2;
 
-/// The settings the flags name: the embedded default, the presets, then the file.
+/// The settings the flags name: the embedded default, the presets, then the file; the
+/// schema's checks, then whether the model can run them ([`crate::model::check`], bounded
+/// in time, so a bad file is refused at once rather than worked on).
 pub fn load(args: &ConfigArg) -> Result<Settings, ExitCode> {
-    config::load_with_presets(&args.preset, args.config.as_deref()).map_err(|e| {
+    let usage = |e: &dyn std::fmt::Display| {
         eprintln!("ftafm: invalid configuration: {e}");
         ExitCode::from(EXIT_USAGE)
-    })
+    };
+    let settings =
+        config::load_with_presets(&args.preset, args.config.as_deref()).map_err(|e| usage(&e))?;
+    crate::model::check(&settings).map_err(|e| {
+        let origin = args.config.as_deref().map_or_else(
+            || "the configuration".to_owned(),
+            |p| p.display().to_string(),
+        );
+        usage(&format!("{origin}: {e}"))
+    })?;
+    Ok(settings)
 }
 
 /// A command's report: one JSON object with `--json`, else its text form.

@@ -9,8 +9,10 @@ use std::sync::OnceLock;
 use serde_json::Value;
 
 use super::error::{ConfigError, NodeError, cut};
+use super::field::Kind;
+use super::nodes::NodeSpec;
 use super::registry::{node, table_keys, toml_table_name};
-use super::settings::Settings;
+use super::settings::{Settings, wide_u64};
 
 /// The embedded default configuration, `config/default.toml`.
 pub const DEFAULT_TOML: &str = include_str!("../../config/default.toml");
@@ -119,7 +121,7 @@ fn apply_table(
                 return Err(invalid(spec.non_finite(&cut(&value.to_string()))));
             }
             settings
-                .write_node(spec, &to_json(value))
+                .write_node(spec, &node_json(spec, value))
                 .map_err(invalid)?;
             written.push(path);
         } else if let Some(keys) = table_keys(&path) {
@@ -152,6 +154,19 @@ fn has_non_finite(value: &toml::Value) -> bool {
         toml::Value::Array(items) => items.iter().any(has_non_finite),
         _ => false,
     }
+}
+
+/// The JSON value `set` would receive for `value` of the node `spec`: [`to_json`], but an
+/// integer node that goes beyond TOML's integers (`/synth/seed`) takes a larger value as the
+/// string of its digits, as `settings` writes it.
+fn node_json(spec: &NodeSpec, value: &toml::Value) -> Value {
+    if let (Kind::Integer { max, .. }, toml::Value::String(text)) = (spec.kind, value)
+        && i64::try_from(max).is_err()
+        && let Some(n) = wide_u64::parse(text)
+    {
+        return Value::from(n);
+    }
+    to_json(value)
 }
 
 /// The JSON value `set` would receive for this TOML value. Datetimes become strings (and

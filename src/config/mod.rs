@@ -22,7 +22,7 @@ mod indexed_table;
 pub mod load;
 pub mod nodes;
 pub mod presets;
-mod quantity;
+pub mod quantity;
 pub mod range;
 pub mod registry;
 mod relations;

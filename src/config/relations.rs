@@ -55,8 +55,7 @@ impl Settings {
         check_demods(self)?;
         check_inversion(self)?;
         check_scan(self)?;
-        check_sweeper(self)?;
-        check_physics(self)
+        check_sweeper(self)
     }
 }
 
@@ -277,55 +276,6 @@ pub(crate) fn most_extra_modes(s: &Settings) -> u64 {
     } else {
         MAX_MODES.saturating_sub(given) as u64
     }
-}
-
-/// The physics the synthesiser and `ftafm paper` run: a cantilever that can be built from
-/// `[cantilever]` and a 1-DOF tapping problem whose periodic orbit the solver finds. Values
-/// inside every node's range can still fail here (a 100 MHz cantilever driven at 100 kHz),
-/// so a config file and a `set` are both refused with this message rather than the daemon
-/// failing after its start or `ftafm paper` after its load. Takes a few milliseconds.
-fn check_physics(s: &Settings) -> Result<(), NodeError> {
-    let cantilever = crate::model::cantilever(s).map_err(|e| {
-        invalid(
-            "/cantilever/extra_modes",
-            format!(
-                "/cantilever/q = {} with /cantilever/extra_modes = {} gives no cantilever: {e}",
-                list_of_numbers(&s.cantilever.q),
-                s.cantilever.extra_modes
-            ),
-        )
-    })?;
-    let oscillator = crate::model::impact_oscillator(s, &cantilever, s.sample);
-    oscillator.solve().map_err(|e| {
-        invalid(
-            "/cantilever",
-            format!(
-                "the 1-DOF tapping problem has no periodic solution ({e}) for /cantilever/f1 = \
-                 {}, /cantilever/k = {}, Q1 = {}, /drive/frequency = {}, \
-                 /drive/free_amplitude = {}, /surface/distance = {} (with \
-                 /cantilever/tip_radius, [tip] and [sample]): bring these closer to an \
-                 instrument's (the embedded default is one)",
-                quantity(s.cantilever.f1, "Hz"),
-                quantity(s.cantilever.k, "N/m"),
-                number(cantilever.fundamental().q),
-                quantity(s.drive.frequency, "Hz"),
-                quantity(s.drive.free_amplitude, "m"),
-                quantity(s.surface.distance, "m"),
-            ),
-        )
-    })?;
-    Ok(())
-}
-
-/// A short list of numbers for a message: `[100, 417, 340]`, cut after 8 entries.
-fn list_of_numbers(list: &[f64]) -> String {
-    let shown: Vec<String> = list.iter().take(8).map(|x| number(*x)).collect();
-    let more = if list.len() > 8 {
-        format!(", … ({} entries)", list.len())
-    } else {
-        String::new()
-    };
-    format!("[{}{more}]", shown.join(", "))
 }
 
 /// The mode count: `q` entries plus Rayleigh-damped extras, and enough `q` entries to fit
@@ -642,8 +592,8 @@ pub(crate) fn highest_scan_pixels(s: &Settings) -> u64 {
 /// [`MAX_PIXEL_RATE`] pixels per second. Checked whether or not the scan is enabled, so
 /// starting a scan never fails.
 /// While a sweep runs: its ends within the swept node's range now, log spacing only above
-/// 0, two different ends, some demodulator to measure with, and for a tune at a constant
-/// base amplitude a free amplitude within its range at every point.
+/// 0, two different ends, and some demodulator to measure with. (Whether a tune's free
+/// amplitude stays in range at every point is the model's question: `model::check`.)
 fn check_sweeper(s: &Settings) -> Result<(), NodeError> {
     let w = &s.sweeper;
     if !w.enable {
@@ -701,38 +651,6 @@ fn check_sweeper(s: &Settings) -> Result<(), NodeError> {
              one (/demods/N/enable)"
                 .to_owned(),
         ));
-    }
-    if w.parameter == super::settings::SweepParameter::DriveFrequency
-        && let Ok(cantilever) = crate::model::cantilever(s)
-    {
-        let base = s.drive.free_amplitude
-            / crate::model::free_response_per_base(&cantilever, s.drive.frequency);
-        let n = w.points as usize;
-        let log = w.scale == super::settings::SweepScale::Log;
-        let free_max = super::registry::node("/drive/free_amplitude")
-            .map(|spec| spec.bounds(s).1.as_f64().unwrap_or(f64::INFINITY))
-            .unwrap_or(f64::INFINITY);
-        for p in crate::sweep::points(w.start, w.stop, n, log, true, false) {
-            let free = base * crate::model::free_response_per_base(&cantilever, p.value);
-            if free > free_max {
-                return Err(invalid(
-                    "/sweeper/stop",
-                    format!(
-                        "a tune from /sweeper/start = {} to /sweeper/stop = {} Hz at the base \
-                         amplitude that gives /drive/free_amplitude = {} at /drive/frequency \
-                         = {} reaches a free amplitude of {} at {}, above the largest allowed \
-                         {}: lower /drive/free_amplitude or narrow the sweep",
-                        number(w.start),
-                        number(w.stop),
-                        quantity(s.drive.free_amplitude, "m"),
-                        quantity(s.drive.frequency, "Hz"),
-                        quantity(free, "m"),
-                        quantity(p.value, "Hz"),
-                        quantity(free_max, "m")
-                    ),
-                ));
-            }
-        }
     }
     Ok(())
 }

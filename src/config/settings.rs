@@ -147,6 +147,7 @@ pub struct SynthSettings {
     /// Tip-force engine.
     pub engine: Engine,
     /// Seed of every random source.
+    #[serde(with = "wide_u64")]
     pub seed: u64,
     /// Pace synthesis to the wall clock (true) or run as fast as possible (false).
     pub realtime: bool,
@@ -159,6 +160,54 @@ pub struct SynthSettings {
     /// from older files: the default, 12).
     #[serde(default = "default_contact_substeps")]
     pub contact_substeps: u32,
+}
+
+/// A `u64` in a file: TOML's integers end at 2⁶³ − 1, so a larger value (a seed may be any
+/// `u64`) is written as a string of its decimal digits, `"18446744073709551615"`, and read
+/// back from one, so that every value the settings hold can be saved and loaded again.
+pub(crate) mod wide_u64 {
+    use serde::de::{self, Visitor};
+    use serde::{Deserializer, Serializer};
+
+    /// Whether `text` is how [`serialize`] writes a value beyond TOML's integers: decimal
+    /// digits of a `u64` above `i64::MAX` (smaller values are plain integers).
+    pub(crate) fn parse(text: &str) -> Option<u64> {
+        let n: u64 = text.parse().ok()?;
+        (text.bytes().all(|b| b.is_ascii_digit()) && i64::try_from(n).is_err()).then_some(n)
+    }
+
+    pub fn serialize<S: Serializer>(value: &u64, s: S) -> Result<S::Ok, S::Error> {
+        match i64::try_from(*value) {
+            Ok(n) => s.serialize_i64(n),
+            Err(_) => s.serialize_str(&value.to_string()),
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+        d.deserialize_any(WideU64)
+    }
+
+    struct WideU64;
+
+    impl Visitor<'_> for WideU64 {
+        type Value = u64;
+
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("an integer 0 … 2⁶⁴ − 1 (above 2⁶³ − 1 as a string of its digits)")
+        }
+
+        fn visit_u64<E: de::Error>(self, n: u64) -> Result<u64, E> {
+            Ok(n)
+        }
+
+        fn visit_i64<E: de::Error>(self, n: i64) -> Result<u64, E> {
+            u64::try_from(n).map_err(|_| E::invalid_value(de::Unexpected::Signed(n), &self))
+        }
+
+        fn visit_str<E: de::Error>(self, text: &str) -> Result<u64, E> {
+            parse(text).ok_or_else(|| E::invalid_value(de::Unexpected::Str(text), &self))
+        }
+    }
 }
 
 fn default_contact_substeps() -> u32 {

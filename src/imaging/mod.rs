@@ -36,6 +36,12 @@ pub struct ImageLine {
     pub line_rate: f64,
     /// Channel name, unit, values (NaN: missing).
     pub channels: Vec<(String, &'static str, Vec<f64>)>,
+    /// The settings epoch the assembler (its FT-AFM estimator) was configured for (set by
+    /// the daemon; 0 offline).
+    pub epoch: u64,
+    /// True when newer settings wait to be taken up: the line's FT-AFM channels come from
+    /// the old settings' estimator (set by the daemon).
+    pub stale: bool,
 }
 
 /// A finished frame, every channel.
@@ -284,6 +290,8 @@ impl Assembler {
             pixels: raster.pixels,
             size: raster.size,
             line_rate: raster.line_rate(self.sample_rate),
+            epoch: 0,
+            stale: false,
             channels: frame
                 .channels
                 .iter()

@@ -450,6 +450,11 @@ impl Pipeline {
         self.counters.snapshot()
     }
 
+    /// The counters themselves, to read without holding the pipeline.
+    pub fn counters_handle(&self) -> Arc<Counters> {
+        self.counters.clone()
+    }
+
     /// Fault injection for tests: while `hold` is true the DSP thread takes no samples (as
     /// if wedged; the synthesiser overruns the ring, counted), and it still stops when asked.
     #[doc(hidden)]

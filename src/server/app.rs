@@ -17,9 +17,10 @@ use tokio::sync::watch;
 
 use super::listen::{ConnectionCounters, ConnectionLimits};
 use super::protocol::MAX_MESSAGE_BYTES;
-use super::state::{AppState, Control};
+use super::state::AppState;
 use super::{assets, hub, metrics, session};
 use crate::config::Settings;
+use crate::instrument::Control;
 use crate::pipeline::{Pipeline, PipelineError};
 
 /// Why the daemon stopped with an error.
@@ -44,8 +45,8 @@ pub async fn run(
     run_with(listener, settings, shutdown, ConnectionLimits::default()).await
 }
 
-/// [`run`] with the accept loop's limits given (header timeout, connections before their
-/// upgrade, shutdown grace): tests make them small.
+/// [`run`] with the connection limits given (header timeout, connections before their
+/// upgrade, shutdown grace, WebSocket keep-alive): tests make them small.
 pub async fn run_with(
     listener: TcpListener,
     settings: Settings,
@@ -54,7 +55,7 @@ pub async fn run_with(
 ) -> Result<(), ServerError> {
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
     let (force, estimates) = super::force::ForceLink::start();
-    force.rebuild(settings.clone());
+    force.follow(0, None, Some(settings.clone()));
     let (image, image_lines) = super::image::ImageLink::start(&settings);
     let stall = crate::pipeline::StallMeter::start("ftafm-stall")
         .inspect_err(|e| tracing::warn!(error = %e, "no stall meter: its thread would not start"))
@@ -62,13 +63,11 @@ pub async fn run_with(
     // Last, so that no frame waits for the rest of the start-up before the hub takes it.
     let (pipeline, output) = Pipeline::start(&settings)?;
     let queue_bytes = settings.server.client_queue_bytes as usize;
-    let range_warnings = crate::model::range_warnings(&settings);
+    let sample_rate = settings.synth.sample_rate;
+    let control = Arc::new(Control::new(settings, Some(pipeline)));
     let state = Arc::new(AppState {
-        sample_rate: settings.synth.sample_rate,
-        control: Mutex::new(Control {
-            settings,
-            pipeline: Some(pipeline),
-        }),
+        sample_rate,
+        control,
         clients: Mutex::new(Vec::new()),
         connections: std::sync::atomic::AtomicUsize::new(0),
         next_client: AtomicU64::new(1),
@@ -78,19 +77,22 @@ pub async fn run_with(
         refused_origin: AtomicU64::new(0),
         refused_capacity: AtomicU64::new(0),
         refused_host: AtomicU64::new(0),
-        range_warnings: Mutex::new(range_warnings),
         queue_bytes: std::sync::atomic::AtomicUsize::new(queue_bytes),
         closed_stalled: AtomicU64::new(0),
+        closed_unresponsive: AtomicU64::new(0),
+        ping_interval: limits.ping_interval,
         http: Arc::new(ConnectionCounters::default()),
         latency_totals: Mutex::new(Default::default()),
         force,
         image,
         stall,
         latest_demods: Mutex::new(None),
-        changes: tokio::sync::watch::channel(0).0,
         sweep_frames: super::sweeper::FrameTap::new(),
         sweep_force: super::sweeper::Tap::new(),
     });
+    state
+        .control
+        .set_followers(super::follow::followers(Arc::downgrade(&state)));
     let hub = tokio::spawn(hub::run(state.clone(), output, estimates, image_lines));
     let sweeper = tokio::spawn(super::sweeper::run(state.clone()));
     // Every route but /healthz checks that the request names this server (DNS rebinding);
@@ -121,15 +123,7 @@ pub async fn run_with(
     let _ = hub.await;
     // The sweeper ends on the shutdown signal; a change it awaits takes milliseconds.
     let _ = tokio::time::timeout(Duration::from_secs(2), sweeper).await;
-    let pipeline = state
-        .control
-        .lock()
-        .ok()
-        .and_then(|mut c| c.pipeline.take());
-    if let Some(p) = pipeline {
-        let counters = tokio::task::spawn_blocking(move || p.stop())
-            .await
-            .unwrap_or_default();
+    if let Some(counters) = state.control.stop().await {
         tracing::info!(
             samples = counters.samples_processed,
             overruns = counters.overrun_samples,
@@ -226,11 +220,7 @@ const STALL_LIMIT_NS: u64 = 2_000_000_000;
 /// (nothing processed yet) or when a real-time thread has finished no block for
 /// [`STALL_LIMIT_NS`] (wedged, or starved of samples by a wedged synthesiser).
 async fn healthz(State(state): State<Arc<AppState>>) -> Response {
-    let counters = state.control.lock().ok().and_then(|c| {
-        let running = c.pipeline.is_some();
-        running.then(|| c.counters())
-    });
-    match health(counters.as_ref()) {
+    match health(state.control.counters().as_ref()) {
         Ok(()) => (StatusCode::OK, "ok\n").into_response(),
         Err(reason) => (StatusCode::SERVICE_UNAVAILABLE, reason + "\n").into_response(),
     }
@@ -289,14 +279,12 @@ async fn websocket(
     headers: HeaderMap,
     upgrade: WebSocketUpgrade,
 ) -> Response {
-    let (allowed, max_clients, queue) = match state.control.lock() {
-        Ok(c) => (
-            c.settings.server.allowed_origins.clone(),
-            c.settings.server.max_clients as usize,
-            c.settings.server.client_queue as usize,
-        ),
-        Err(_) => return StatusCode::INTERNAL_SERVER_ERROR.into_response(),
-    };
+    let settings = state.control.settings();
+    let (allowed, max_clients, queue) = (
+        settings.server.allowed_origins.clone(),
+        settings.server.max_clients as usize,
+        settings.server.client_queue as usize,
+    );
     if headers.get_all(header::ORIGIN).iter().count() > 1 {
         state.refused_origin.fetch_add(1, Ordering::Relaxed);
         return (

@@ -48,6 +48,11 @@ pub(crate) struct ForceCounters {
     pub dropped: AtomicU64,
     /// Averaging windows whose fit was not made: no client and no sweep was to take it.
     pub skipped: AtomicU64,
+    /// Frames left out because the settings had changed and their effect not yet settled.
+    pub unsettled: AtomicU64,
+    /// Estimates made by an estimator of older settings than the newest (sent with
+    /// `"stale": true`).
+    pub stale: AtomicU64,
     pub rebuilds: AtomicU64,
     /// Time spent building estimators, in ns (the builder's CPU budget, measured).
     pub rebuild_ns: AtomicU64,
@@ -66,8 +71,11 @@ pub(crate) struct ForceLink {
     /// The newest settings to build an estimator for, with their generation; a flood of
     /// changes costs one build at a time (the rest are counted in its `coalesced`).
     pub pending: Arc<Latest<(Settings, u64)>>,
-    /// Generation of the newest request.
-    generation: AtomicU64,
+    /// The settings epoch of the newest estimator asked for (its generation), shared with
+    /// the worker, which marks estimates of an older estimator stale.
+    generation: Arc<AtomicU64>,
+    /// What the worker must know of each committed change.
+    follow: Arc<Follow>,
     /// The worker fits only the windows whose `seq` is a multiple of this: the greatest
     /// common divisor of the subscribers' `every` (1 while a sweep takes the estimates).
     stride: Arc<AtomicU32>,
@@ -82,6 +90,18 @@ impl Drop for ForceLink {
         // Ends the builder, which ends the worker once the hub's sender is gone too.
         self.pending.close();
     }
+}
+
+/// What the worker learns of each committed settings change, lock-free.
+#[derive(Default)]
+struct Follow {
+    /// The newest epoch committed (written last).
+    epoch: AtomicU64,
+    /// Counts the changes after which the running average starts afresh.
+    resets: AtomicU64,
+    /// Simulated time (s, as f64 bits) from which frames reflect the newest such change
+    /// settled: earlier frames are left out.
+    settle_from: AtomicU64,
 }
 
 /// Nice value of the estimator builder: it yields the CPU to the real-time threads and the
@@ -107,11 +127,15 @@ impl ForceLink {
         let stride = Arc::new(AtomicU32::new(1));
         let next_seq = Arc::new(AtomicU64::new(0));
         let (worker_stride, worker_seq) = (stride.clone(), next_seq.clone());
+        let generation = Arc::new(AtomicU64::new(0));
+        let follow = Arc::new(Follow::default());
+        let (requested, seen) = (generation.clone(), follow.clone());
         std::thread::Builder::new()
             .name("inversion".into())
             .spawn(move || {
                 let mut estimator: Option<Box<ForceEstimator>> = None;
                 let mut generation = 0;
+                let mut resets = 0;
                 while let Ok(msg) = rx.recv() {
                     let outcome = match msg {
                         Input::Replace(next, g, why) => {
@@ -125,6 +149,18 @@ impl ForceLink {
                             let Some(e) = estimator.as_mut() else {
                                 continue;
                             };
+                            // The epoch first: a change is published resets-then-epoch, so
+                            // an estimate stamped with an epoch has seen its reset.
+                            let epoch = seen.epoch.load(Ordering::Acquire);
+                            let r = seen.resets.load(Ordering::Acquire);
+                            if r != resets {
+                                resets = r;
+                                e.reset_window();
+                            }
+                            if frame.t < f64::from_bits(seen.settle_from.load(Ordering::Acquire)) {
+                                c.unsettled.fetch_add(1, Ordering::Relaxed);
+                                continue;
+                            }
                             // Read before the window's seq moves on (SeqCst, as the
                             // subscriber's store of the stride and read of the seq).
                             let seq = worker_seq.load(Ordering::SeqCst);
@@ -135,8 +171,16 @@ impl ForceLink {
                                     worker_seq.store(seq + 1, Ordering::SeqCst);
                                     None
                                 }
-                                Some(Some(Ok(estimate))) => {
+                                Some(Some(Ok(mut estimate))) => {
                                     c.estimates.fetch_add(1, Ordering::Relaxed);
+                                    // An estimator older than the newest asked for measures
+                                    // with the old settings' model: say so, and whose.
+                                    estimate.stale = generation < requested.load(Ordering::SeqCst);
+                                    estimate.epoch =
+                                        if estimate.stale { generation } else { epoch };
+                                    if estimate.stale {
+                                        c.stale.fetch_add(1, Ordering::Relaxed);
+                                    }
                                     worker_seq.store(seq + 1, Ordering::SeqCst);
                                     Some(ForceOutcome::Estimate(generation, estimate, seq))
                                 }
@@ -178,7 +222,8 @@ impl ForceLink {
                 input,
                 counters,
                 pending,
-                generation: AtomicU64::new(0),
+                generation,
+                follow,
                 stride,
                 next_seq,
                 awaited,
@@ -202,12 +247,24 @@ impl ForceLink {
         self.next_seq.load(Ordering::SeqCst)
     }
 
-    /// Asks for the estimator of `settings`, built off the request path (the modulus table
-    /// and the lock-in model take 0.1–3 s); only the newest of the changes made meanwhile is
-    /// built.
-    pub fn rebuild(&self, settings: Settings) {
-        let generation = self.generation.fetch_add(1, Ordering::SeqCst) + 1;
-        self.pending.put((settings, generation));
+    /// Follows the settings change of `epoch`: frames before `settle_from` (s of simulated
+    /// time; `None`: the change leaves the measured physics alone) are left out and the
+    /// running average starts afresh; with `rebuild`, the estimator of those settings is
+    /// built off the request path (the modulus table and the lock-in model take 0.1–3 s;
+    /// only the newest of the changes made meanwhile is built), and until it is, estimates
+    /// are marked stale.
+    pub fn follow(&self, epoch: u64, settle_from: Option<f64>, rebuild: Option<Settings>) {
+        if let Some(settings) = rebuild {
+            self.generation.store(epoch, Ordering::SeqCst);
+            self.pending.put((settings, epoch));
+        }
+        if let Some(t) = settle_from {
+            self.follow
+                .settle_from
+                .store(t.to_bits(), Ordering::Release);
+            self.follow.resets.fetch_add(1, Ordering::Release);
+        }
+        self.follow.epoch.store(epoch, Ordering::Release);
     }
 
     /// Whether a sweep waits for each point's estimate (the builder then does not rest

@@ -67,10 +67,7 @@ pub(crate) async fn guard(
             .into_response();
     };
     let value = value.to_str().unwrap_or("");
-    let allowed = match state.control.lock() {
-        Ok(c) => c.settings.server.allowed_hosts.clone(),
-        Err(_) => return StatusCode::INTERNAL_SERVER_ERROR.into_response(),
-    };
+    let allowed = state.control.settings().server.allowed_hosts.clone();
     if !host_of(value).is_some_and(|h| host_allowed(h, &allowed)) {
         state.refused_host.fetch_add(1, Ordering::Relaxed);
         let shown: String = value.chars().take(80).collect();

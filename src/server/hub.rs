@@ -382,25 +382,14 @@ pub(crate) async fn run(
         }
         let elapsed = last_status.elapsed();
         if elapsed >= STATUS_PERIOD {
-            let (counters, realtime, mut warnings, adc_range, substeps, retired) =
-                match state.control.lock() {
-                    Ok(mut c) => (
-                        c.counters(),
-                        c.settings.synth.realtime,
-                        c.settings.warnings(),
-                        c.settings.noise.adc_range,
-                        (c.settings.synth.engine == Engine::Coupled)
-                            .then_some(c.settings.synth.contact_substeps),
-                        c.pipeline
-                            .as_mut()
-                            .map(|p| p.take_retired())
-                            .unwrap_or_default(),
-                    ),
-                    Err(_) => continue,
-                };
-            if let Ok(range) = state.range_warnings.lock() {
-                warnings.extend(range.iter().cloned());
-            }
+            let current = state.control.current();
+            let c = &current.settings;
+            let counters = state.control.counters().unwrap_or_default();
+            let (realtime, adc_range) = (c.synth.realtime, c.noise.adc_range);
+            let substeps = (c.synth.engine == Engine::Coupled).then_some(c.synth.contact_substeps);
+            let mut warnings = c.warnings();
+            warnings.extend(current.range_warnings.iter().cloned());
+            let retired = state.control.take_retired().unwrap_or_default();
             let processed = counters.samples_processed - last_counters.samples_processed;
             let clipped = counters.clipped_samples - last_counters.clipped_samples;
             if clipped > 0 {
@@ -430,6 +419,7 @@ pub(crate) async fn run(
                 latency_synth_to_send: synth_to_send.take_interval(),
                 counters,
                 warnings,
+                epoch: current.epoch,
                 ..state.status_fields()
             };
             if let Ok(mut totals) = state.latency_totals.lock() {

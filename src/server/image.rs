@@ -50,7 +50,7 @@ pub(crate) struct ImageLink {
     pub last_frame: Arc<Mutex<Option<Arc<ImageFrame>>>>,
     /// The newest settings not yet taken up: a flood of changes costs one rebuild at a
     /// time, never a queue of them.
-    pub pending: Arc<Latest<Box<Settings>>>,
+    pub pending: Arc<Latest<(Box<Settings>, u64)>>,
 }
 
 impl ImageLink {
@@ -61,17 +61,19 @@ impl ImageLink {
         let counters = Arc::new(ImageCounters::default());
         let last_frame = Arc::new(Mutex::new(None));
         let mut assembler = Assembler::new(settings);
-        let pending: Arc<Latest<Box<Settings>>> = Arc::new(Latest::new());
-        let (c, done, p) = (counters.clone(), last_frame.clone(), pending.clone());
+        let pending: Arc<Latest<(Box<Settings>, u64)>> = Arc::new(Latest::new());
+        let (c, done, waiting) = (counters.clone(), last_frame.clone(), pending.clone());
         std::thread::Builder::new()
             .name("image".into())
             .spawn(move || {
                 // Rebuilds are rationed like the force stream's (super::force::BUILD_DUTY):
                 // a flood of changes must not take a core from the real-time threads.
                 let mut next_rebuild = Instant::now();
+                // The epoch of the settings the assembler was configured for.
+                let mut epoch = 0;
                 loop {
                     let now = Instant::now();
-                    let msg = if p.is_pending() && next_rebuild > now {
+                    let msg = if waiting.is_pending() && next_rebuild > now {
                         match rx.recv_timeout(next_rebuild - now) {
                             Ok(m) => m,
                             Err(RecvTimeoutError::Timeout) => Input::Reconfigure,
@@ -85,11 +87,12 @@ impl ImageLink {
                     };
                     // Settings come before the message that follows them.
                     if Instant::now() >= next_rebuild
-                        && let Some(s) = p.take()
+                        && let Some((s, e)) = waiting.take()
                     {
                         let start = Instant::now();
                         c.rebuilds.fetch_add(1, Ordering::Relaxed);
                         assembler.configure(&s);
+                        epoch = e;
                         next_rebuild = Instant::now()
                             + start
                                 .elapsed()
@@ -106,8 +109,10 @@ impl ImageLink {
                             c.inversion_failed.fetch_add(failed, Ordering::Relaxed);
                             c.dropped
                                 .fetch_add(assembler.misplaced - misplaced, Ordering::Relaxed);
-                            for line in lines {
+                            for mut line in lines {
                                 c.lines.fetch_add(1, Ordering::Relaxed);
+                                line.epoch = epoch;
+                                line.stale = waiting.is_pending();
                                 if let Some(frame) = assembler.take_finished() {
                                     c.frames.fetch_add(1, Ordering::Relaxed);
                                     if let Ok(mut last) = done.lock() {
@@ -150,12 +155,12 @@ impl ImageLink {
         self.offer(Input::Topography(*t));
     }
 
-    /// New settings: the worker rebuilds its estimator for the newest of them (blocking
-    /// only itself).
-    pub fn configure(&self, settings: &Settings) {
+    /// New settings, of epoch `epoch`: the worker rebuilds its estimator for the newest of
+    /// them (blocking only itself).
+    pub fn configure(&self, settings: &Settings, epoch: u64) {
         // One wake-up per settings taken up; if the queue is full the worker takes the
         // settings with the next message it handles anyway.
-        if self.pending.put(Box::new(settings.clone())) {
+        if self.pending.put((Box::new(settings.clone()), epoch)) {
             let _ = self.input.try_send(Input::Reconfigure);
         }
     }

@@ -28,7 +28,16 @@ pub struct ConnectionLimits {
     pub max_handshaking: usize,
     /// Longest shutdown waits for open HTTP connections before dropping them.
     pub shutdown_grace: Duration,
+    /// The WebSocket keep-alive: a session that has received nothing for this long is
+    /// pinged, and closed (1008 "no pong") if nothing at all comes back within
+    /// `/server/stall_timeout`, so a half-open connection cannot hold its slot. Not used by
+    /// [`serve`] itself but by the sessions it upgrades; tests make it short.
+    pub ping_interval: Duration,
 }
+
+/// The keep-alive's default ping interval: well inside the idle timeouts of proxies and NAT
+/// tables (often 60 s), and at 20 s a ping costs an idle connection nothing.
+pub const PING_INTERVAL: Duration = Duration::from_secs(20);
 
 impl Default for ConnectionLimits {
     fn default() -> Self {
@@ -36,6 +45,7 @@ impl Default for ConnectionLimits {
             header_timeout: Duration::from_secs(10),
             max_handshaking: 256,
             shutdown_grace: Duration::from_secs(1),
+            ping_interval: PING_INTERVAL,
         }
     }
 }

@@ -51,9 +51,8 @@ pub(crate) fn read(state: &AppState, path: &str) -> Result<Value, ProtocolError>
         .ok_or_else(|| {
             let why = state
                 .control
-                .lock()
-                .ok()
-                .and_then(|c| c.settings.node_warning(&format!("/demods/{n}/enable")))
+                .settings()
+                .node_warning(&format!("/demods/{n}/enable"))
                 .unwrap_or_else(|| format!("demodulator {n} is disabled (/demods/{n}/enable)"));
             ProtocolError {
                 code: ErrorCode::NoData,

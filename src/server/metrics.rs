@@ -9,11 +9,8 @@ use super::status::{ClientReport, ProcessMemory};
 
 /// Renders every counter, gauge and latency summary.
 pub(crate) fn render(state: &AppState) -> String {
-    let (counters, realtime) = state
-        .control
-        .lock()
-        .map(|c| (c.counters(), c.settings.synth.realtime))
-        .unwrap_or_default();
+    let counters = state.control.counters().unwrap_or_default();
+    let realtime = state.control.settings().synth.realtime;
     let mut out = String::with_capacity(4096);
     let mut metric = |name: &str, kind: &str, help: &str, samples: &[(String, f64)]| {
         let _ = writeln!(out, "# HELP ftafm_{name} {help}");
@@ -197,6 +194,12 @@ pub(crate) fn render(state: &AppState) -> String {
         "counter",
         "Clients disconnected for not reading.",
         &one(state.closed_stalled.load(Ordering::Relaxed)),
+    );
+    metric(
+        "clients_unresponsive_total",
+        "counter",
+        "Clients disconnected for answering no keep-alive ping within /server/stall_timeout (half-open or silent connections).",
+        &one(state.closed_unresponsive.load(Ordering::Relaxed)),
     );
     metric(
         "http_connections_open",

@@ -3,6 +3,7 @@
 
 mod app;
 mod assets;
+mod follow;
 mod force;
 mod host;
 mod hub;

@@ -2,19 +2,24 @@
 //!
 //! Replies and data share the socket through a writer task that sends replies first. A
 //! peer that accepts nothing for `/server/stall_timeout` is disconnected (1008 "stalled");
-//! at shutdown every client gets a close frame (1001).
+//! one that sends nothing for the ping interval is pinged, and disconnected (1008 "no pong")
+//! if nothing at all comes back within `/server/stall_timeout`. A peer's close frame is
+//! answered at once, ahead of the data still queued for it. At shutdown every client gets a
+//! close frame (1001).
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket};
+use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{Map, Value, json};
 use tokio::sync::mpsc;
 
 use super::protocol::{self, ErrorCode, Op, ProtocolError, Request, StreamKind};
-use super::state::{AppState, ClientHandle, Control, DataQueue, DataReceiver};
+use super::state::{AppState, ClientHandle, DataQueue, DataReceiver, ReplyHold};
+use crate::instrument::ChangeError;
 use crate::pipeline::unix_ns;
 
 /// Requests a client may make per second on average, and in a burst.
@@ -24,6 +29,14 @@ const REQUEST_BURST: f64 = 400.0;
 const GOING_AWAY: u16 = 1001;
 const POLICY: u16 = 1008;
 const TOO_BIG: u16 = 1009;
+/// Longest the answer to a peer's close frame waits for the socket. It goes after what the
+/// socket already holds and the one message being sent (never after the data still
+/// queued), which a peer that closed and then stopped reading never takes; a peer that
+/// reads, on a machine busy with other work, takes it well within this.
+const CLOSE_ANSWER_WAIT: Duration = Duration::from_secs(5);
+/// Longest a close frame the server starts (a peer that answered no ping) waits for the
+/// socket: a silent peer's socket may be full, and its slot must free either way.
+const CLOSE_WAIT: Duration = Duration::from_millis(200);
 
 fn close(code: u16, reason: &'static str) -> Message {
     Message::Close(Some(CloseFrame {
@@ -31,6 +44,21 @@ fn close(code: u16, reason: &'static str) -> Message {
         reason: Utf8Bytes::from_static(reason),
     }))
 }
+
+/// What the reader asks of the writer ahead of replies and data, even while a send waits on
+/// a full socket.
+enum Urgent {
+    /// Send a keep-alive ping.
+    Ping,
+    /// The peer sent a close frame: answer it and end the connection.
+    AnswerClose,
+    /// End the connection with this close frame.
+    Close(Message),
+}
+
+/// A message for the reply channel: a reply with its share of the client's reply bytes
+/// (none for a close frame).
+type Reply = (Message, Option<ReplyHold>);
 
 /// Token bucket for a connection's requests.
 struct RateLimit {
@@ -70,10 +98,14 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
     }
     tracing::debug!(client = id, "connected");
     let (sink, mut stream) = socket.split();
-    let (reply_tx, reply_rx) = mpsc::channel::<Message>(64);
+    let (reply_tx, reply_rx) = mpsc::channel::<Reply>(64);
+    // At most one ping is outstanding and the reader stops after a close, so this channel
+    // holds a message or two.
+    let (urgent_tx, urgent_rx) = mpsc::unbounded_channel::<Urgent>();
     let stall = stall_timeout(&state);
     let mut writer = tokio::spawn(write(
         sink,
+        urgent_rx,
         reply_rx,
         data_rx,
         state.clone(),
@@ -83,11 +115,22 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
 
     let mut limit = RateLimit::new();
     let mut writer_done = false;
+    // The keep-alive: when the peer last sent anything, and when it was pinged since. A
+    // peer that answers no ping for the stall timeout is as dead as one whose socket takes
+    // nothing for it (a half-open connection, or one that never reads).
+    let mut heard = Instant::now();
+    let mut pinged: Option<Instant> = None;
     loop {
+        let wake = match pinged {
+            Some(at) => at + stall,
+            None => heard + state.ping_interval,
+        };
         // The writer ends when the peer stalls (or on shutdown): then the connection is
         // dropped at once, whether or not the peer sends anything, so its slot frees and a
         // peer that resumes reading finds the connection closed, not a silent gap.
         let incoming = tokio::select! {
+            // What the peer sent counts before the keep-alive's verdict.
+            biased;
             m = stream.next() => match m {
                 Some(m) => m,
                 None => break,
@@ -96,7 +139,25 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
                 writer_done = true;
                 break;
             }
+            _ = tokio::time::sleep_until(wake.into()) => {
+                if pinged.is_none() {
+                    let _ = urgent_tx.send(Urgent::Ping);
+                    pinged = Some(Instant::now());
+                    continue;
+                }
+                state.closed_unresponsive.fetch_add(1, Ordering::Relaxed);
+                tracing::warn!(
+                    client = id,
+                    stall_timeout_s = stall.as_secs_f64(),
+                    "closing a client that answered no ping within /server/stall_timeout"
+                );
+                let _ = urgent_tx.send(Urgent::Close(close(POLICY, "no pong")));
+                break;
+            }
         };
+        // Any frame, a pong or a request, shows the peer is there.
+        heard = Instant::now();
+        pinged = None;
         let reply = match incoming {
             Ok(Message::Text(text)) => {
                 if limit.allow() {
@@ -120,22 +181,27 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
                 };
                 Message::Text(protocol::error_reply(&Value::Null, &err).into())
             }
-            Ok(Message::Close(_)) => break,
-            Ok(_) => continue, // ping/pong are answered by the library
+            Ok(Message::Close(_)) => {
+                // The library has queued the answer, echoing the peer's code; the writer
+                // sends it ahead of the data and replies still queued, then the session ends.
+                let _ = urgent_tx.send(Urgent::AnswerClose);
+                break;
+            }
+            Ok(_) => continue, // pings are answered by the library; pongs only count as heard
             Err(e) => {
                 let too_big = e.to_string().to_lowercase().contains("too long")
                     || e.to_string().to_lowercase().contains("too big")
                     || e.to_string().to_lowercase().contains("capacity");
                 if too_big {
                     let _ = reply_tx
-                        .send(close(TOO_BIG, "message too big (limit 64 KiB)"))
+                        .send((close(TOO_BIG, "message too big (limit 64 KiB)"), None))
                         .await;
                 }
                 tracing::debug!(client = id, error = %e, "receive failed");
                 break;
             }
         };
-        if reply_tx.send(reply).await.is_err() {
+        if !send_reply(&reply_tx, reply, &state, &client).await {
             break; // the writer ended (stalled peer or shutdown)
         }
     }
@@ -147,7 +213,7 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
     state.update_force_stride();
     // Let the writer flush a final close frame, but not forever.
     if !writer_done {
-        let _ = tokio::time::timeout(Duration::from_secs(1), writer).await;
+        let _ = tokio::time::timeout(CLOSE_ANSWER_WAIT, writer).await;
     }
     drop(stream);
     tracing::debug!(
@@ -157,49 +223,100 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
     );
 }
 
-/// Whether a change of `path` moves the 1-DOF operating point (and so the model-range check).
-fn affects_physics(path: &str) -> bool {
-    ["/cantilever", "/tip", "/sample", "/drive", "/surface"]
-        .iter()
-        .any(|p| path.starts_with(p))
+/// Hands `reply` to the writer once the client's replies fit under
+/// `/server/client_queue_bytes` (waiting holds back its next request: replies are never
+/// dropped, so a client that does not read them is bounded by not being served). False if
+/// the writer has ended.
+async fn send_reply(
+    replies: &mpsc::Sender<Reply>,
+    reply: Message,
+    state: &AppState,
+    client: &ClientHandle,
+) -> bool {
+    let size = match &reply {
+        Message::Text(text) => text.len(),
+        _ => 0,
+    };
+    let max_bytes = state.queue_bytes.load(Ordering::Relaxed);
+    // The writer releases the bytes as it sends; if it ends, the replies it held are
+    // dropped and released too, so this wait ends either way.
+    let hold = client.replies.admit(size, max_bytes).await;
+    replies.send((reply, Some(hold))).await.is_ok()
 }
 
 fn stall_timeout(state: &AppState) -> Duration {
-    let seconds = state
-        .control
-        .lock()
-        .map(|c| c.settings.server.stall_timeout)
-        .unwrap_or(60.0);
+    let seconds = state.control.settings().server.stall_timeout;
     Duration::from_secs_f64(seconds)
 }
 
 /// Sends replies (first) and data until the peer stalls, the session ends or the server
-/// shuts down. Each data message handed to the socket is counted and its latency recorded
-/// on `client`.
+/// shuts down; what the reader asks (a ping, the answer to the peer's close, a close of
+/// ours) goes ahead of both, even while a send waits on the socket. Each data message
+/// handed to the socket is counted and its latency recorded on `client`.
 async fn write(
-    mut sink: futures_util::stream::SplitSink<WebSocket, Message>,
-    mut replies: mpsc::Receiver<Message>,
+    mut sink: SplitSink<WebSocket, Message>,
+    mut urgent: mpsc::UnboundedReceiver<Urgent>,
+    mut replies: mpsc::Receiver<Reply>,
     mut data: DataReceiver,
     state: Arc<AppState>,
     client: Arc<ClientHandle>,
     stall: Duration,
 ) {
     let mut shutdown = state.shutdown.clone();
+    // A ping asked for while a send waited on the socket: it goes next.
+    let mut ping_due = false;
     loop {
-        let (msg, stamps) = tokio::select! {
-            biased;
-            _ = shutdown.changed() => {
-                let _ = tokio::time::timeout(Duration::from_millis(500), sink.send(close(GOING_AWAY, "server shutting down"))).await;
-                return;
+        let (msg, stamps, hold) = if std::mem::take(&mut ping_due) {
+            (Message::Ping(Default::default()), None, None)
+        } else {
+            tokio::select! {
+                biased;
+                _ = shutdown.changed() => {
+                    let _ = tokio::time::timeout(Duration::from_millis(500), sink.send(close(GOING_AWAY, "server shutting down"))).await;
+                    return;
+                }
+                Some(u) = urgent.recv() => match u {
+                    Urgent::Ping => (Message::Ping(Default::default()), None, None),
+                    end => {
+                        finish(&mut sink, end).await;
+                        return;
+                    }
+                },
+                r = replies.recv() => match r {
+                    Some((m, hold)) => (m, None, hold),
+                    None => return,
+                },
+                Some(o) = data.recv() => (o.msg, Some(o.stamps), None),
             }
-            r = replies.recv() => match r {
-                Some(m) => (m, None),
-                None => return,
-            },
-            Some(o) = data.recv() => (o.msg, Some(o.stamps)),
         };
         let closing = matches!(msg, Message::Close(_));
-        let sent = tokio::time::timeout(stall, sink.send(msg)).await;
+        // A send waits while the socket is full. The send in flight is finished (a frame
+        // cut short would break the stream), but what the reader asks meanwhile is noted:
+        // the answer to the peer's close goes right after it, ahead of the data and
+        // replies queued behind it.
+        let mut end = None;
+        let sent = {
+            let send = tokio::time::timeout(stall, sink.send(msg));
+            tokio::pin!(send);
+            loop {
+                tokio::select! {
+                    biased;
+                    r = &mut send => break r,
+                    Some(u) = urgent.recv(), if end.is_none() => match u {
+                        Urgent::Ping => ping_due = true,
+                        other => end = Some(other),
+                    },
+                }
+            }
+        };
+        // A reply's bytes leave the client's count once the socket has taken it.
+        drop(hold);
+        if let Some(end) = end {
+            if matches!(sent, Ok(Ok(()))) {
+                finish(&mut sink, end).await;
+            }
+            return;
+        }
         if let (Ok(Ok(())), Some(stamps)) = (&sent, stamps) {
             client.written(&state, stamps, unix_ns());
         }
@@ -225,51 +342,19 @@ async fn write(
     }
 }
 
-/// Runs a settings change under the control lock, off the async workers (the 1-DOF solve
-/// of a physics change takes milliseconds), then brings along what follows the settings:
-/// the queue bound, the force estimator, the images and the model-range warnings. `f`
-/// returns the paths it changed (`None`: possibly any) and its result.
-pub(crate) async fn change<R: Send + 'static>(
-    state: &Arc<AppState>,
-    f: impl FnOnce(&mut Control) -> Result<(Option<Vec<String>>, R), ProtocolError> + Send + 'static,
-) -> Result<R, ProtocolError> {
-    let state = state.clone();
-    let internal = |m: &str| ProtocolError {
-        code: ErrorCode::Internal,
-        message: m.to_string(),
-    };
-    tokio::task::spawn_blocking(move || {
-        let mut control = state
-            .control
-            .lock()
-            .map_err(|_| internal("control lock poisoned"))?;
-        let (paths, result) = f(&mut control)?;
-        state.changes.send_modify(|n| *n += 1);
-        let touched = |affects: fn(&str) -> bool| {
-            paths
-                .as_ref()
-                .is_none_or(|paths| paths.iter().any(|p| affects(p)))
-        };
-        state.queue_bytes.store(
-            control.settings.server.client_queue_bytes as usize,
-            Ordering::Relaxed,
-        );
-        if touched(super::force::affects_estimator) {
-            state.force.rebuild(control.settings.clone());
+/// Ends the connection as the reader asked, each way bounded (the socket may be full).
+async fn finish(sink: &mut SplitSink<WebSocket, Message>, end: Urgent) {
+    match end {
+        // The library queued the answer when it read the peer's close; closing the sink
+        // writes it out (after what the socket already holds) and ends the connection.
+        Urgent::AnswerClose => {
+            let _ = tokio::time::timeout(CLOSE_ANSWER_WAIT, sink.close()).await;
         }
-        if touched(super::image::affects_images) {
-            state.image.configure(&control.settings);
+        Urgent::Close(frame) => {
+            let _ = tokio::time::timeout(CLOSE_WAIT, sink.send(frame)).await;
         }
-        if touched(affects_physics) {
-            let warnings = crate::model::range_warnings(&control.settings);
-            if let Ok(mut w) = state.range_warnings.lock() {
-                *w = warnings;
-            }
-        }
-        Ok(result)
-    })
-    .await
-    .map_err(|_| internal("the settings task failed"))?
+        Urgent::Ping => {}
+    }
 }
 
 /// One request → one reply.
@@ -308,16 +393,10 @@ async fn respond(
             "sample_rate": state.sample_rate,
         }))),
         Op::List { path } => {
-            let control = state
-                .control
-                .lock()
-                .map_err(|_| internal("control lock poisoned"))?;
+            let settings = state.control.settings();
             let nodes = match &path {
-                Some(p) => control
-                    .settings
-                    .list(p)
-                    .map_err(|e| ProtocolError::from(&e))?,
-                None => control.settings.nodes(),
+                Some(p) => settings.list(p).map_err(|e| ProtocolError::from(&e))?,
+                None => settings.nodes(),
             };
             Ok(fields(json!({ "nodes": nodes })))
         }
@@ -326,101 +405,105 @@ async fn respond(
             Ok(fields(json!({ "path": path, "value": value })))
         }
         Op::Get { path } => {
-            let control = state
-                .control
-                .lock()
-                .map_err(|_| internal("control lock poisoned"))?;
-            let value = control
+            let current = state.control.current();
+            let value = current
                 .settings
                 .get(&path)
                 .map_err(|e| ProtocolError::from(&e))?;
-            let mut reply = json!({ "path": path, "value": value });
-            if let Some(warning) = control.settings.node_warning(&path) {
+            let mut reply = json!({ "path": path, "value": value, "epoch": current.epoch });
+            if let Some(warning) = current.settings.node_warning(&path) {
                 reply["warning"] = Value::from(warning);
             }
             Ok(fields(reply))
         }
         Op::Set { path, value } => {
-            let (path, applied, t) = change(state, move |control| {
-                let (applied, t) = control.set(&path, &value)?;
-                Ok((Some(vec![path.clone()]), (path, applied, t)))
-            })
-            .await?;
-            Ok(fields(json!({ "path": path, "value": applied, "t": t })))
+            let what = format!("{path} = {value}");
+            let c = state
+                .control
+                .change(what, move |c| {
+                    let mut next = (*c.settings).clone();
+                    let applied = next.set(&path, &value)?;
+                    Ok((next, Some(vec![path.clone()]), (path, applied)))
+                })
+                .await?;
+            let (path, applied) = c.value;
+            Ok(fields(
+                json!({ "path": path, "value": applied, "t": c.t, "epoch": c.epoch }),
+            ))
         }
         Op::SetMany { values } => {
-            let (applied, t) = change(state, move |control| {
-                let (applied, t) = control.set_many(&values)?;
-                let paths: Vec<String> = values.iter().map(|(p, _)| p.clone()).collect();
-                let applied: Map<String, Value> = paths.iter().cloned().zip(applied).collect();
-                Ok((Some(paths), (applied, t)))
-            })
-            .await?;
-            Ok(fields(json!({ "values": applied, "t": t })))
+            let what = values
+                .iter()
+                .map(|(p, _)| p.as_str())
+                .collect::<Vec<_>>()
+                .join(", ");
+            let c = state
+                .control
+                .change(what, move |c| {
+                    let mut next = (*c.settings).clone();
+                    let applied = next.set_many(&values)?;
+                    let paths: Vec<String> = values.iter().map(|(p, _)| p.clone()).collect();
+                    let applied: Map<String, Value> = paths.iter().cloned().zip(applied).collect();
+                    Ok((next, Some(paths), applied))
+                })
+                .await?;
+            Ok(fields(
+                json!({ "values": c.value, "t": c.t, "epoch": c.epoch }),
+            ))
         }
         Op::Settings => {
-            let control = state
-                .control
-                .lock()
-                .map_err(|_| internal("control lock poisoned"))?;
-            let toml = crate::config::settings_toml(&control.settings).map_err(|e| internal(&e))?;
-            Ok(fields(json!({ "toml": toml })))
+            let current = state.control.current();
+            let toml = crate::config::settings_toml(&current.settings).map_err(|e| internal(&e))?;
+            Ok(fields(json!({ "toml": toml, "epoch": current.epoch })))
         }
         Op::LoadSettings { toml } => {
-            change(state, move |control| {
-                let next = crate::config::overlay_str(control.settings.clone(), &toml, "settings")
-                    .map_err(|e| ProtocolError {
-                        code: ErrorCode::InvalidValue,
-                        message: e.to_string(),
-                    })?;
-                if next.synth.sample_rate != control.settings.synth.sample_rate {
-                    return Err(ProtocolError {
-                        code: ErrorCode::ReadOnly,
-                        message: format!(
+            let c = state
+                .control
+                .change("settings".to_owned(), move |c| {
+                    let s = &c.settings;
+                    let next = crate::config::overlay_str((**s).clone(), &toml, "settings")?;
+                    if next.synth.sample_rate != s.synth.sample_rate {
+                        return Err(ChangeError::ReadOnly(format!(
                             "/synth/sample_rate is read-only at runtime: these settings have {} \
                              Hz, the instrument runs at {} Hz; start the daemon with them \
                              (ftafm --config FILE) instead",
-                            next.synth.sample_rate, control.settings.synth.sample_rate
-                        ),
-                    });
-                }
-                let t = control.replace(next, "settings")?;
-                Ok((
-                    None,
-                    fields(json!({ "t": t, "warnings": control.settings.warnings() })),
-                ))
-            })
-            .await
+                            next.synth.sample_rate, s.synth.sample_rate
+                        )));
+                    }
+                    Ok((next, None, ()))
+                })
+                .await?;
+            Ok(fields(json!({
+                "t": c.t,
+                "epoch": c.epoch,
+                "warnings": c.settings.warnings(),
+            })))
         }
         Op::Presets => Ok(fields(json!({ "presets": crate::config::PRESETS
             .iter()
             .map(|p| json!({ "name": p.name, "kind": p.kind, "summary": p.summary() }))
             .collect::<Vec<_>>() }))),
         Op::Preset { name } => {
-            change(state, move |control| {
-                let preset = crate::config::preset(&name).map_err(|e| ProtocolError {
-                    code: ErrorCode::InvalidValue,
-                    message: e.to_string(),
-                })?;
-                let origin = format!("preset {}", preset.name);
-                let next =
-                    crate::config::overlay_str(control.settings.clone(), preset.toml, &origin)
-                        .map_err(|e| ProtocolError {
-                            code: ErrorCode::InvalidValue,
-                            message: e.to_string(),
-                        })?;
-                let t = control.replace(next, &origin)?;
-                Ok((
-                    None,
-                    fields(json!({
-                        "preset": preset.name,
-                        "kind": preset.kind,
-                        "t": t,
-                        "warnings": control.settings.warnings(),
-                    })),
-                ))
-            })
-            .await
+            let preset = crate::config::preset(&name).map_err(|e| ProtocolError {
+                code: ErrorCode::InvalidValue,
+                message: e.to_string(),
+            })?;
+            let origin = format!("preset {}", preset.name);
+            let c = state
+                .control
+                .change(origin.clone(), move |c| {
+                    let base = (*c.settings).clone();
+                    let next = crate::config::overlay_str(base, preset.toml, &origin)?;
+                    Ok((next, None, ()))
+                })
+                .await?;
+            Ok(fields(json!({
+                "preset": preset.name,
+                "kind": preset.kind,
+                "t": c.t,
+                "epoch": c.epoch,
+                "warnings": c.settings.warnings(),
+            })))
         }
         Op::Subscribe {
             stream,

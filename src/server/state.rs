@@ -7,15 +7,13 @@ use std::time::Instant;
 
 use axum::extract::ws::Message;
 use hdrhistogram::Histogram;
-use serde_json::Value;
 use tokio::sync::mpsc::error::TrySendError;
 use tokio::sync::{mpsc, watch};
 
 use super::latency::Latency;
-use super::protocol::{ErrorCode, Format, ProtocolError, StreamKind};
+use super::protocol::{Format, StreamKind};
 use super::status::{ClientReport, LatencySummary, ProcessMemory, StatusReport};
-use crate::config::Settings;
-use crate::pipeline::{CountersSnapshot, Pipeline, PipelineError};
+use crate::instrument::Control;
 
 /// Streams in the order of [`StreamKind::ALL`]; indexes per-stream arrays.
 pub(crate) const STREAMS: usize = 7;
@@ -29,88 +27,6 @@ pub(crate) fn stream_index(s: StreamKind) -> usize {
         StreamKind::Force => 4,
         StreamKind::Image => 5,
         StreamKind::Sweep => 6,
-    }
-}
-
-/// The settings in force and the pipeline that runs them.
-pub(crate) struct Control {
-    pub settings: Settings,
-    pub pipeline: Option<Pipeline>,
-}
-
-/// Longest a settings change waits to learn the sample it took effect at (a block is
-/// 0.4 ms at 10 MS/s; only a synthesiser that cannot move, free-running with its DSP held,
-/// takes this long).
-const EFFECT_WAIT: std::time::Duration = std::time::Duration::from_secs(1);
-
-impl Control {
-    /// Applies whole new settings (already validated), e.g. a preset; `what` names the
-    /// change in errors. Returns the simulated time (s) from which the chain runs them
-    /// (`None` without a pipeline or if the synthesiser did not get there in time). On
-    /// error nothing changes.
-    pub fn replace(&mut self, next: Settings, what: &str) -> Result<Option<f64>, ProtocolError> {
-        let mut t = None;
-        if let Some(p) = &mut self.pipeline {
-            let epoch = p.apply(&next).map_err(|e| pipeline_error(e, what))?;
-            t = p
-                .effective_index(epoch, EFFECT_WAIT)
-                .map(|index| index as f64 / next.synth.sample_rate);
-        }
-        self.settings = next;
-        Ok(t)
-    }
-
-    /// Validates and applies one node change; returns the value as applied and the
-    /// simulated time it took effect (see [`replace`](Self::replace)). On error nothing
-    /// changes.
-    pub fn set(
-        &mut self,
-        path: &str,
-        value: &Value,
-    ) -> Result<(Value, Option<f64>), ProtocolError> {
-        let mut next = self.settings.clone();
-        let applied = next.set(path, value).map_err(|e| ProtocolError::from(&e))?;
-        let t = self.replace(next, &format!("{path} = {value}"))?;
-        Ok((applied, t))
-    }
-
-    /// Validates and applies several node changes together, at one sample boundary; returns
-    /// the values as applied (in order) and the simulated time they took effect. On error
-    /// (which names the node) nothing changes.
-    pub fn set_many(
-        &mut self,
-        values: &[(String, Value)],
-    ) -> Result<(Vec<Value>, Option<f64>), ProtocolError> {
-        let mut next = self.settings.clone();
-        let applied = next.set_many(values).map_err(|e| ProtocolError::from(&e))?;
-        let what = values
-            .iter()
-            .map(|(p, _)| p.as_str())
-            .collect::<Vec<_>>()
-            .join(", ");
-        let t = self.replace(next, &what)?;
-        Ok((applied, t))
-    }
-
-    pub fn counters(&self) -> CountersSnapshot {
-        self.pipeline
-            .as_ref()
-            .map(|p| p.counters())
-            .unwrap_or_default()
-    }
-}
-
-/// A pipeline's refusal as the protocol's error; `what` names the change.
-fn pipeline_error(e: PipelineError, what: &str) -> ProtocolError {
-    match e {
-        PipelineError::Busy => ProtocolError {
-            code: ErrorCode::Busy,
-            message: format!("{what}: {e}; retry shortly"),
-        },
-        other => ProtocolError {
-            code: ErrorCode::InvalidValue,
-            message: format!("{what}: {other}"),
-        },
     }
 }
 
@@ -262,6 +178,61 @@ impl DataQueue {
     }
 }
 
+/// The bytes of a client's replies held by the server: made, not yet handed to its socket.
+/// Replies are never dropped, so they are bounded by holding back the client's requests:
+/// its session reads the next request only once the replies it holds fit under
+/// `/server/client_queue_bytes` (a bound of their own, beside the data queue's), so a
+/// client that sends requests and reads nothing costs that bound and one reply, not what
+/// its requests would make.
+#[derive(Debug, Default)]
+pub(crate) struct ReplyBytes {
+    held: AtomicUsize,
+    freed: tokio::sync::Notify,
+}
+
+impl ReplyBytes {
+    /// Bytes held now.
+    pub fn held(&self) -> usize {
+        self.held.load(Ordering::Relaxed)
+    }
+
+    /// Waits until a reply of `size` bytes fits under `max_bytes` (one larger reply goes
+    /// when none is held, so nothing waits for ever), then counts it; the bytes leave the
+    /// count when the returned hold is dropped. One task (the session's reader) admits.
+    pub async fn admit(self: &Arc<Self>, size: usize, max_bytes: usize) -> ReplyHold {
+        loop {
+            // Registered before the check, so a release between the two is not missed.
+            let freed = self.freed.notified();
+            tokio::pin!(freed);
+            freed.as_mut().enable();
+            let held = self.held();
+            if held == 0 || held.saturating_add(size) <= max_bytes {
+                self.held.fetch_add(size, Ordering::Relaxed);
+                return ReplyHold {
+                    bytes: size,
+                    owner: self.clone(),
+                };
+            }
+            freed.await;
+        }
+    }
+}
+
+/// A reply's share of [`ReplyBytes`], released when dropped: when the writer has handed the
+/// reply to the socket, or when the session ends with it unsent.
+#[derive(Debug)]
+pub(crate) struct ReplyHold {
+    bytes: usize,
+    owner: Arc<ReplyBytes>,
+}
+
+impl Drop for ReplyHold {
+    fn drop(&mut self) {
+        self.owner.held.fetch_sub(self.bytes, Ordering::Relaxed);
+        self.owner.freed.notify_waiters();
+    }
+}
+
 /// Latency at the socket of one client's demodulator messages (ns): 1 µs resolution,
 /// two significant digits, so a client costs little memory.
 pub(crate) struct ClientLatency {
@@ -299,6 +270,9 @@ pub(crate) struct ClientHandle {
     pub pending: Mutex<PendingBatch>,
     /// Data messages for this client (bounded: a slow client loses its own).
     pub data: DataQueue,
+    /// This client's replies not yet handed to its socket (bounded by holding back its
+    /// requests).
+    pub replies: Arc<ReplyBytes>,
     /// Messages dropped for this client.
     pub dropped: AtomicU64,
     /// Data messages handed to this client's socket.
@@ -317,6 +291,7 @@ impl ClientHandle {
             force_from: AtomicU64::new(0),
             pending: Mutex::default(),
             data,
+            replies: Arc::default(),
             dropped: AtomicU64::new(0),
             written: AtomicU64::new(0),
             latency: Mutex::new(None),
@@ -366,7 +341,7 @@ impl ClientHandle {
             id: self.id,
             written: self.written.load(Ordering::Relaxed),
             dropped: self.dropped.load(Ordering::Relaxed),
-            queued_bytes: self.data.queued_bytes() as u64,
+            queued_bytes: (self.data.queued_bytes() + self.replies.held()) as u64,
             dsp_to_socket,
             synth_to_socket,
         }
@@ -492,7 +467,8 @@ impl StreamStats {
 
 /// Shared by the router, the sessions and the hub.
 pub(crate) struct AppState {
-    pub control: Mutex<Control>,
+    /// The settings, their epoch and their one writer.
+    pub control: Arc<Control>,
     pub clients: Mutex<Vec<Arc<ClientHandle>>>,
     /// WebSocket connections holding a slot: reserved at the handshake, released when the
     /// session ends, so handshakes in flight count against `/server/max_clients`.
@@ -506,9 +482,12 @@ pub(crate) struct AppState {
     pub refused_origin: AtomicU64,
     pub refused_capacity: AtomicU64,
     pub closed_stalled: AtomicU64,
-    /// Where the operating point leaves the model's range ([`crate::model::range_warnings`]),
-    /// recomputed when the physics changes; `status` carries them.
-    pub range_warnings: Mutex<Vec<String>>,
+    /// Connections closed because nothing came back within `/server/stall_timeout` of a
+    /// keep-alive ping (half-open, or a peer that reads nothing).
+    pub closed_unresponsive: AtomicU64,
+    /// How long a WebSocket may send nothing before the server pings it
+    /// ([`super::listen::ConnectionLimits::ping_interval`]).
+    pub ping_interval: std::time::Duration,
     /// Requests refused for their `Host` (not a name of this server, or none).
     pub refused_host: AtomicU64,
     /// `/server/client_queue_bytes`, for the fan-out (which must not take the settings lock
@@ -522,8 +501,6 @@ pub(crate) struct AppState {
     pub force: super::force::ForceLink,
     /// The newest demodulator frame, for reads of measured values (`/demods/N/sample`).
     pub latest_demods: Mutex<Option<crate::pipeline::DemodFrame>>,
-    /// Counts settings changes: the sweeper wakes on it.
-    pub changes: tokio::sync::watch::Sender<u64>,
     /// Demodulator frames for a running sweep (the hub forwards them while one runs).
     pub sweep_frames: super::sweeper::FrameTap,
     /// The force worker's outcomes handed to a running sweep.

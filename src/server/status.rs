@@ -97,7 +97,9 @@ pub struct ClientReport {
     pub written: u64,
     /// Data messages dropped for it (its queue was full).
     pub dropped: u64,
-    /// Bytes waiting in its queue now (bounded by `/server/client_queue_bytes`).
+    /// Bytes the server holds for it now: its queued data messages (bounded by
+    /// `/server/client_queue_bytes`) and its replies not yet taken by its socket (bounded
+    /// by it too, apart).
     #[serde(default)]
     pub queued_bytes: u64,
     /// DSP done → handed to its socket, demodulator messages (ns).
@@ -109,6 +111,8 @@ pub struct ClientReport {
 /// One `status` message's content.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct StatusReport {
+    /// The settings epoch in force (each committed change adds one).
+    pub epoch: u64,
     /// Photodiode sample rate (Hz).
     pub sample_rate: f64,
     /// Samples processed per wall-clock second over the last interval / sample rate.

@@ -13,7 +13,7 @@ use serde_json::{Map, Value, json};
 use tokio::sync::mpsc;
 
 use super::force::{ForceLink, ForceOutcome};
-use super::protocol::{self, ErrorCode, ProtocolError, StreamKind};
+use super::protocol::{self, ProtocolError, StreamKind};
 use super::state::AppState;
 use crate::config::{
     DEMODULATOR_COUNT, Settings, SweepDirection, SweepParameter, SweepScale, SweeperSettings,
@@ -98,12 +98,12 @@ pub(crate) async fn run(state: Arc<AppState>) {
     let Some(mut forces) = state.sweep_force.rx.lock().ok().and_then(|mut r| r.take()) else {
         return;
     };
-    let mut changes = state.changes.subscribe();
+    let mut changes = state.control.subscribe();
     let mut shutdown = state.shutdown.clone();
     loop {
-        let settings = state.control.lock().ok().map(|c| c.settings.clone());
-        if let Some(settings) = settings.filter(|s| s.sweeper.enable) {
-            if run_sweep(&state, settings, &mut frames, &mut forces, &mut changes)
+        let current = state.control.current();
+        if current.settings.sweeper.enable {
+            if run_sweep(&state, current, &mut frames, &mut forces, &mut changes)
                 .await
                 .is_err()
             {
@@ -233,8 +233,47 @@ impl ForcePoint {
 /// How a sweep ended.
 enum Outcome {
     Done,
-    Aborted,
+    /// Ended from outside, and why: `/sweeper/enable` set false, a new request, the swept
+    /// node or the physics changed by someone else.
+    Aborted(String),
     Failed(String),
+}
+
+/// Why a sweep of request `request` that last committed `mine` must end, now that `now`
+/// is in force (`None`: it runs on). A change the sweep did not make to what it measures
+/// ends it: a new request (`/sweeper/*` written, a preset, whole settings), its swept node
+/// written by someone else, or the physics it runs on changed.
+fn interrupted(
+    request: u64,
+    mine: &Settings,
+    now: &crate::instrument::Current,
+    swept: &[String],
+) -> Option<String> {
+    let s = &now.settings;
+    if now.sweep_request != request {
+        return Some(if s.sweeper.enable {
+            "a new sweep was requested (/sweeper/* written)".to_owned()
+        } else {
+            "/sweeper/enable was set false".to_owned()
+        });
+    }
+    if let Some(p) = swept.iter().find(|p| s.get(p).ok() != mine.get(p).ok()) {
+        return Some(format!("{p} was set by a client during the sweep"));
+    }
+    let table = |name: &str| !swept.iter().any(|p| p.starts_with(name));
+    let physics = s.cantilever != mine.cantilever
+        || s.tip != mine.tip
+        || s.sample != mine.sample
+        || s.adhesion != mine.adhesion
+        || s.synth != mine.synth
+        || s.noise != mine.noise
+        || (table("/drive/") && s.drive != mine.drive)
+        || (table("/surface/") && s.surface != mine.surface);
+    physics.then(|| {
+        "the settings the sweep measures changed during it (the cantilever, tip, sample, \
+         drive, surface, noise or engine)"
+            .to_owned()
+    })
 }
 
 /// The values set at one point: the parameter, and for a tune the free amplitude that
@@ -301,11 +340,13 @@ fn envelope(seq: u64, t: f64, t_synth_ns: u64, fields: &Map<String, Value>) -> S
 /// Runs the sweep `settings.sweeper` describes. `Err` only when the daemon shuts down.
 async fn run_sweep(
     state: &Arc<AppState>,
-    settings: Settings,
+    start: crate::instrument::Current,
     frames: &mut mpsc::Receiver<DemodFrame>,
     forces: &mut mpsc::Receiver<ForceOutcome>,
     changes: &mut tokio::sync::watch::Receiver<u64>,
 ) -> Result<(), ()> {
+    let settings: &Settings = &start.settings;
+    let request = start.sweep_request;
     let w = settings.sweeper.clone();
     let id = SWEEPS.fetch_add(1, Ordering::Relaxed) + 1;
     let points = sweep::points(
@@ -319,17 +360,26 @@ async fn run_sweep(
     let settle = if w.settling > 0.0 {
         w.settling
     } else {
-        automatic_settling(&settings)
+        automatic_settling(settings)
     };
     let tune = (w.parameter == SweepParameter::DriveFrequency)
-        .then(|| crate::model::cantilever(&settings).ok())
+        .then(|| crate::model::cantilever(settings).ok())
         .flatten()
         .map(|c| {
             let base = settings.drive.free_amplitude
                 / crate::model::free_response_per_base(&c, settings.drive.frequency);
             (c, base)
         });
-    let restore = restore_values(&settings, &w);
+    let restore = restore_values(settings, &w);
+    // The nodes the sweep writes (all but /sweeper/enable, which is restore's last).
+    let swept: Vec<String> = restore
+        .iter()
+        .map(|(p, _)| p.clone())
+        .filter(|p| p != "/sweeper/enable")
+        .collect();
+    // The settings of the sweep's own last commit: a difference from them is someone
+    // else's change.
+    let mut mine: Arc<Settings> = start.settings.clone();
     tracing::info!(
         sweep = id,
         parameter = w.parameter.name(),
@@ -362,22 +412,40 @@ async fn run_sweep(
     let mut measured: Vec<Measured> = Vec::with_capacity(points.len());
     let (mut t_last, mut t_synth_last) = (0.0, 0u64);
     let mut outcome = Outcome::Done;
+    let mut point_epoch;
     'points: for (i, p) in points.iter().enumerate() {
         let values = point_values(&w, p.value, tune.as_ref());
         let paths: Vec<String> = values.iter().map(|(p, _)| p.clone()).collect();
-        let change = super::session::change(state, move |control| {
-            let (_, t) = control.set_many(&values)?;
-            Ok((Some(paths), t))
-        })
-        .await;
+        let (before, swept_now) = (mine.clone(), swept.clone());
+        // Checked and written in one step under the writer's lock: no client's change can
+        // slip between the check and the point's values.
+        let change = state
+            .control
+            .change(format!("sweep point {i}"), move |c| {
+                if let Some(why) = interrupted(request, &before, c, &swept_now) {
+                    return Err(crate::instrument::ChangeError::Declined(why));
+                }
+                let mut next = Settings::clone(&c.settings);
+                next.set_many(&values)?;
+                Ok((next, Some(paths), ()))
+            })
+            .await;
         let t_set = match change {
-            Ok(t) => t.unwrap_or(t_last),
+            Err(crate::instrument::ChangeError::Declined(why)) => {
+                outcome = Outcome::Aborted(why);
+                break;
+            }
+            Ok(c) => {
+                mine = c.settings;
+                point_epoch = c.epoch;
+                c.t.unwrap_or(t_last)
+            }
             Err(e) => {
                 outcome = Outcome::Failed(format!(
                     "{} = {} at point {i}: {}",
                     w.parameter.name(),
                     p.value,
-                    e.message
+                    ProtocolError::from(e).message
                 ));
                 break;
             }
@@ -422,9 +490,8 @@ async fn run_sweep(
                     if r.is_err() {
                         return Err(());
                     }
-                    let enabled = state.control.lock().map(|c| c.settings.sweeper.enable).unwrap_or(false);
-                    if !enabled {
-                        outcome = Outcome::Aborted;
+                    if let Some(why) = interrupted(request, &mine, &state.control.current(), &swept) {
+                        outcome = Outcome::Aborted(why);
                         break 'points;
                     }
                 }
@@ -460,6 +527,8 @@ async fn run_sweep(
             .collect();
         let mut fields = Map::new();
         fields.insert("sweep".into(), json!(id));
+        fields.insert("request".into(), json!(request));
+        fields.insert("epoch".into(), json!(point_epoch));
         fields.insert("parameter".into(), json!(w.parameter.name()));
         fields.insert("point".into(), json!(i));
         fields.insert("points".into(), json!(points.len()));
@@ -491,27 +560,44 @@ async fn run_sweep(
     state.sweep_frames.active.store(false, Ordering::Relaxed);
     state.sweep_force.active.store(false, Ordering::Relaxed);
 
-    // Restore the swept node (and turn the sweep off) whatever happened; retry while the
-    // chain is busy with an earlier change.
+    // Restore each swept node that still holds the sweep's own value (one a client set
+    // meanwhile keeps the client's), and turn the sweep off unless a new one was requested
+    // meanwhile; retry while the chain is busy with an earlier change.
     let mut restored = Err(String::new());
+    let mut kept: Vec<String> = Vec::new();
     for _ in 0..20 {
-        let values = restore.clone();
-        match super::session::change(state, move |control| {
-            control.set_many(&values)?;
-            Ok((None, ()))
-        })
-        .await
+        let (values, last) = (restore.clone(), mine.clone());
+        match state
+            .control
+            .change(format!("sweep {id}: restore"), move |c| {
+                let (mut set, mut kept) = (Vec::new(), Vec::new());
+                for (path, value) in values {
+                    if path == "/sweeper/enable" {
+                        if c.sweep_request == request {
+                            set.push((path, value));
+                        }
+                    } else if c.settings.get(&path).ok() == last.get(&path).ok() {
+                        set.push((path, value));
+                    } else {
+                        kept.push(path);
+                    }
+                }
+                let mut next = Settings::clone(&c.settings);
+                next.set_many(&set)?;
+                Ok((next, Some(set.into_iter().map(|(p, _)| p).collect()), kept))
+            })
+            .await
         {
-            Ok(()) => {
+            Ok(c) => {
+                kept = c.value;
                 restored = Ok(());
                 break;
             }
-            Err(ProtocolError {
-                code: ErrorCode::Busy,
-                ..
-            }) => tokio::time::sleep(Duration::from_millis(50)).await,
+            Err(crate::instrument::ChangeError::Busy(_)) => {
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
             Err(e) => {
-                restored = Err(e.message);
+                restored = Err(e.to_string());
                 break;
             }
         }
@@ -519,20 +605,27 @@ async fn run_sweep(
     if let Err(why) = &restored {
         tracing::warn!(sweep = id, %why, "the swept node could not be restored");
         // Turn the sweep off at least, so it does not start over.
-        let _ = super::session::change(state, |control| {
-            control.set("/sweeper/enable", &json!(false))?;
-            Ok((None, ()))
-        })
-        .await;
+        let _ = state
+            .control
+            .change(format!("sweep {id}: off"), move |c| {
+                let mut next = Settings::clone(&c.settings);
+                if c.sweep_request == request {
+                    next.sweeper.enable = false;
+                }
+                Ok((next, Some(vec!["/sweeper/enable".to_owned()]), ()))
+            })
+            .await;
     }
 
     let mut fields = Map::new();
     fields.insert("sweep".into(), json!(id));
+    fields.insert("request".into(), json!(request));
+    fields.insert("epoch".into(), json!(state.control.epoch()));
     fields.insert("parameter".into(), json!(w.parameter.name()));
     fields.insert("done".into(), json!(true));
     let (name, reason) = match &outcome {
         Outcome::Done => ("done", Value::Null),
-        Outcome::Aborted => ("aborted", json!("/sweeper/enable was set false")),
+        Outcome::Aborted(why) => ("aborted", json!(why)),
         Outcome::Failed(why) => ("failed", json!(why)),
     };
     fields.insert("outcome".into(), json!(name));
@@ -540,6 +633,8 @@ async fn run_sweep(
     fields.insert("measured".into(), json!(measured.len()));
     fields.insert("points".into(), json!(points.len()));
     fields.insert("restored".into(), json!(restored.is_ok()));
+    // Swept nodes a client set during the sweep: they keep the client's value.
+    fields.insert("kept".into(), json!(kept));
     fields.insert(
         "frames_dropped".into(),
         json!(

@@ -21,6 +21,13 @@ from websockets.asyncio.client import ClientConnection
 from . import data
 from .errors import ConnectionLost, InstrumentError
 
+#: The requests that change the settings (their replies carry the change's epoch).
+_CHANGES = frozenset({"set", "preset", "load_settings"})
+
+#: Streams whose messages are derived from a model of the settings: they carry the epoch
+#: they reflect and ``stale`` while the model of newer settings is being built.
+_DERIVED = frozenset({"force", "image"})
+
 #: Where ``ftafm serve`` listens by default.
 DEFAULT_URL = "ws://127.0.0.1:8700/ws"
 
@@ -94,7 +101,15 @@ class Instrument:
         self._pending: dict[int, asyncio.Future[dict[str, Any]]] = {}
         self._readers: dict[str, list[asyncio.Queue[dict[str, Any] | None]]] = {}
         self._closed: str | None = None
+        self._epoch = 0
         self.hello: dict[str, Any] = {}
+
+    @property
+    def epoch(self) -> int:
+        """The settings epoch of this client's last change (``set``, ``set_many``,
+        ``preset``, ``load_settings``): the daemon counts every committed change, and stamps
+        each force estimate, image line and sweep message with the epoch it reflects."""
+        return self._epoch
 
     # -- connection ----------------------------------------------------------------------
 
@@ -168,6 +183,8 @@ class Instrument:
         if not reply.get("ok"):
             err = reply.get("error", {})
             raise InstrumentError(err.get("code", "internal"), err.get("message", ""), request)
+        if op in _CHANGES and isinstance(reply.get("epoch"), int):
+            self._epoch = max(self._epoch, reply["epoch"])
         return reply
 
     async def info(self) -> dict[str, Any]:
@@ -294,18 +311,34 @@ class Instrument:
             await gen.aclose()
 
     async def poll(
-        self, stream: str, seconds: float, *, timeout: float | None = None
+        self,
+        stream: str,
+        seconds: float,
+        *,
+        timeout: float | None = None,
+        include_stale: bool = False,
     ) -> data.StreamData:
         """The messages of ``stream`` over ``seconds`` of simulated time, as arrays.
 
         Collects from the first message on until one reflects samples ``seconds`` later
         (that one excluded). Simulated time runs with the wall clock in real time and
         faster when free-running. ``timeout`` (s) bounds the wait for each message.
+
+        ``force`` and ``image`` messages of settings older than this client's last change
+        (:attr:`epoch`), or marked ``stale`` (made by the model of older settings while
+        the new one is built), are left out unless ``include_stale``: after a ``set``,
+        ``poll("force", ...)`` returns estimates of the new settings only.
         """
         rows: list[dict[str, Any]] = []
         gen = self.messages(stream, timeout=timeout)
         try:
             async for msg in gen:
+                if (
+                    stream in _DERIVED
+                    and not include_stale
+                    and (msg.get("stale") or msg.get("epoch", 0) < self._epoch)
+                ):
+                    continue
                 if rows and msg["t"] >= rows[0]["t"] + seconds:
                     break
                 rows.append(msg)
@@ -347,14 +380,16 @@ class Instrument:
                            ("settling", settling), ("averaging", averaging)):
             if value is not None:
                 values[f"/sweeper/{key}"] = value
-        await self.set_many(values)
+        values["/sweeper/enable"] = True
         queue: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue()
         wait = max(self.timeout, SWEEP_POINT_TIMEOUT) if timeout is None else timeout
         await self._subscribe("sweep", queue)
         rows: list[dict[str, Any]] = []
+        finished = False
         try:
-            await self.set("/sweeper/enable", True)
-            sweep_id = None
+            # The epoch of the change that asks for the sweep is its request: every message
+            # of this sweep carries it, and no other sweep's does.
+            request = (await self.request("set", values=values))["epoch"]
             while True:
                 try:
                     msg = await asyncio.wait_for(queue.get(), wait)
@@ -364,14 +399,20 @@ class Instrument:
                     ) from None
                 if msg is None:
                     raise ConnectionLost(self._closed or "connection closed")
-                if sweep_id is None:
-                    sweep_id = msg.get("sweep")
-                if msg.get("sweep") != sweep_id:
+                if msg.get("request") != request:
                     continue
                 if msg.get("done"):
+                    finished = True
                     return data.SweepResult.from_messages(rows, msg)
                 rows.append(msg)
         finally:
+            if not finished and self._closed is None:
+                # Interrupted, timed out or cancelled: the sweep is this call's, so it
+                # ends with it (the daemon restores the swept node).
+                try:
+                    await asyncio.shield(self.request("set", path="/sweeper/enable", value=False))
+                except (InstrumentError, ConnectionLost, asyncio.CancelledError):
+                    pass
             await self._unsubscribe("sweep", queue)
 
     async def wait_until(self, t: float, *, timeout: float | None = None) -> float:

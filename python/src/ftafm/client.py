@@ -39,7 +39,14 @@ class Instrument:
             raise
 
     def _run(self, coro: Coroutine[Any, Any, T]) -> T:
-        return asyncio.run_coroutine_threadsafe(coro, self._loop).result()
+        future = asyncio.run_coroutine_threadsafe(coro, self._loop)
+        try:
+            return future.result()
+        except BaseException:
+            # Ctrl-C (or any exception) in the caller's thread: cancel the coroutine too, so
+            # its clean-up runs (a sweep is aborted) instead of it running on unseen.
+            future.cancel()
+            raise
 
     def _stop_loop(self) -> None:
         self._loop.call_soon_threadsafe(self._loop.stop)
@@ -50,6 +57,12 @@ class Instrument:
     def url(self) -> str:
         """The daemon's WebSocket endpoint."""
         return self._async.url
+
+    @property
+    def epoch(self) -> int:
+        """The settings epoch of this client's last change (see
+        :attr:`ftafm.aio.Instrument.epoch`)."""
+        return self._async.epoch
 
     @property
     def hello(self) -> dict[str, Any]:

@@ -204,6 +204,10 @@ class ForceData(StreamData):
     waveform: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
     method: list[str] = field(default_factory=list)
     table_range: list[str] = field(default_factory=list)
+    #: The settings epoch each estimate reflects, and whether it was made by the model of
+    #: older settings (``poll`` leaves those out unless asked).
+    epoch: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+    stale: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=bool))
 
     @classmethod
     def from_messages(cls, messages: Sequence[dict[str, Any]]) -> "ForceData":
@@ -222,6 +226,8 @@ class ForceData(StreamData):
             waveform=_rows([m.get("waveform") for m in messages]),
             method=[m.get("method", "") for m in messages],
             table_range=[m.get("table_range", "") for m in messages],
+            epoch=np.array([m.get("epoch", 0) for m in messages], dtype=np.int64),
+            stale=np.array([bool(m.get("stale", False)) for m in messages], dtype=bool),
         )
 
 

@@ -419,6 +419,13 @@ pub fn image_json(seq: u64, line: &ImageLine) -> String {
     out.f64(line.size);
     out.raw(",\"line_rate\":");
     out.f64(line.line_rate);
+    out.raw(",\"epoch\":");
+    out.u64(line.epoch);
+    out.raw(if line.stale {
+        ",\"stale\":true"
+    } else {
+        ",\"stale\":false"
+    });
     out.raw(",\"direction\":\"trace\",\"units\":{");
     for (i, (name, unit, _)) in line.channels.iter().enumerate() {
         if i > 0 {

@@ -260,3 +260,16 @@ impl From<NodeError> for ProtocolError {
         Self::from(&error)
     }
 }
+
+impl From<crate::instrument::ChangeError> for ProtocolError {
+    fn from(error: crate::instrument::ChangeError) -> Self {
+        use crate::instrument::ChangeError;
+        match error {
+            ChangeError::Node(e) => Self::from(&e),
+            ChangeError::Busy(m) => Self::new(ErrorCode::Busy, m),
+            ChangeError::ReadOnly(m) => Self::new(ErrorCode::ReadOnly, m),
+            ChangeError::Declined(m) => Self::new(ErrorCode::InvalidValue, m),
+            ChangeError::Internal(m) => Self::new(ErrorCode::Internal, m),
+        }
+    }
+}

@@ -150,8 +150,131 @@ pub fn parse_request(text: &str) -> Result<Request, (Value, ProtocolError)> {
     };
     let id = fields.get("id").cloned().unwrap_or(Value::Null);
     match parse_op(&fields) {
+        Ok(op @ Op::SetMany { .. }) => match repeated_values(text) {
+            Some(error) => Err((id, error)),
+            None => Ok(Request { id, op }),
+        },
         Ok(op) => Ok(Request { id, op }),
         Err(error) => Err((id, error)),
+    }
+}
+
+/// A batch `set` that gives a node twice: the object it was parsed into kept only the last
+/// value, which the client cannot have meant (it might as well have meant the first), so
+/// the request is refused, naming the paths. Reads `text` again, keys in order, since the
+/// parsed object no longer knows. `None` when every key of `values` is given once.
+fn repeated_values(text: &str) -> Option<ProtocolError> {
+    let Err(e) = serde_json::from_str::<ValuesKeys>(text) else {
+        return None;
+    };
+    // The text parsed as JSON before, so this can only be a repeated key.
+    let message = e.to_string();
+    let message = message.split(" at line ").next().unwrap_or(&message);
+    Some(bad(format!("field \"values\" of op \"set\" {message}")))
+}
+
+/// The top level of a request, read only to check that no key of its `values` object
+/// repeats (nor `values` itself).
+struct ValuesKeys;
+
+impl<'de> serde::Deserialize<'de> for ValuesKeys {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        d.deserialize_map(TopVisitor)
+    }
+}
+
+struct TopVisitor;
+
+impl<'de> serde::de::Visitor<'de> for TopVisitor {
+    type Value = ValuesKeys;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("a request object")
+    }
+
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<ValuesKeys, A::Error> {
+        let mut seen = false;
+        while let Some(key) = map.next_key::<std::borrow::Cow<'de, str>>()? {
+            if key != "values" {
+                map.next_value::<serde::de::IgnoredAny>()?;
+            } else if std::mem::replace(&mut seen, true) {
+                return Err(serde::de::Error::custom("is given twice"));
+            } else {
+                map.next_value::<UniqueKeys>()?;
+            }
+        }
+        Ok(ValuesKeys)
+    }
+}
+
+/// An object whose keys are all different (their values are not kept); any other value is
+/// let through, for the top level to judge.
+struct UniqueKeys;
+
+impl<'de> serde::Deserialize<'de> for UniqueKeys {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        d.deserialize_any(UniqueKeysVisitor)
+    }
+}
+
+struct UniqueKeysVisitor;
+
+impl<'de> serde::de::Visitor<'de> for UniqueKeysVisitor {
+    type Value = UniqueKeys;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("an object of node path → value")
+    }
+
+    // `values` given twice with a first that is no object: the top level says so.
+    fn visit_unit<E>(self) -> Result<UniqueKeys, E> {
+        Ok(UniqueKeys)
+    }
+
+    fn visit_bool<E>(self, _: bool) -> Result<UniqueKeys, E> {
+        Ok(UniqueKeys)
+    }
+
+    fn visit_i64<E>(self, _: i64) -> Result<UniqueKeys, E> {
+        Ok(UniqueKeys)
+    }
+
+    fn visit_u64<E>(self, _: u64) -> Result<UniqueKeys, E> {
+        Ok(UniqueKeys)
+    }
+
+    fn visit_f64<E>(self, _: f64) -> Result<UniqueKeys, E> {
+        Ok(UniqueKeys)
+    }
+
+    fn visit_str<E>(self, _: &str) -> Result<UniqueKeys, E> {
+        Ok(UniqueKeys)
+    }
+
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<UniqueKeys, A::Error> {
+        while seq.next_element::<serde::de::IgnoredAny>()?.is_some() {}
+        Ok(UniqueKeys)
+    }
+
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<UniqueKeys, A::Error> {
+        let mut seen = std::collections::BTreeMap::<String, usize>::new();
+        // Keys as decoded, so "\/a" and "/a" are the same node.
+        while let Some(key) = map.next_key::<String>()? {
+            map.next_value::<serde::de::IgnoredAny>()?;
+            *seen.entry(key).or_default() += 1;
+        }
+        let repeated: Vec<String> = seen
+            .iter()
+            .filter(|&(_, &n)| n > 1)
+            .map(|(path, n)| format!("{} {n} times", quote(path)))
+            .collect();
+        if repeated.is_empty() {
+            return Ok(UniqueKeys);
+        }
+        Err(serde::de::Error::custom(format!(
+            "gives {}: give each node once (a JSON object keeps only one of its values)",
+            repeated.join(" and ")
+        )))
     }
 }
 
