@@ -288,3 +288,76 @@ fn random_batches_each_get_their_reply_and_the_daemon_stays_alive() {
         .unwrap();
     rt.block_on(d.shutdown());
 }
+
+/// One demodulator at its top rate (the sample rate: 10 M frames a second) beside the
+/// scope, the spectrum and a `get`: over the same simulated time the scope and the spectrum
+/// keep at least half their rate (what the client misses shows as seq gaps, counted), a
+/// `get` is answered, and the daemon shuts down with a client that stopped reading.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_demodulator_at_its_top_rate_starves_no_other_stream() {
+    let mut s = ftafm::config::default_settings();
+    s.demods[0].rate = s.synth.sample_rate;
+    let (scope_rate, spectrum_rate) = (s.scope.rate, s.spectrum.rate);
+    let d = Daemon::start(s).await;
+    let mut ws = connect(d.addr).await;
+    for stream in ["demods", "scope", "spectrum"] {
+        let r = call(&mut ws, json!({"op": "subscribe", "stream": stream})).await;
+        assert_eq!(r["ok"], true, "{r}");
+    }
+    // A second client subscribed to everything that never reads again.
+    let mut idle = connect(d.addr).await;
+    for stream in ["demods", "scope", "spectrum", "status"] {
+        send(&mut idle, json!({"op": "subscribe", "stream": stream})).await;
+    }
+    let (mut scopes, mut spectra) = (Vec::new(), Vec::new());
+    let mut demods = 0u64;
+    let mut t0 = None;
+    let mut t_last = 0.0;
+    // Two seconds of simulated time, by the messages' own clock.
+    while t0.is_none_or(|t0| t_last < t0 + 2.0) {
+        let m = tokio::time::timeout(ANSWER, ws.next())
+            .await
+            .expect("data within the bound")
+            .unwrap()
+            .unwrap();
+        let Message::Text(t) = m else { continue };
+        let v: Value = serde_json::from_str(t.as_str()).unwrap();
+        let Some(t) = v["t"].as_f64() else { continue };
+        t0.get_or_insert(t);
+        t_last = t_last.max(t);
+        match v["stream"].as_str() {
+            Some("scope") => scopes.push(t),
+            Some("spectrum") => spectra.push(t),
+            Some("demods") => demods += 1,
+            _ => {}
+        }
+    }
+    let span = t_last - t0.unwrap();
+    println!(
+        "over {span:.2} s simulated: {} scopes, {} spectra, {demods} demods frames",
+        scopes.len(),
+        spectra.len()
+    );
+    assert!(
+        scopes.len() as f64 >= 0.5 * scope_rate * span,
+        "{} scopes",
+        scopes.len()
+    );
+    assert!(
+        spectra.len() as f64 >= 0.5 * spectrum_rate * span,
+        "{} spectra",
+        spectra.len()
+    );
+    send(
+        &mut ws,
+        json!({"id": 77, "op": "get", "path": "/demods/0/rate"}),
+    )
+    .await;
+    let got = reply_to(&mut ws, 77).await;
+    assert_eq!(got["ok"], true, "{got}");
+    let took = tokio::time::timeout(ANSWER, d.shutdown())
+        .await
+        .expect("shutdown with a client that stopped reading");
+    println!("shutdown took {took:?}");
+    drop(idle);
+}

@@ -28,6 +28,11 @@ const TICK: Duration = Duration::from_millis(1);
 /// Every how many status periods freed memory is handed back to the system (10 s).
 const TRIM_EVERY: u64 = 20;
 
+/// Most demodulator frames the hub takes in one pass before it serves the other streams
+/// and yields to the sessions: 64 ms of frames at the default 1 kHz, far more than one
+/// pass ever finds there.
+const DEMOD_FRAMES_PER_PASS: usize = 64;
+
 /// How often a `status` message goes out.
 const STATUS_PERIOD: Duration = Duration::from_millis(500);
 
@@ -291,11 +296,21 @@ pub(crate) async fn run(
     let mut status_count: u64 = 0;
     let mut swept = false;
     let mut last_counters = CountersSnapshot::default();
+    // Frames left in the ring when the last pass spent its budget.
+    let mut more = false;
     loop {
-        tokio::select! {
-            _ = tick.tick() => {}
-            _ = wake.wait() => {}
-            _ = shutdown.changed() => return,
+        if more {
+            // Take the rest at once, but after everyone else had a turn.
+            tokio::task::yield_now().await;
+            if *shutdown.borrow() {
+                return;
+            }
+        } else {
+            tokio::select! {
+                _ = tick.tick() => {}
+                _ = wake.wait() => {}
+                _ = shutdown.changed() => return,
+            }
         }
         let sweeping = state.sweep_force.is_active();
         if sweeping != swept {
@@ -305,7 +320,15 @@ pub(crate) async fn run(
         }
         let force_wanted = state.subscribed(StreamKind::Force) || sweeping;
         let mut newest = None;
-        while let Some(frame) = output.demods.try_pop() {
+        // A budget per pass: at a demodulator's top rate the frames come faster than they
+        // are serialised, and an unbounded drain would starve the other streams, the
+        // status, the sessions' replies and shutdown. What the hub does not take waits in
+        // the frame ring, whose overflow the DSP thread counts (`demod_frames_dropped`).
+        let mut budget = DEMOD_FRAMES_PER_PASS;
+        while budget > 0
+            && let Some(frame) = output.demods.try_pop()
+        {
+            budget -= 1;
             newest = Some(frame);
             state.sweep_frames.offer(&frame);
             if force_wanted {
@@ -323,6 +346,7 @@ pub(crate) async fn run(
             );
             synth_to_send.record(unix_ns() as i64 - frame.t_synth_ns as i64);
         }
+        more = budget == 0;
         flush_aged_batches(&state, Instant::now());
         if newest.is_some()
             && let Ok(mut latest) = state.latest_demods.lock()

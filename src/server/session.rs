@@ -302,6 +302,9 @@ async fn write(
                 tokio::select! {
                     biased;
                     r = &mut send => break r,
+                    // A peer whose socket takes nothing must not hold up the shutdown for
+                    // its stall timeout: the connection is dropped as it stands.
+                    _ = shutdown.changed() => return,
                     Some(u) = urgent.recv(), if end.is_none() => match u {
                         Urgent::Ping => ping_due = true,
                         other => end = Some(other),
