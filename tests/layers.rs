@@ -60,3 +60,71 @@ fn the_schema_uses_no_physics_and_the_control_plane_no_transport() {
         &["config", "model", "physics", "pipeline", "timebase", "cpu"],
     );
 }
+
+/// The modules of `src/<folder>` that each of its modules uses (`super::x`,
+/// `crate::<folder>::x`), tests left out.
+fn module_graph(folder: &str) -> std::collections::BTreeMap<String, Vec<String>> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("src").join(folder);
+    let mut graph = std::collections::BTreeMap::new();
+    for entry in fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_stem().unwrap().to_string_lossy().into_owned();
+        if name == "mod" {
+            continue;
+        }
+        let files: Vec<_> = if path.is_dir() {
+            fs::read_dir(&path)
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .filter(|p| p.extension().is_some_and(|e| e == "rs"))
+                .collect()
+        } else {
+            vec![path.clone()]
+        };
+        let mut uses = Vec::new();
+        for file in files {
+            let text = fs::read_to_string(file).unwrap();
+            let text = text.split("#[cfg(test)]").next().unwrap_or("");
+            let prefix = format!("crate::{folder}::");
+            for marker in ["super::", prefix.as_str()] {
+                for (i, _) in text.match_indices(marker) {
+                    let used: String = text[i + marker.len()..]
+                        .chars()
+                        .take_while(|c| c.is_alphanumeric() || *c == '_')
+                        .collect();
+                    if used != name && !uses.contains(&used) {
+                        uses.push(used);
+                    }
+                }
+            }
+        }
+        graph.insert(name, uses);
+    }
+    graph
+}
+
+/// A module of `folder` that reaches itself through the others (depth first from each
+/// module, each other module visited once).
+fn import_circle(folder: &str) -> Option<String> {
+    let graph = module_graph(folder);
+    graph.keys().find_map(|start| {
+        let mut seen = std::collections::BTreeSet::new();
+        let mut stack: Vec<&String> = graph[start].iter().collect();
+        while let Some(m) = stack.pop() {
+            if m == start {
+                return Some(start.clone());
+            }
+            if seen.insert(m.clone()) {
+                stack.extend(graph.get(m).into_iter().flatten());
+            }
+        }
+        None
+    })
+}
+
+#[test]
+fn the_transport_and_the_control_plane_have_no_import_circle() {
+    for folder in ["server", "instrument", "pipeline"] {
+        assert_eq!(import_circle(folder), None, "src/{folder}");
+    }
+}

@@ -87,8 +87,8 @@ pub async fn run_with(
         image,
         stall,
         latest_demods: Mutex::new(None),
-        sweep_frames: super::sweeper::FrameTap::new(),
-        sweep_force: super::sweeper::Tap::new(),
+        sweep_frames: super::tap::FrameTap::new(),
+        sweep_force: super::tap::Tap::new(),
     });
     state
         .control

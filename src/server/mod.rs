@@ -19,6 +19,7 @@ mod session;
 mod state;
 pub mod status;
 mod sweeper;
+mod tap;
 
 pub use app::{ServerError, run, run_with};
 pub use listen::ConnectionLimits;

@@ -502,9 +502,9 @@ pub(crate) struct AppState {
     /// The newest demodulator frame, for reads of measured values (`/demods/N/sample`).
     pub latest_demods: Mutex<Option<crate::pipeline::DemodFrame>>,
     /// Demodulator frames for a running sweep (the hub forwards them while one runs).
-    pub sweep_frames: super::sweeper::FrameTap,
+    pub sweep_frames: super::tap::FrameTap,
     /// The force worker's outcomes handed to a running sweep.
-    pub sweep_force: super::sweeper::Tap<super::force::ForceOutcome>,
+    pub sweep_force: super::tap::Tap<super::force::ForceOutcome>,
     pub image: super::image::ImageLink,
     /// The machine's stalls, measured beside the server (None if its thread would not
     /// start; the daemon runs without it).

@@ -5,8 +5,7 @@
 //! hysteresis), and the node is restored. The arithmetic is in [`crate::sweep`].
 
 use std::sync::Arc;
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use serde_json::{Map, Value, json};
@@ -21,8 +20,6 @@ use crate::config::{
 use crate::pipeline::DemodFrame;
 use crate::sweep::{self, Leg};
 
-/// Frames queued for a running sweep: 4 s at 1 kHz.
-const FRAME_QUEUE: usize = 4096;
 /// Longest wait for a demodulator frame (wall time) before a sweep gives up.
 const FRAME_WAIT: Duration = Duration::from_secs(10);
 /// Longest wait (wall time) at a point for the force estimator of its settings; past it the
@@ -33,16 +30,6 @@ const FRAME_WAIT: Duration = Duration::from_secs(10);
 const FORCE_WAIT: Duration = Duration::from_secs(60);
 /// Inaccuracy the automatic settling time allows for (relative).
 const SETTLE_TO: f64 = 1e-3;
-
-/// What the hub hands a running sweep (demodulator frames, force outcomes), and the count
-/// of those it could not take.
-pub(crate) struct Tap<T> {
-    active: AtomicBool,
-    tx: mpsc::Sender<T>,
-    rx: Mutex<Option<mpsc::Receiver<T>>>,
-    /// Items a sweep missed because its queue was full (counted, never silent).
-    pub dropped: AtomicU64,
-}
 
 /// While alive, the force builder knows a sweep waits for each point's estimate.
 struct Awaiting<'a>(&'a ForceLink);
@@ -60,42 +47,15 @@ impl Drop for Awaiting<'_> {
     }
 }
 
-/// The demodulator frames' tap.
-pub(crate) type FrameTap = Tap<DemodFrame>;
-
-impl<T: Clone> Tap<T> {
-    pub fn new() -> Self {
-        let (tx, rx) = mpsc::channel(FRAME_QUEUE);
-        Self {
-            active: AtomicBool::new(false),
-            tx,
-            rx: Mutex::new(Some(rx)),
-            dropped: AtomicU64::new(0),
-        }
-    }
-
-    /// Hub side: an item, kept while a sweep runs.
-    pub fn offer(&self, item: &T) {
-        if self.active.load(Ordering::Relaxed) && self.tx.try_send(item.clone()).is_err() {
-            self.dropped.fetch_add(1, Ordering::Relaxed);
-        }
-    }
-
-    /// Whether a sweep is taking items.
-    pub fn is_active(&self) -> bool {
-        self.active.load(Ordering::Relaxed)
-    }
-}
-
 /// Counts sweeps since the daemon started: `sweep` in every message of one.
 static SWEEPS: AtomicU64 = AtomicU64::new(0);
 
 /// Runs until shutdown: waits for `/sweeper/enable`, runs the sweep, waits again.
 pub(crate) async fn run(state: Arc<AppState>) {
-    let Some(mut frames) = state.sweep_frames.rx.lock().ok().and_then(|mut r| r.take()) else {
+    let Some(mut frames) = state.sweep_frames.take_receiver() else {
         return;
     };
-    let Some(mut forces) = state.sweep_force.rx.lock().ok().and_then(|mut r| r.take()) else {
+    let Some(mut forces) = state.sweep_force.take_receiver() else {
         return;
     };
     let mut changes = state.control.subscribe();
@@ -400,11 +360,8 @@ async fn run_sweep(
     while forces.try_recv().is_ok() {}
     let dropped_before = state.sweep_frames.dropped.load(Ordering::Relaxed)
         + state.sweep_force.dropped.load(Ordering::Relaxed);
-    state.sweep_frames.active.store(true, Ordering::Relaxed);
-    state
-        .sweep_force
-        .active
-        .store(force_off.is_none(), Ordering::Relaxed);
+    state.sweep_frames.set_active(true);
+    state.sweep_force.set_active(force_off.is_none());
     // Each point waits for its estimator: the builder does not rest between them, until
     // the sweep ends, however it ends.
     let _awaiting = force_off.is_none().then(|| Awaiting::new(&state.force));
@@ -557,8 +514,8 @@ async fn run_sweep(
         send(state, t_last, t_synth_last, fields);
         measured.push(m);
     }
-    state.sweep_frames.active.store(false, Ordering::Relaxed);
-    state.sweep_force.active.store(false, Ordering::Relaxed);
+    state.sweep_frames.set_active(false);
+    state.sweep_force.set_active(false);
 
     // Restore each swept node that still holds the sweep's own value (one a client set
     // meanwhile keeps the client's), and turn the sweep off unless a new one was requested
