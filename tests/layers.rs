@@ -64,7 +64,9 @@ fn the_schema_uses_no_physics_and_the_control_plane_no_transport() {
 /// The modules of `src/<folder>` that each of its modules uses (`super::x`,
 /// `crate::<folder>::x`), tests left out.
 fn module_graph(folder: &str) -> std::collections::BTreeMap<String, Vec<String>> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("src").join(folder);
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("src")
+        .join(folder);
     let mut graph = std::collections::BTreeMap::new();
     for entry in fs::read_dir(&dir).unwrap() {
         let path = entry.unwrap().path();
