@@ -335,3 +335,29 @@ fn rejects_unphysical_parameters() {
     osc.free_amplitude = 0.0;
     assert!(osc.solve().is_err());
 }
+
+/// At Q = 1e7 with a 1 µm free amplitude Newton fails from its first guess and the full
+/// transient would be 6e7 periods: the solver stops at its budget and says so, naming Q;
+/// with the default budget the transient it integrates leads into Newton's basin.
+#[test]
+fn a_transient_beyond_the_budget_is_a_clear_error_not_a_hang() {
+    let mut osc = paper_case(129e9);
+    osc.q = 1e7;
+    osc.free_amplitude = 1e-6;
+    let err = osc
+        .solve_with(&SolveOptions {
+            max_transient_periods: 10,
+            ..SolveOptions::default()
+        })
+        .unwrap_err();
+    assert!(
+        matches!(
+            err,
+            ftafm::physics::impact::ImpactError::NoSteadyOrbit { periods: 10, .. }
+        ),
+        "{err:?}"
+    );
+    assert!(err.to_string().contains("Q = 10000000"), "{err}");
+    let solution = osc.solve().expect("the default budget reaches the orbit");
+    assert!(solution.max_force > 0.0);
+}
