@@ -5,7 +5,7 @@ use std::collections::BTreeSet;
 
 use ftafm::config::{
     ConfigError, DEFAULT_TOML, Engine, FeedbackSettings, InclusionSettings, InclusionShape,
-    InversionMethod, InversionSettings, NodeError, ScanSettings, Settings, SpectrumWindow,
+    InversionMethod, InversionSettings, Kind, NodeError, ScanSettings, Settings, SpectrumWindow,
     default_settings, load, load_str, registry,
 };
 use proptest::prelude::*;
@@ -2320,6 +2320,17 @@ fn generic_path(path: &str) -> String {
     segments.join("/")
 }
 
+/// Equal JSON values, numbers compared as numbers (`100` is `100.0`).
+fn same_value(a: &Value, b: &Value) -> bool {
+    match (a, b) {
+        (Value::Number(x), Value::Number(y)) => x.as_f64() == y.as_f64(),
+        (Value::Array(x), Value::Array(y)) => {
+            x.len() == y.len() && x.iter().zip(y).all(|(x, y)| same_value(x, y))
+        }
+        _ => a == b,
+    }
+}
+
 #[test]
 fn docs_describe_every_node() {
     let docs = std::fs::read_to_string(concat!(
@@ -2330,8 +2341,13 @@ fn docs_describe_every_node() {
     assert!(docs.contains("`/demods/N/…` for N = 0 … 31"));
     assert!(docs.contains("`/inclusions/N/…` for N = 0 … 7"));
     let documented: BTreeSet<String> = registry().iter().map(|s| generic_path(&s.path)).collect();
+    let mut problems = Vec::new();
+    let mut checked = BTreeSet::new();
     for spec in registry() {
         let path = generic_path(&spec.path);
+        if !checked.insert(path.clone()) {
+            continue;
+        }
         let row = docs
             .lines()
             .find(|line| line.starts_with(&format!("| `{path}` |")))
@@ -2347,7 +2363,31 @@ fn docs_describe_every_node() {
         );
         let runtime = if spec.writable { "| yes |" } else { "| no |" };
         assert!(row.contains(runtime), "writability of {path}: {row}");
+        // The allowed values as the node table states them (the docs add the limits
+        // between nodes after them).
+        let cells: Vec<&str> = row.split(" | ").collect();
+        if let Kind::Float(range) = spec.kind
+            && !cells[3].contains(&range.to_string())
+        {
+            problems.push(format!(
+                "range of {path}: the node table says {range}, the docs {}",
+                cells[3]
+            ));
+        }
+        // The default as the embedded default file has it (tables vary by entry).
+        if !path.contains("/N/") {
+            let default = default_settings().get(&spec.path).unwrap();
+            let shown = cells[2].split('`').nth(1).unwrap_or(cells[2]);
+            let documented = toml::from_str::<toml::Table>(&format!("v = {shown}"))
+                .map(|t| serde_json::to_value(&t["v"]).unwrap());
+            if !documented.is_ok_and(|d| same_value(&d, &default)) {
+                problems.push(format!(
+                    "default of {path}: the docs say {shown}, config/default.toml {default}"
+                ));
+            }
+        }
     }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
     // And no row for a node that does not exist.
     for line in docs.lines().filter(|l| l.starts_with("| `/")) {
         let path = line.split('`').nth(1).unwrap();

@@ -12,18 +12,7 @@ use std::path::PathBuf;
 use thiserror::Error;
 
 use super::registry;
-
-/// Longest quoted key or value in a message, in characters.
-pub(crate) const QUOTE_CHARS: usize = 80;
-
-/// `text` as a message quotes it: whole up to [`QUOTE_CHARS`] characters, else its first
-/// ones and `… (N bytes)`, so that a 20 MB key or value gives a short message.
-pub(crate) fn cut(text: &str) -> Cow<'_, str> {
-    match text.char_indices().nth(QUOTE_CHARS) {
-        Some((end, _)) => Cow::Owned(format!("{}… ({} bytes)", &text[..end], text.len())),
-        None => Cow::Borrowed(text),
-    }
-}
+use super::show::cut;
 
 /// A multi-line message (the TOML parser's, which quotes the offending line) with each
 /// line cut as [`cut`] does, and at most 12 lines.

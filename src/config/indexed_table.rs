@@ -1,4 +1,4 @@
-//! Serde adaptor between a `Vec` of [`Settings`](super::Settings) and the index-keyed table
+//! Serde adaptor between a `Vec` of a table's entries (demodulators, inclusions) and the index-keyed table
 //! of the files and the node tree: `[demods]` with `0 = { … }` … `31 = { … }`, `[inclusions]`
 //! with `0 = { … }` … `7 = { … }`, so that `/demods/3/harmonic` is key `harmonic` of
 //! `[demods.3]`. Exactly [`Indexed::COUNT`] entries, indices 0 … COUNT − 1, each once.
@@ -12,8 +12,6 @@ use serde::de::{self, MapAccess, Visitor};
 use serde::ser::SerializeMap;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use super::settings::{DEMODULATOR_COUNT, DemodSettings, INCLUSION_COUNT, InclusionSettings};
-
 /// An entry of an index-keyed table of the tree (`/TABLE/N/…`).
 pub trait Indexed {
     /// How many entries the table always has; the indices are 0 … `COUNT` − 1.
@@ -22,18 +20,6 @@ pub trait Indexed {
     const TABLE: &'static str;
     /// What one entry is called in messages, e.g. `"demodulator"`.
     const ITEM: &'static str;
-}
-
-impl Indexed for DemodSettings {
-    const COUNT: usize = DEMODULATOR_COUNT;
-    const TABLE: &'static str = "demods";
-    const ITEM: &'static str = "demodulator";
-}
-
-impl Indexed for InclusionSettings {
-    const COUNT: usize = INCLUSION_COUNT;
-    const TABLE: &'static str = "inclusions";
-    const ITEM: &'static str = "inclusion";
 }
 
 /// Writes the entries as a map from the decimal index (a string key) to each entry.

@@ -8,11 +8,12 @@ use std::sync::OnceLock;
 
 use serde_json::Value;
 
-use super::error::{ConfigError, NodeError, cut};
-use super::field::Kind;
-use super::nodes::NodeSpec;
+use super::error::{ConfigError, NodeError};
+use super::kind::Kind;
 use super::registry::{node, table_keys, toml_table_name};
 use super::settings::{Settings, wide_u64};
+use super::show::cut;
+use super::spec::NodeSpec;
 
 /// The embedded default configuration, `config/default.toml`.
 pub const DEFAULT_TOML: &str = include_str!("../../config/default.toml");

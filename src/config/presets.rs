@@ -71,7 +71,7 @@ pub fn preset(name: &str) -> Result<&'static Preset, ConfigError> {
         .iter()
         .find(|p| p.name == name)
         .ok_or_else(|| ConfigError::UnknownPreset {
-            name: super::error::cut(name).into_owned(),
+            name: super::show::cut(name).into_owned(),
             allowed: PRESETS
                 .iter()
                 .map(|p| p.name)

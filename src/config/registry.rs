@@ -5,10 +5,9 @@
 use std::collections::{BTreeMap, HashMap};
 use std::sync::OnceLock;
 
-use super::error::cut;
 use super::field::Field;
-use super::nodes::NodeSpec;
-use super::settings::{DEMODULATOR_COUNT, INCLUSION_COUNT};
+use super::show::cut;
+use super::spec::NodeSpec;
 
 struct Registry {
     specs: Vec<NodeSpec>,
@@ -20,12 +19,7 @@ struct Registry {
 fn registry_data() -> &'static Registry {
     static REGISTRY: OnceLock<Registry> = OnceLock::new();
     REGISTRY.get_or_init(|| {
-        let specs: Vec<NodeSpec> = Field::SCALARS
-            .into_iter()
-            .chain((0..INCLUSION_COUNT).flat_map(Field::inclusion))
-            .chain((0..DEMODULATOR_COUNT).flat_map(Field::demod))
-            .map(NodeSpec::new)
-            .collect();
+        let specs: Vec<NodeSpec> = Field::every().into_iter().map(NodeSpec::new).collect();
         let by_path = specs
             .iter()
             .enumerate()
@@ -131,12 +125,19 @@ pub(crate) fn unknown_path_message(path: &str) -> String {
 mod tests {
     use super::*;
     use crate::config::field::Field;
+    use crate::config::settings::{DEMODULATOR_COUNT, INCLUSION_COUNT};
 
     #[test]
     fn registry_lists_each_path_once() {
+        let scalars = Field::every()
+            .iter()
+            .filter(|f| !f.path().starts_with("/inclusions/") && !f.path().starts_with("/demods/"))
+            .count();
         assert_eq!(
             registry().len(),
-            Field::SCALARS.len() + 10 * INCLUSION_COUNT + 5 * DEMODULATOR_COUNT
+            scalars
+                + Field::inclusion(0).len() * INCLUSION_COUNT
+                + Field::demod(0).len() * DEMODULATOR_COUNT
         );
         assert_eq!(registry_data().by_path.len(), registry().len());
         assert_eq!(

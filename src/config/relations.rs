@@ -6,7 +6,7 @@
 //! Every message about a relation names every node it involves.
 
 use super::error::NodeError;
-use super::field::{
+use super::limits::{
     MAX_HARMONIC, MAX_MODES, MAX_PIXEL_RATE, MAX_SCAN_PIXELS, MAX_SCOPE_DECIMATION,
     MAX_SCOPE_LENGTH, MIN_INVERSION_HARMONIC, MIN_PIXEL_PERIODS,
 };
@@ -609,7 +609,7 @@ fn check_sweeper(s: &Settings) -> Result<(), NodeError> {
         high.as_f64().unwrap_or(f64::INFINITY),
     );
     for (key, value) in [("start", w.start), ("stop", w.stop)] {
-        let bad = spec.check(&super::field::Typed::Float(value)).err();
+        let bad = spec.check(&super::kind::Typed::Float(value)).err();
         if bad.is_some() || value < low || value > high {
             return Err(invalid(
                 format!("/sweeper/{key}"),

@@ -3,6 +3,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::indexed_table::Indexed;
+
 /// Number of lock-in demodulators in the bank (`/demods/0` … `/demods/31`).
 pub const DEMODULATOR_COUNT: usize = 32;
 /// Number of inclusion slots in the sample map (`/inclusions/0` … `/inclusions/7`).
@@ -606,4 +608,16 @@ pub struct InclusionSettings {
     pub relative_modulus: f64,
     /// Poisson ratio ν (1).
     pub poisson: f64,
+}
+
+impl Indexed for DemodSettings {
+    const COUNT: usize = DEMODULATOR_COUNT;
+    const TABLE: &'static str = "demods";
+    const ITEM: &'static str = "demodulator";
+}
+
+impl Indexed for InclusionSettings {
+    const COUNT: usize = INCLUSION_COUNT;
+    const TABLE: &'static str = "inclusions";
+    const ITEM: &'static str = "inclusion";
 }
