@@ -25,8 +25,8 @@ pub enum WordError {
     Frequency(f64),
 }
 
-/// 2^64 as an `f64` (exact).
-const TWO_POW_64: f64 = 18_446_744_073_709_551_616.0;
+/// 2^64 as an `f64` (exact): the phase words of one cycle.
+pub const TWO_POW_64: f64 = 18_446_744_073_709_551_616.0;
 
 /// Drive phase and frequency of one oscillator as integer words (2^64 = one cycle).
 ///

@@ -62,7 +62,8 @@ fn the_schema_uses_no_physics_and_the_control_plane_no_transport() {
 }
 
 /// The modules of `src/<folder>` that each of its modules uses (`super::x`,
-/// `crate::<folder>::x`), tests left out.
+/// `crate::<folder>::x`), tests and comment lines (`//`, `//!`, `///`) left out: a doc link
+/// is no dependency.
 fn module_graph(folder: &str) -> std::collections::BTreeMap<String, Vec<String>> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("src")
@@ -86,7 +87,14 @@ fn module_graph(folder: &str) -> std::collections::BTreeMap<String, Vec<String>>
         let mut uses = Vec::new();
         for file in files {
             let text = fs::read_to_string(file).unwrap();
-            let text = text.split("#[cfg(test)]").next().unwrap_or("");
+            let text: String = text
+                .split("#[cfg(test)]")
+                .next()
+                .unwrap_or("")
+                .lines()
+                .filter(|line| !line.trim_start().starts_with("//"))
+                .flat_map(|line| [line, "\n"])
+                .collect();
             let prefix = format!("crate::{folder}::");
             for marker in ["super::", prefix.as_str()] {
                 for (i, _) in text.match_indices(marker) {
@@ -125,8 +133,8 @@ fn import_circle(folder: &str) -> Option<String> {
 }
 
 #[test]
-fn the_transport_and_the_control_plane_have_no_import_circle() {
-    for folder in ["config", "server", "instrument", "pipeline"] {
+fn no_import_circle_in_any_layer_with_modules() {
+    for folder in ["config", "server", "instrument", "pipeline", "synth"] {
         assert_eq!(import_circle(folder), None, "src/{folder}");
     }
 }

@@ -136,6 +136,18 @@ pub fn halfband_gain(taps: &[f64; GRID_TAPS], frequency: f64) -> f64 {
     g
 }
 
+/// ADC model: quantisation step and clipping level, applied after the filter with the
+/// detector noise ([`super::digitiser`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Adc {
+    /// Least significant bit (m).
+    pub lsb: f64,
+    /// Full scale: samples are clipped to ±range (m).
+    pub range: f64,
+    /// 1/lsb (1/m).
+    pub codes_per_metre: f64,
+}
+
 /// The signal through the ADC's window at grid sample n and at midpoint n + ½ ([`super::window`]),
 /// before the FIRs; with the filter off, `grid` is the sample itself. What the synthesiser
 /// hands to the thread that finishes the ADC ([`super::digitiser`]).

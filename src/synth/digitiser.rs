@@ -11,9 +11,8 @@
 //! The detector's deviates are a stream of their own for each page of samples
 //! ([`super::noise_pages::draw_detector`]), so this stage draws them itself.
 
-use super::adc::{AdcFilter, AdcHistory, GRID_TAPS, WindowSample};
+use super::adc::{Adc, AdcFilter, AdcHistory, GRID_TAPS, WindowSample};
 use super::noise_pages::{PAGE, draw_detector};
-use super::plan::Adc;
 
 /// How a block's window samples become samples: the plan's settings of the ADC's back
 /// half, and the filter's histories at the block's first sample.

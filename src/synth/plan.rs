@@ -6,25 +6,22 @@ use std::f64::consts::PI;
 
 use rustfft::num_complex::Complex64;
 
-use super::adc;
+use super::adc::{self, Adc};
 use super::coupled::CoupledKernel;
 use super::modal::ModalKernel;
 use super::pulse::{PulseKernel, PulseTrain};
-use super::scan::{ScanBase, ScanPlan, TapTables};
+use super::scan_plan::{ScanBase, ScanPlan, TapTables};
 use super::window::{ModeWindow, Moments};
 use crate::config::{Engine, Settings};
 use crate::model;
 use crate::physics::beam::{BeamError, MAX_MODES};
 use crate::physics::impact::ImpactError;
 use crate::physics::{Cantilever, ImpactSolution};
-use crate::timebase::{WordError, frequency_word};
+use crate::timebase::{TWO_POW_64, WordError, frequency_word};
 use std::sync::Arc;
 
 /// Boltzmann's constant (J/K).
 pub const BOLTZMANN: f64 = 1.380_649e-23;
-
-/// 2^64: phase words per drive period.
-pub(crate) const TURN: f64 = 18_446_744_073_709_551_616.0;
 
 /// Why a plan cannot be built from the settings.
 #[derive(Debug, thiserror::Error)]
@@ -66,17 +63,6 @@ impl TapForce {
             max_indentation: s.max_indentation,
         }
     }
-}
-
-/// ADC model: quantisation step and clipping level.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Adc {
-    /// Least significant bit (m).
-    pub lsb: f64,
-    /// Full scale: samples are clipped to ±range (m).
-    pub range: f64,
-    /// 1/lsb (1/m).
-    pub codes_per_metre: f64,
 }
 
 /// The synthesiser's immutable configuration.
@@ -248,7 +234,7 @@ impl SynthPlan {
         let sample_rate = settings.synth.sample_rate;
         let h = 1.0 / sample_rate;
         let word = frequency_word(settings.drive.frequency, sample_rate)?;
-        let drive_frequency = word as f64 / TURN * sample_rate;
+        let drive_frequency = word as f64 / TWO_POW_64 * sample_rate;
         let omega = 2.0 * PI * drive_frequency;
         let modes: Vec<ModalKernel> = cantilever
             .modes
@@ -339,33 +325,29 @@ impl SynthPlan {
                 settings.synth.contact_substeps as usize,
             )
         });
-        let scan = settings
-            .scan
-            .enable
-            .then(|| {
-                let base = match &coupled {
-                    Some(kernel) => {
-                        let (amplitude, force_phase) = kernel.orbit_reading(
-                            &cantilever.modes,
-                            &drive_response,
-                            h,
-                            &lanes.lever,
-                            drive_signal,
-                        );
-                        ScanBase::Coupled {
-                            amplitude,
-                            force_phase,
-                        }
-                    }
-                    None => ScanBase::Paper {
+        let scan = settings.scan.enable.then(|| {
+            let base = match &coupled {
+                Some(kernel) => {
+                    let (amplitude, force_phase) = kernel.orbit_reading(
+                        &cantilever.modes,
+                        &drive_response,
+                        h,
+                        &lanes.lever,
                         drive_signal,
-                        drive_frequency,
-                        train: tap.map(|t| t.train),
-                    },
-                };
-                ScanPlan::new(settings, &cantilever, base, tables)
-            })
-            .transpose()?;
+                    );
+                    ScanBase::Coupled {
+                        amplitude,
+                        force_phase,
+                    }
+                }
+                None => ScanBase::Paper {
+                    drive_signal,
+                    drive_frequency,
+                    train: tap.map(|t| t.train),
+                },
+            };
+            ScanPlan::new(settings, &cantilever, base, tables)
+        });
         Ok(Self {
             scan,
             lanes,
@@ -389,7 +371,7 @@ impl SynthPlan {
             drive_grid: drive_signal * super::window::gain(drive_frequency / sample_rate),
             drive_mid: drive_signal
                 * super::window::gain(drive_frequency / sample_rate)
-                * Complex64::from_polar(1.0, 0.5 * word as f64 / TURN * 2.0 * PI),
+                * Complex64::from_polar(1.0, 0.5 * word as f64 / TWO_POW_64 * 2.0 * PI),
             force_window,
             epoch: 0,
         })

@@ -9,9 +9,7 @@ use rustfft::num_complex::Complex64;
 use super::modal::ModalKernel;
 use super::window::Moments;
 use crate::physics::beam::MAX_MODES;
-
-/// Phase words per drive period.
-const TURN: f64 = 18_446_744_073_709_551_616.0; // 2^64
+use crate::timebase::TWO_POW_64;
 
 /// A cut-cosine pulse train, F·cos(π(t − t_c)/(τT)) for |t − t_c| < τT/2, once per period.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -106,12 +104,12 @@ impl PulseKernel {
         modes: &[ModalKernel],
     ) {
         let tau = train.tau.clamp(0.0, 1.0);
-        let window_words = (tau * TURN).min(TURN - 1.0) as u64;
-        let centre = (train.centre_phase / (2.0 * PI)).rem_euclid(1.0) * TURN;
+        let window_words = (tau * TWO_POW_64).min(TWO_POW_64 - 1.0) as u64;
+        let centre = (train.centre_phase / (2.0 * PI)).rem_euclid(1.0) * TWO_POW_64;
         self.window_start = (centre as u64).wrapping_sub(window_words / 2);
         self.window_words = window_words;
         self.seconds_per_word = h / frequency_word.max(1) as f64;
-        let period = TURN * self.seconds_per_word;
+        let period = TWO_POW_64 * self.seconds_per_word;
         self.nu = if tau > 0.0 { PI / (tau * period) } else { 0.0 };
         self.h = h;
         self.max_force = if tau > 0.0 { train.max_force } else { 0.0 };

@@ -18,11 +18,11 @@ use super::lanes::{Lanes, Portable};
 use super::noise_pages::{NoisePages, PAGE, PageCounts, PageKey, PageSupply};
 use super::normals::NormalSource;
 
-use super::plan::{SynthPlan, TURN};
+use super::plan::SynthPlan;
 use super::pulse::PulseKernel;
 use super::window::Moments;
 use crate::physics::beam::MAX_MODES;
-use crate::timebase::phase_to_radians;
+use crate::timebase::{TWO_POW_64, phase_to_radians};
 
 /// The drive phasor e^{iθ} is advanced by multiplication and re-anchored from the exact
 /// integer phase at every multiple of this many samples (of the absolute sample index, so
@@ -388,7 +388,7 @@ impl SynthPlan {
         let k = &self.lanes;
         let step = Complex64::from_polar(
             1.0,
-            self.frequency_word as f64 / TURN * std::f64::consts::TAU,
+            self.frequency_word as f64 / TWO_POW_64 * std::f64::consts::TAU,
         );
         let (a_re, a_im) = (V::load(&k.a_re), V::load(&k.a_im));
         let (noise_re, noise_im) = (V::load(&k.noise_re), V::load(&k.noise_im));
