@@ -8,6 +8,7 @@ use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, channel, sync_channel};
 use std::time::{Duration, Instant};
 
+use super::build_budget::BuildBudget;
 use super::latest::Latest;
 
 use crate::config::Settings;
@@ -56,7 +57,7 @@ pub(crate) struct ForceCounters {
     pub rebuilds: AtomicU64,
     /// Time spent building estimators, in ns (the builder's CPU budget, measured).
     pub rebuild_ns: AtomicU64,
-    /// The builder's rests after a build ([`BUILD_DUTY`]): taken in full, and cut short
+    /// The builder's rests while its [`BuildBudget`] is spent: taken in full, and cut short
     /// because a sweep waits for its estimates (or the link closed).
     pub rests_taken: AtomicU64,
     pub rests_cut: AtomicU64,
@@ -108,13 +109,11 @@ struct Follow {
 /// hub when they need it (a build is ~0.1 s of work on the paper engine, 0.8–2.1 s on the
 /// coupled one, that nothing waits on in real time).
 const BUILDER_NICE: i32 = 10;
-/// The builder spends at most this fraction of a core building, however many changes come:
-/// after a build of `d` it rests `d · (1/BUILD_DUTY − 1)` before the next. Not while a sweep
-/// waits for each point's estimate ([`ForceLink::await_estimates`]): the sweep asks for one
-/// build per point and waits for it, so it bounds the rate itself, and a rest would be most
-/// of each point's time (at nice 10 the real-time threads still come first).
-pub(crate) const BUILD_DUTY: f64 = 0.25;
-/// Longest the builder's rest goes without looking whether a sweep now waits.
+/// Longest the builder's rest goes without looking whether a sweep now waits. The builder
+/// rests when its [`BuildBudget`] is spent, except while a sweep waits for each point's
+/// estimate ([`ForceLink::await_estimates`]): the sweep asks for one build per point and
+/// waits for it, so it bounds the rate itself, and a rest would be most of each point's time
+/// (at nice 10 the real-time threads still come first).
 const REST_SLICE: Duration = Duration::from_millis(20);
 
 impl ForceLink {
@@ -215,7 +214,7 @@ impl ForceLink {
         );
         std::thread::Builder::new()
             .name("force-build".into())
-            .spawn(move || build_loop(&p, &c, &to_worker, &a))
+            .spawn(move || build_loop(&p, &c, &to_worker, &a, BuildBudget::new()))
             .expect("the estimator builder thread starts");
         (
             Self {
@@ -268,7 +267,7 @@ impl ForceLink {
     }
 
     /// Whether a sweep waits for each point's estimate (the builder then does not rest
-    /// between builds; [`BUILD_DUTY`]).
+    /// while its [`BuildBudget`] is spent).
     pub fn await_estimates(&self, on: bool) {
         self.awaited.store(on, Ordering::Relaxed);
     }
@@ -287,16 +286,38 @@ fn build_loop(
     counters: &ForceCounters,
     worker: &SyncSender<Input>,
     awaited: &AtomicBool,
+    mut budget: BuildBudget,
 ) {
     lower_priority(BUILDER_NICE);
     // The last coupled table's orbits: the next build starts from them (a sweep's next
     // point is a small change).
     let mut seed = None;
     loop {
-        let Some((settings, generation)) = pending.wait(Duration::from_secs(1)) else {
+        if !pending.wait_pending(Duration::from_secs(1)) {
             if pending.is_closed() {
                 return;
             }
+            continue;
+        }
+        // Rest while the budget is spent; changes meanwhile wait in `pending`, the newest
+        // superseding the others (counted as coalesced).
+        let mut rested = false;
+        loop {
+            let wait = budget.wait(Instant::now());
+            if wait.is_zero() {
+                if rested {
+                    counters.rests_taken.fetch_add(1, Ordering::Relaxed);
+                }
+                break;
+            }
+            if pending.is_closed() || awaited.load(Ordering::Relaxed) {
+                counters.rests_cut.fetch_add(1, Ordering::Relaxed);
+                break;
+            }
+            rested = true;
+            std::thread::sleep(wait.min(REST_SLICE));
+        }
+        let Some((settings, generation)) = pending.take() else {
             continue;
         };
         let start = Instant::now();
@@ -327,19 +348,7 @@ fn build_loop(
         if worker.send(Input::Replace(next, generation, why)).is_err() {
             return;
         }
-        let rested = Instant::now() + took.mul_f64(1.0 / BUILD_DUTY - 1.0);
-        loop {
-            let now = Instant::now();
-            if now >= rested {
-                counters.rests_taken.fetch_add(1, Ordering::Relaxed);
-                break;
-            }
-            if pending.is_closed() || awaited.load(Ordering::Relaxed) {
-                counters.rests_cut.fetch_add(1, Ordering::Relaxed);
-                break;
-            }
-            std::thread::sleep((rested - now).min(REST_SLICE));
-        }
+        budget.spend(took, Instant::now());
     }
 }
 
@@ -379,4 +388,35 @@ pub(crate) fn affects_estimator(path: &str) -> bool {
     ]
     .iter()
     .any(|p| path.starts_with(p))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_waiting_sweep_cuts_the_rest_of_a_spent_budget() {
+        let pending = Latest::new();
+        let counters = ForceCounters::default();
+        let (to_worker, from_builder) = sync_channel(4);
+        let awaited = AtomicBool::new(true);
+        // Hundreds of seconds of rest owed.
+        let mut budget = BuildBudget::new();
+        budget.spend(Duration::from_secs(100), Instant::now());
+        let mut settings = crate::config::default_settings();
+        settings.synth.engine = crate::config::Engine::Paper;
+        pending.put((settings, 7));
+        std::thread::scope(|scope| {
+            scope.spawn(|| build_loop(&pending, &counters, &to_worker, &awaited, budget));
+            // A guard against a hang, not a timing margin (the rest would be 400 s).
+            let built = from_builder.recv_timeout(Duration::from_secs(120));
+            pending.close();
+            assert!(
+                matches!(built, Ok(Input::Replace(Some(_), 7, _))),
+                "the estimator for generation 7 is built while the sweep waits"
+            );
+        });
+        assert_eq!(counters.rests_taken.load(Ordering::Relaxed), 0);
+        assert!(counters.rests_cut.load(Ordering::Relaxed) >= 1);
+    }
 }

@@ -8,8 +8,9 @@ use std::sync::mpsc::{
     Receiver, RecvTimeoutError, SyncSender, TrySendError, channel, sync_channel,
 };
 use std::sync::{Arc, Mutex};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
+use super::build_budget::BuildBudget;
 use super::latest::Latest;
 use crate::config::Settings;
 use crate::imaging::{Assembler, ImageFrame, ImageLine};
@@ -66,15 +67,19 @@ impl ImageLink {
         std::thread::Builder::new()
             .name("image".into())
             .spawn(move || {
-                // Rebuilds are rationed like the force stream's (super::force::BUILD_DUTY):
-                // a flood of changes must not take a core from the real-time threads.
-                let mut next_rebuild = Instant::now();
+                // Rebuilds are rationed like the force stream's: a flood of changes must not
+                // take a core from the real-time threads.
+                let mut budget = BuildBudget::new();
                 // The epoch of the settings the assembler was configured for.
                 let mut epoch = 0;
                 loop {
-                    let now = Instant::now();
-                    let msg = if waiting.is_pending() && next_rebuild > now {
-                        match rx.recv_timeout(next_rebuild - now) {
+                    let rest = if waiting.is_pending() {
+                        budget.wait(Instant::now())
+                    } else {
+                        Duration::ZERO
+                    };
+                    let msg = if !rest.is_zero() {
+                        match rx.recv_timeout(rest) {
                             Ok(m) => m,
                             Err(RecvTimeoutError::Timeout) => Input::Reconfigure,
                             Err(RecvTimeoutError::Disconnected) => return,
@@ -86,17 +91,14 @@ impl ImageLink {
                         }
                     };
                     // Settings come before the message that follows them.
-                    if Instant::now() >= next_rebuild
+                    if budget.wait(Instant::now()).is_zero()
                         && let Some((s, e)) = waiting.take()
                     {
                         let start = Instant::now();
                         c.rebuilds.fetch_add(1, Ordering::Relaxed);
                         assembler.configure(&s);
                         epoch = e;
-                        next_rebuild = Instant::now()
-                            + start
-                                .elapsed()
-                                .mul_f64(1.0 / super::force::BUILD_DUTY - 1.0);
+                        budget.spend(start.elapsed(), Instant::now());
                     }
                     match msg {
                         Input::Reconfigure => {}

@@ -54,6 +54,17 @@ impl<T> Latest<T> {
         slot.0.take()
     }
 
+    /// Waits until a value waits to be taken (`true`), without taking it; `false` once the
+    /// slot is closed with nothing in it, or after `timeout`.
+    pub fn wait_pending(&self, timeout: Duration) -> bool {
+        let Ok(slot) = self.slot.lock() else {
+            return false;
+        };
+        self.ready
+            .wait_timeout_while(slot, timeout, |s| s.0.is_none() && !s.1)
+            .is_ok_and(|(s, _)| s.0.is_some())
+    }
+
     /// Whether a value waits to be taken.
     pub fn is_pending(&self) -> bool {
         self.slot.lock().map(|s| s.0.is_some()).unwrap_or(false)

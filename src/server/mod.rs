@@ -3,6 +3,7 @@
 
 mod app;
 mod assets;
+mod build_budget;
 mod follow;
 mod force;
 mod host;
