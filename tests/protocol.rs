@@ -4,6 +4,7 @@
 use ftafm::config::NodeError;
 use ftafm::dsp::MAX_DEMODULATORS;
 use ftafm::pipeline::{DemodFrame, DemodValue, ScopeBuffer, SpectrumBuffer};
+use ftafm::server::protocol::ops::{Get, Hello, List, Set, Subscribe, Unsubscribe};
 use ftafm::server::protocol::{
     BINARY_HEADER_BYTES, BINARY_MAGIC, BINARY_VERSION, DEMOD_RECORD_BYTES, ErrorCode, Format,
     MAX_MESSAGE_BYTES, Op, PROTOCOL_VERSION, ProtocolError, Request, StreamKind, decode_header,
@@ -244,33 +245,36 @@ fn node_errors_map_by_code_with_their_message() {
 fn every_op_parses() {
     let r = parse_ok(r#"{"id":1,"op":"hello"}"#);
     assert_eq!(r.id, json!(1));
-    assert_eq!(r.op, Op::Hello);
+    assert_eq!(r.op, Op::Hello(Hello));
 
-    assert_eq!(parse_ok(r#"{"op":"list"}"#).op, Op::List { path: None });
+    assert_eq!(
+        parse_ok(r#"{"op":"list"}"#).op,
+        Op::List(List { path: None })
+    );
     assert_eq!(
         parse_ok(r#"{"op":"list","path":null}"#).op,
-        Op::List { path: None }
+        Op::List(List { path: None })
     );
     assert_eq!(
         parse_ok(r#"{"op":"list","path":"/demods/3"}"#).op,
-        Op::List {
+        Op::List(List {
             path: Some("/demods/3".into())
-        }
+        })
     );
     assert_eq!(
         parse_ok(r#"{"op":"list","path":"/"}"#).op,
-        Op::List {
+        Op::List(List {
             path: Some("/".into())
-        }
+        })
     );
 
     assert_eq!(
         parse_ok(r#"{"id":"g","op":"get","path":"/drive/frequency"}"#),
         Request {
             id: json!("g"),
-            op: Op::Get {
+            op: Op::Get(Get {
                 path: "/drive/frequency".into()
-            }
+            })
         }
     );
 
@@ -278,10 +282,10 @@ fn every_op_parses() {
         parse_ok(r#"{"id":[1,2],"op":"set","path":"/drive/frequency","value":1.5e5}"#),
         Request {
             id: json!([1, 2]),
-            op: Op::Set {
+            op: Op::Set(Set::One {
                 path: "/drive/frequency".into(),
                 value: json!(1.5e5)
-            }
+            })
         }
     );
     // Any JSON value: validation is the node tree's job.
@@ -295,10 +299,10 @@ fn every_op_parses() {
         let text = json!({"op": "set", "path": "/x", "value": value}).to_string();
         assert_eq!(
             parse_ok(&text).op,
-            Op::Set {
+            Op::Set(Set::One {
                 path: "/x".into(),
                 value
-            }
+            })
         );
     }
 
@@ -306,56 +310,56 @@ fn every_op_parses() {
         let text = format!(r#"{{"op":"subscribe","stream":"{stream}"}}"#);
         assert_eq!(
             parse_ok(&text).op,
-            Op::Subscribe {
+            Op::Subscribe(Subscribe {
                 stream,
                 format: Format::Json,
                 every: 1,
                 batch: 1
-            }
+            })
         );
         for format in [Format::Json, Format::Binary] {
             let text = format!(r#"{{"op":"subscribe","stream":"{stream}","format":"{format}"}}"#);
             assert_eq!(
                 parse_ok(&text).op,
-                Op::Subscribe {
+                Op::Subscribe(Subscribe {
                     stream,
                     format,
                     every: 1,
                     batch: 1
-                }
+                })
             );
         }
         let text = format!(r#"{{"op":"subscribe","stream":"{stream}","format":null}}"#);
         assert_eq!(
             parse_ok(&text).op,
-            Op::Subscribe {
+            Op::Subscribe(Subscribe {
                 stream,
                 format: Format::Json,
                 every: 1,
                 batch: 1
-            }
+            })
         );
         let text = format!(r#"{{"op":"subscribe","stream":"{stream}","every":20}}"#);
         assert_eq!(
             parse_ok(&text).op,
-            Op::Subscribe {
+            Op::Subscribe(Subscribe {
                 stream,
                 format: Format::Json,
                 every: 20,
                 batch: 1
-            }
+            })
         );
         let text =
             format!(r#"{{"op":"subscribe","stream":"{stream}","format":"binary","batch":20}}"#);
         if stream == StreamKind::Demods {
             assert_eq!(
                 parse_ok(&text).op,
-                Op::Subscribe {
+                Op::Subscribe(Subscribe {
                     stream,
                     format: Format::Binary,
                     every: 1,
                     batch: 20
-                }
+                })
             );
             for bad in ["0", "1.5", "\"2\"", "1001"] {
                 let text = format!(
@@ -387,7 +391,7 @@ fn every_op_parses() {
         }
         let text = format!(r#"{{"op":"unsubscribe","stream":"{stream}","id":{{"k":2}}}}"#);
         let r = parse_ok(&text);
-        assert_eq!(r.op, Op::Unsubscribe { stream });
+        assert_eq!(r.op, Op::Unsubscribe(Unsubscribe { stream }));
         assert_eq!(r.id, json!({"k": 2}));
     }
 }
@@ -429,9 +433,9 @@ fn op_names_match_parsing() {
     assert_eq!(batch.op.name(), "set");
     assert_eq!(
         batch.op,
-        Op::SetMany {
+        Op::Set(Set::Many {
             values: vec![("/a".into(), json!(1)), ("/b".into(), json!([2]))]
-        }
+        })
     );
 }
 
@@ -485,14 +489,14 @@ fn unknown_fields_are_ignored_and_whitespace_is_fine() {
     assert_eq!(r.id, json!(9));
     assert_eq!(
         r.op,
-        Op::Get {
+        Op::Get(Get {
             path: "/a/b".into()
-        }
+        })
     );
     // `stream` on hello, `value` on get: not that op's fields, ignored.
     assert_eq!(
         parse_ok(r#"{"op":"hello","stream":"nope","value":1}"#).op,
-        Op::Hello
+        Op::Hello(Hello)
     );
 }
 
@@ -1391,8 +1395,8 @@ fn a_batch_set_that_gives_a_node_twice_is_refused() {
     let ok = parse_ok(r#"{"op":"set","values":{"/a":{"/a":1},"/b":2},"x":{"/a":1,"/a":2}}"#);
     assert_eq!(
         ok.op,
-        Op::SetMany {
+        Op::Set(Set::Many {
             values: vec![("/a".into(), json!({"/a": 1})), ("/b".into(), json!(2))]
-        }
+        })
     );
 }

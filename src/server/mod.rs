@@ -12,7 +12,6 @@ mod image;
 mod latency;
 mod latest;
 pub mod listen;
-mod measured;
 pub mod memory;
 mod metrics;
 pub mod protocol;

@@ -1,4 +1,6 @@
-//! One WebSocket connection: requests in, exactly one reply each; data messages out.
+//! One WebSocket connection: requests in, exactly one reply each; data messages out. What
+//! a request does is its op's (`protocol::ops`); the session is the transport: the socket,
+//! the queues, the rate limit and the bookkeeping of the client's subscriptions.
 //!
 //! Replies and data share the socket through a writer task that sends replies first. A
 //! peer that accepts nothing for `/server/stall_timeout` is disconnected (1008 "stalled");
@@ -14,12 +16,12 @@ use std::time::{Duration, Instant};
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket};
 use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
-use serde_json::{Map, Value, json};
+use serde_json::Value;
 use tokio::sync::mpsc;
 
-use super::protocol::{self, ErrorCode, Op, ProtocolError, Request, StreamKind};
+use super::protocol::ops::{Context, Subscribe, Subscriptions};
+use super::protocol::{self, ErrorCode, ProtocolError, Request, StreamKind};
 use super::state::{AppState, ClientHandle, DataQueue, DataReceiver, ReplyHold};
-use crate::instrument::ChangeError;
 use crate::pipeline::unix_ns;
 
 /// Requests a client may make per second on average, and in a burst.
@@ -360,205 +362,85 @@ async fn finish(sink: &mut SplitSink<WebSocket, Message>, end: Urgent) {
     }
 }
 
-/// One request → one reply.
+/// One request → one reply: the op parsed, then carried out against a context holding
+/// what ops need (the control plane, the newest demodulator output, this client's
+/// subscriptions).
 async fn handle(text: &str, state: &Arc<AppState>, client: &ClientHandle) -> Message {
     let reply = match protocol::parse_request(text) {
         Err((id, err)) => protocol::error_reply(&id, &err),
-        Ok(Request { id, op }) => match respond(op, state, client).await {
-            Ok(fields) => protocol::ok_reply(&id, fields),
-            Err(err) => protocol::error_reply(&id, &err),
-        },
+        Ok(Request { id, op }) => {
+            let subscriptions = ClientStreams { state, client };
+            let ctx = Context {
+                control: &state.control,
+                sample_rate: state.sample_rate,
+                latest_demods: &state.latest_demods,
+                subscriptions: &subscriptions,
+            };
+            match op.apply(&ctx).await {
+                Ok(fields) => protocol::ok_reply(&id, fields),
+                Err(err) => protocol::error_reply(&id, &err),
+            }
+        }
     };
     Message::Text(reply.into())
 }
 
-fn fields(v: Value) -> Map<String, Value> {
-    match v {
-        Value::Object(m) => m,
-        _ => Map::new(),
-    }
+/// A client's subscriptions, kept on its handle, and what goes with them: the `demods`
+/// points it has gathered go out (in the old layout) before its subscription changes, and
+/// the force worker fits what its subscribers take.
+struct ClientStreams<'a> {
+    state: &'a AppState,
+    client: &'a ClientHandle,
 }
 
-async fn respond(
-    op: Op,
-    state: &Arc<AppState>,
-    client: &ClientHandle,
-) -> Result<Map<String, Value>, ProtocolError> {
-    let internal = |m: &str| ProtocolError {
-        code: ErrorCode::Internal,
-        message: m.to_string(),
-    };
-    match op {
-        Op::Hello => Ok(fields(json!({
-            "server": "ftafm",
-            "version": env!("CARGO_PKG_VERSION"),
-            "protocol": protocol::PROTOCOL_VERSION,
-            "sample_rate": state.sample_rate,
-        }))),
-        Op::List { path } => {
-            let settings = state.control.settings();
-            let nodes = match &path {
-                Some(p) => settings.list(p).map_err(|e| ProtocolError::from(&e))?,
-                None => settings.nodes(),
-            };
-            Ok(fields(json!({ "nodes": nodes })))
-        }
-        Op::Get { path } if super::measured::is_measured(&path) => {
-            let value = super::measured::read(state, &path)?;
-            Ok(fields(json!({ "path": path, "value": value })))
-        }
-        Op::Get { path } => {
-            let current = state.control.current();
-            let value = current
-                .settings
-                .get(&path)
-                .map_err(|e| ProtocolError::from(&e))?;
-            let mut reply = json!({ "path": path, "value": value, "epoch": current.epoch });
-            if let Some(warning) = current.settings.node_warning(&path) {
-                reply["warning"] = Value::from(warning);
-            }
-            Ok(fields(reply))
-        }
-        Op::Set { path, value } => {
-            let what = format!("{path} = {value}");
-            let c = state
-                .control
-                .change(what, move |c| {
-                    let mut next = (*c.settings).clone();
-                    let applied = next.set(&path, &value)?;
-                    Ok((next, Some(vec![path.clone()]), (path, applied)))
-                })
-                .await?;
-            let (path, applied) = c.value;
-            Ok(fields(
-                json!({ "path": path, "value": applied, "t": c.t, "epoch": c.epoch }),
-            ))
-        }
-        Op::SetMany { values } => {
-            let what = values
-                .iter()
-                .map(|(p, _)| p.as_str())
-                .collect::<Vec<_>>()
-                .join(", ");
-            let c = state
-                .control
-                .change(what, move |c| {
-                    let mut next = (*c.settings).clone();
-                    let applied = next.set_many(&values)?;
-                    let paths: Vec<String> = values.iter().map(|(p, _)| p.clone()).collect();
-                    let applied: Map<String, Value> = paths.iter().cloned().zip(applied).collect();
-                    Ok((next, Some(paths), applied))
-                })
-                .await?;
-            Ok(fields(
-                json!({ "values": c.value, "t": c.t, "epoch": c.epoch }),
-            ))
-        }
-        Op::Settings => {
-            let current = state.control.current();
-            let toml = crate::config::settings_toml(&current.settings).map_err(|e| internal(&e))?;
-            Ok(fields(json!({ "toml": toml, "epoch": current.epoch })))
-        }
-        Op::LoadSettings { toml } => {
-            let c = state
-                .control
-                .change("settings".to_owned(), move |c| {
-                    let s = &c.settings;
-                    let next = crate::config::overlay_str((**s).clone(), &toml, "settings")?;
-                    if next.synth.sample_rate != s.synth.sample_rate {
-                        return Err(ChangeError::ReadOnly(format!(
-                            "/synth/sample_rate is read-only at runtime: these settings have {} \
-                             Hz, the instrument runs at {} Hz; start the daemon with them \
-                             (ftafm --config FILE) instead",
-                            next.synth.sample_rate, s.synth.sample_rate
-                        )));
-                    }
-                    Ok((next, None, ()))
-                })
-                .await?;
-            Ok(fields(json!({
-                "t": c.t,
-                "epoch": c.epoch,
-                "warnings": c.settings.warnings(),
-            })))
-        }
-        Op::Presets => Ok(fields(json!({ "presets": crate::config::PRESETS
-            .iter()
-            .map(|p| json!({ "name": p.name, "kind": p.kind, "summary": p.summary() }))
-            .collect::<Vec<_>>() }))),
-        Op::Preset { name } => {
-            let preset = crate::config::preset(&name).map_err(|e| ProtocolError {
-                code: ErrorCode::InvalidValue,
-                message: e.to_string(),
-            })?;
-            let origin = format!("preset {}", preset.name);
-            let c = state
-                .control
-                .change(origin.clone(), move |c| {
-                    let base = (*c.settings).clone();
-                    let next = crate::config::overlay_str(base, preset.toml, &origin)?;
-                    Ok((next, None, ()))
-                })
-                .await?;
-            Ok(fields(json!({
-                "preset": preset.name,
-                "kind": preset.kind,
-                "t": c.t,
-                "epoch": c.epoch,
-                "warnings": c.settings.warnings(),
-            })))
-        }
-        Op::Subscribe {
+impl Subscriptions for ClientStreams<'_> {
+    fn subscribe(&self, subscription: Subscribe) -> u64 {
+        let Self { state, client } = *self;
+        let Subscribe {
             stream,
             format,
             every,
             batch,
-        } => {
-            if stream == StreamKind::Demods {
-                // Points gathered under the old subscription go out first, in its layout.
-                if let Ok(mut pending) = client.pending.lock() {
-                    let max_bytes = state.queue_bytes.load(Ordering::Relaxed);
-                    super::hub::flush_batch(state, client, &mut pending, max_bytes);
-                    client.subscribe(stream, format, every, batch);
-                }
-            } else if stream == StreamKind::Force {
-                // The worker fits only what some client takes: this one's estimates begin
-                // where the stride that counts it does.
-                client.set_force_from(u64::MAX);
-                client.subscribe(stream, format, every, batch);
-                let from = state.update_force_stride();
-                client.set_force_from(from);
-            } else {
+        } = subscription;
+        if stream == StreamKind::Demods {
+            // Points gathered under the old subscription go out first, in its layout.
+            if let Ok(mut pending) = client.pending.lock() {
+                let max_bytes = state.queue_bytes.load(Ordering::Relaxed);
+                super::hub::flush_batch(state, client, &mut pending, max_bytes);
                 client.subscribe(stream, format, every, batch);
             }
-            let next_seq = if stream == StreamKind::Force {
-                client.force_from()
-            } else {
-                state.streams[super::state::stream_index(stream)]
-                    .produced
-                    .load(Ordering::Relaxed)
-            };
-            Ok(fields(json!({
-                "stream": stream.name(),
-                "next_seq": next_seq,
-                "every": every,
-                "batch": batch,
-            })))
+        } else if stream == StreamKind::Force {
+            // The worker fits only what some client takes: this one's estimates begin
+            // where the stride that counts it does.
+            client.set_force_from(u64::MAX);
+            client.subscribe(stream, format, every, batch);
+            let from = state.update_force_stride();
+            client.set_force_from(from);
+        } else {
+            client.subscribe(stream, format, every, batch);
         }
-        Op::Unsubscribe { stream } => {
-            if stream == StreamKind::Demods {
-                if let Ok(mut pending) = client.pending.lock() {
-                    let max_bytes = state.queue_bytes.load(Ordering::Relaxed);
-                    super::hub::flush_batch(state, client, &mut pending, max_bytes);
-                    client.unsubscribe(stream);
-                }
-            } else {
+        if stream == StreamKind::Force {
+            client.force_from()
+        } else {
+            state.streams[super::state::stream_index(stream)]
+                .produced
+                .load(Ordering::Relaxed)
+        }
+    }
+
+    fn unsubscribe(&self, stream: StreamKind) {
+        let Self { state, client } = *self;
+        if stream == StreamKind::Demods {
+            if let Ok(mut pending) = client.pending.lock() {
+                let max_bytes = state.queue_bytes.load(Ordering::Relaxed);
+                super::hub::flush_batch(state, client, &mut pending, max_bytes);
                 client.unsubscribe(stream);
-                if stream == StreamKind::Force {
-                    state.update_force_stride();
-                }
             }
-            Ok(fields(json!({ "stream": stream.name() })))
+        } else {
+            client.unsubscribe(stream);
+            if stream == StreamKind::Force {
+                state.update_force_stride();
+            }
         }
     }
 }

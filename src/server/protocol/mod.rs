@@ -1,16 +1,23 @@
-//! The WebSocket protocol, version 1, as pure functions: no sockets, no tasks.
+//! The WebSocket protocol, version 1.
 //!
-//! - [`parse_request`] turns one text frame into a [`Request`] (or the error reply's id and a
-//!   [`ProtocolError`]).
+//! - [`parse_request`] turns one text frame into a [`Request`]: its `id` and its [`Op`], a
+//!   serde-tagged enum of the ops, one file each in [`ops`] (the op's struct, its parse and
+//!   its `apply`) — or into the error reply's id and a [`ProtocolError`].
 //! - [`ok_reply`] and [`error_reply`] build the reply envelope.
 //! - [`demods_json`], [`spectrum_json`], [`scope_json`], [`status_json`] and their `_binary`
 //!   twins encode data messages; [`decode_header`] reads a binary message's header back.
+//!
+//! The wire format is pure functions, no sockets and no tasks. An op's `apply` sees only a
+//! small context (the control plane, the newest measured values, the client's
+//! subscriptions); the session owns the socket and calls it.
 //!
 //! Everything a client sees is documented in `docs/protocol.md`; the WebSocket section of
 //! the design contract is the promise this module keeps.
 
 mod data;
+mod fields;
 mod json;
+pub mod ops;
 mod reply;
 mod request;
 
@@ -25,8 +32,10 @@ pub use data::{
     json_binary, scope_binary, scope_json, spectrum_binary, spectrum_json, status_binary,
     status_json,
 };
+pub use fields::Fields;
+pub use ops::Op;
 pub use reply::{error_reply, ok_reply};
-pub use request::{Op, Request, parse_request};
+pub use request::{Request, parse_request};
 
 /// The protocol version `hello` reports (`protocol`).
 pub const PROTOCOL_VERSION: u32 = 1;
