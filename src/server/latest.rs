@@ -43,17 +43,6 @@ impl<T> Latest<T> {
         self.slot.lock().ok().and_then(|mut s| s.0.take())
     }
 
-    /// Waits for a value; `None` once the slot is closed (values put before are taken
-    /// first) or after `timeout`.
-    pub fn wait(&self, timeout: Duration) -> Option<T> {
-        let slot = self.slot.lock().ok()?;
-        let (mut slot, _) = self
-            .ready
-            .wait_timeout_while(slot, timeout, |s| s.0.is_none() && !s.1)
-            .ok()?;
-        slot.0.take()
-    }
-
     /// Waits until a value waits to be taken (`true`), without taking it; `false` once the
     /// slot is closed with nothing in it, or after `timeout`.
     pub fn wait_pending(&self, timeout: Duration) -> bool {
@@ -106,13 +95,14 @@ mod tests {
         let l = Arc::new(Latest::new());
         let c = l.clone();
         let t = std::thread::spawn(move || {
-            let first = c.wait(Duration::from_secs(600));
-            let second = c.wait(Duration::from_secs(600));
-            (first, second)
+            // Waits, then takes (as the estimator's builder does).
+            let first = c.wait_pending(Duration::from_secs(600)).then(|| c.take());
+            let second = c.wait_pending(Duration::from_secs(600)).then(|| c.take());
+            (first.flatten(), second.flatten())
         });
         l.put(7);
         // Whether or not the consumer took 7 before the close, it gets 7 first (a value
-        // put before the close is taken first) and then None.
+        // put before the close is still pending) and then nothing.
         l.close();
         let (first, second) = t.join().unwrap();
         assert_eq!(first, Some(7));
