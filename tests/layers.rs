@@ -57,7 +57,17 @@ fn the_schema_uses_no_physics_and_the_control_plane_no_transport() {
     assert_uses_only("config", &[]);
     assert_uses_only(
         "instrument",
-        &["config", "model", "physics", "pipeline", "timebase", "cpu"],
+        &[
+            "config",
+            "model",
+            "physics",
+            "inversion",
+            "imaging",
+            "pipeline",
+            "synth",
+            "timebase",
+            "cpu",
+        ],
     );
 }
 

@@ -54,9 +54,9 @@ pub async fn run_with(
     limits: ConnectionLimits,
 ) -> Result<(), ServerError> {
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
-    let (force, estimates) = super::force::ForceLink::start();
+    let (force, estimates) = crate::instrument::force::ForceLink::start();
     force.follow(0, None, Some(settings.clone()));
-    let (image, image_lines) = super::image::ImageLink::start(&settings);
+    let (image, image_lines) = crate::instrument::image::ImageLink::start(&settings);
     let stall = crate::pipeline::StallMeter::start("ftafm-stall")
         .inspect_err(|e| tracing::warn!(error = %e, "no stall meter: its thread would not start"))
         .ok();

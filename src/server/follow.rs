@@ -20,7 +20,7 @@ pub(crate) fn followers(state: Weak<AppState>) -> impl Fn(&Committed<'_>) + Send
             c.settings.server.client_queue_bytes as usize,
             Ordering::Relaxed,
         );
-        let rebuild = c.touched(super::force::affects_estimator);
+        let rebuild = c.touched(crate::instrument::force::affects_estimator);
         // The estimator's frames must come from the new settings: after a change of the
         // physics, or of what the estimator models (e.g. the demodulators, whose frames in
         // flight have the old layout), those before the change has settled are left out.
@@ -31,7 +31,7 @@ pub(crate) fn followers(state: Weak<AppState>) -> impl Fn(&Committed<'_>) + Send
             settle_from,
             rebuild.then(|| (**c.settings).clone()),
         );
-        if c.touched(super::image::affects_images) {
+        if c.touched(crate::instrument::image::affects_images) {
             state.image.configure(c.settings, c.epoch);
         }
     }

@@ -283,7 +283,7 @@ impl Wake {
 pub(crate) async fn run(
     state: Arc<AppState>,
     mut output: PipelineOutput,
-    estimates: std::sync::mpsc::Receiver<super::force::ForceOutcome>,
+    estimates: std::sync::mpsc::Receiver<crate::instrument::force::ForceOutcome>,
     image_lines: std::sync::mpsc::Receiver<crate::imaging::ImageLine>,
 ) {
     let mut tick = tokio::time::interval(TICK);
@@ -371,7 +371,7 @@ pub(crate) async fn run(
         }
         while let Ok(outcome) = estimates.try_recv() {
             state.sweep_force.offer(&outcome);
-            let super::force::ForceOutcome::Estimate(_, estimate, seq) = outcome else {
+            let crate::instrument::force::ForceOutcome::Estimate(_, estimate, seq) = outcome else {
                 continue;
             };
             distribute_points(

@@ -3,14 +3,10 @@
 
 mod app;
 mod assets;
-mod build_budget;
 mod follow;
-mod force;
 mod host;
 mod hub;
-mod image;
 mod latency;
-mod latest;
 pub mod listen;
 pub mod memory;
 mod metrics;

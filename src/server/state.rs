@@ -498,14 +498,14 @@ pub(crate) struct AppState {
     /// Latency summaries since start (ns), refreshed by the hub for `/metrics`.
     pub latency_totals: Mutex<[super::status::LatencySummary; 2]>,
     /// The `force` stream's worker.
-    pub force: super::force::ForceLink,
+    pub force: crate::instrument::force::ForceLink,
     /// The newest demodulator frame, for reads of measured values (`/demods/N/sample`).
     pub latest_demods: Mutex<Option<crate::pipeline::DemodFrame>>,
     /// Demodulator frames for a running sweep (the hub forwards them while one runs).
     pub sweep_frames: super::tap::FrameTap,
     /// The force worker's outcomes handed to a running sweep.
-    pub sweep_force: super::tap::Tap<super::force::ForceOutcome>,
-    pub image: super::image::ImageLink,
+    pub sweep_force: super::tap::Tap<crate::instrument::force::ForceOutcome>,
+    pub image: crate::instrument::image::ImageLink,
     /// The machine's stalls, measured beside the server (None if its thread would not
     /// start; the daemon runs without it).
     pub stall: Option<crate::pipeline::StallMeter>,
@@ -521,7 +521,7 @@ impl AppState {
     /// `every` of the clients subscribed to `force`, 1 while a sweep takes the estimates.
     /// Returns the seq of the worker's next window (see [`ForceLink::set_stride`]).
     ///
-    /// [`ForceLink::set_stride`]: super::force::ForceLink::set_stride
+    /// [`ForceLink::set_stride`]: crate::instrument::force::ForceLink::set_stride
     pub fn update_force_stride(&self) -> u64 {
         let s = stream_index(StreamKind::Force);
         let mut stride = 0u32;

@@ -11,12 +11,12 @@ use std::time::{Duration, Instant};
 use serde_json::{Map, Value, json};
 use tokio::sync::mpsc;
 
-use super::force::{ForceLink, ForceOutcome};
 use super::protocol::{self, ProtocolError, StreamKind};
 use super::state::AppState;
 use crate::config::{
     DEMODULATOR_COUNT, Settings, SweepDirection, SweepParameter, SweepScale, SweeperSettings,
 };
+use crate::instrument::force::{ForceLink, ForceOutcome};
 use crate::pipeline::DemodFrame;
 use crate::sweep::{self, Leg};
 
