@@ -63,6 +63,7 @@ fn the_schema_uses_no_physics_and_the_control_plane_no_transport() {
             "physics",
             "inversion",
             "imaging",
+            "sweep",
             "pipeline",
             "synth",
             "timebase",

@@ -7,6 +7,8 @@
 //! - [`control`]: the settings, their epoch and `change()`, their one writer.
 //! - `force`: the force stream's worker and its estimator builder; `image`: the image
 //!   stream's worker. Both follow the commits and stamp their outputs with the epoch.
+//! - `sweeper`: steps a node through a sweep's points as a client of `change()`, each sweep
+//!   keyed by the request that started it; `tap`: what the hub hands a running sweep.
 //! - `build_budget`: the CPU those rebuilds may take; `latest`: the slot that keeps only the
 //!   newest settings to build for.
 
@@ -15,5 +17,7 @@ pub mod control;
 pub(crate) mod force;
 pub(crate) mod image;
 mod latest;
+pub(crate) mod sweeper;
+pub(crate) mod tap;
 
 pub use control::{ChangeError, Changed, Committed, Control, Current, Proposal, affects_physics};

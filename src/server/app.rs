@@ -21,6 +21,7 @@ use super::state::AppState;
 use super::{assets, hub, metrics, session};
 use crate::config::Settings;
 use crate::instrument::Control;
+use crate::instrument::sweeper::SweeperLinks;
 use crate::pipeline::{Pipeline, PipelineError};
 
 /// Why the daemon stopped with an error.
@@ -83,18 +84,28 @@ pub async fn run_with(
         ping_interval: limits.ping_interval,
         http: Arc::new(ConnectionCounters::default()),
         latency_totals: Mutex::new(Default::default()),
-        force,
+        force: Arc::new(force),
         image,
         stall,
         latest_demods: Mutex::new(None),
-        sweep_frames: super::tap::FrameTap::new(),
-        sweep_force: super::tap::Tap::new(),
+        sweep_frames: Arc::new(crate::instrument::tap::FrameTap::new()),
+        sweep_force: Arc::new(crate::instrument::tap::Tap::new()),
     });
     state
         .control
         .set_followers(super::follow::followers(Arc::downgrade(&state)));
     let hub = tokio::spawn(hub::run(state.clone(), output, estimates, image_lines));
-    let sweeper = tokio::spawn(super::sweeper::run(state.clone()));
+    let publisher = state.clone();
+    let sweeper = tokio::spawn(crate::instrument::sweeper::run(SweeperLinks {
+        control: state.control.clone(),
+        frames: state.sweep_frames.clone(),
+        forces: state.sweep_force.clone(),
+        force: state.force.clone(),
+        shutdown: state.shutdown.clone(),
+        publish: Box::new(move |t, t_synth_ns, fields| {
+            hub::publish_sweep(&publisher, t, t_synth_ns, fields)
+        }),
+    }));
     // Every route but /healthz checks that the request names this server (DNS rebinding);
     // every response carries the security headers.
     let app = Router::new()

@@ -24,8 +24,9 @@ pub(crate) fn followers(state: Weak<AppState>) -> impl Fn(&Committed<'_>) + Send
         // The estimator's frames must come from the new settings: after a change of the
         // physics, or of what the estimator models (e.g. the demodulators, whose frames in
         // flight have the old layout), those before the change has settled are left out.
-        let settle_from = (rebuild || c.touched(affects_physics))
-            .then(|| c.t.unwrap_or(0.0) + super::sweeper::automatic_settling(c.settings));
+        let settle_from = (rebuild || c.touched(affects_physics)).then(|| {
+            c.t.unwrap_or(0.0) + crate::instrument::sweeper::automatic_settling(c.settings)
+        });
         state.force.follow(
             c.epoch,
             settle_from,

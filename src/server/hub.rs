@@ -7,6 +7,8 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
+use serde_json::{Map, Value, json};
+
 use axum::extract::ws::{Message, Utf8Bytes};
 use bytes::Bytes;
 use ringbuf::traits::Consumer;
@@ -513,6 +515,35 @@ fn behind_warning(
          (synthesised after their time); busy: synthesis {synth:.0} %, DSP {dsp:.0} % of \
          the time; {remedy}, or fewer other programs on this machine"
     ))
+}
+
+/// Sends one `sweep` message with `fields` after the envelope (the sweeper's messages).
+pub(crate) fn publish_sweep(state: &AppState, t: f64, t_synth_ns: u64, fields: Map<String, Value>) {
+    distribute(
+        state,
+        StreamKind::Sweep,
+        (t_synth_ns, 0),
+        |seq| sweep_envelope(seq, t, t_synth_ns, &fields),
+        |seq| {
+            protocol::json_binary(
+                StreamKind::Sweep,
+                seq,
+                t,
+                t_synth_ns,
+                &sweep_envelope(seq, t, t_synth_ns, &fields),
+            )
+        },
+    );
+}
+
+fn sweep_envelope(seq: u64, t: f64, t_synth_ns: u64, fields: &Map<String, Value>) -> String {
+    let mut m = Map::new();
+    m.insert("stream".into(), json!("sweep"));
+    m.insert("seq".into(), json!(seq));
+    m.insert("t".into(), json!(t));
+    m.insert("t_synth_ns".into(), json!(t_synth_ns));
+    m.extend(fields.clone());
+    Value::Object(m).to_string()
 }
 
 #[cfg(test)]

@@ -14,8 +14,6 @@ pub mod protocol;
 mod session;
 mod state;
 pub mod status;
-mod sweeper;
-mod tap;
 
 pub use app::{ServerError, run, run_with};
 pub use listen::ConnectionLimits;

@@ -498,13 +498,13 @@ pub(crate) struct AppState {
     /// Latency summaries since start (ns), refreshed by the hub for `/metrics`.
     pub latency_totals: Mutex<[super::status::LatencySummary; 2]>,
     /// The `force` stream's worker.
-    pub force: crate::instrument::force::ForceLink,
+    pub force: Arc<crate::instrument::force::ForceLink>,
     /// The newest demodulator frame, for reads of measured values (`/demods/N/sample`).
     pub latest_demods: Mutex<Option<crate::pipeline::DemodFrame>>,
     /// Demodulator frames for a running sweep (the hub forwards them while one runs).
-    pub sweep_frames: super::tap::FrameTap,
+    pub sweep_frames: Arc<crate::instrument::tap::FrameTap>,
     /// The force worker's outcomes handed to a running sweep.
-    pub sweep_force: super::tap::Tap<crate::instrument::force::ForceOutcome>,
+    pub sweep_force: Arc<crate::instrument::tap::Tap<crate::instrument::force::ForceOutcome>>,
     pub image: crate::instrument::image::ImageLink,
     /// The machine's stalls, measured beside the server (None if its thread would not
     /// start; the daemon runs without it).

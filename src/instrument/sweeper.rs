@@ -11,12 +11,14 @@ use std::time::{Duration, Instant};
 use serde_json::{Map, Value, json};
 use tokio::sync::mpsc;
 
-use super::protocol::{self, ProtocolError, StreamKind};
-use super::state::AppState;
+use tokio::sync::watch;
+
+use super::Control;
+use super::force::{ForceLink, ForceOutcome};
+use super::tap::{FrameTap, Tap};
 use crate::config::{
     DEMODULATOR_COUNT, Settings, SweepDirection, SweepParameter, SweepScale, SweeperSettings,
 };
-use crate::instrument::force::{ForceLink, ForceOutcome};
 use crate::pipeline::DemodFrame;
 use crate::sweep::{self, Leg};
 
@@ -50,20 +52,36 @@ impl Drop for Awaiting<'_> {
 /// Counts sweeps since the daemon started: `sweep` in every message of one.
 static SWEEPS: AtomicU64 = AtomicU64::new(0);
 
+/// Where a sweep's messages go: the simulated time (s) and the synthesis clock (ns) of the
+/// frame they follow, and the message's fields after its envelope (`stream`, `seq`, `t`).
+pub(crate) type Publish = Box<dyn Fn(f64, u64, Map<String, Value>) + Send + Sync>;
+
+/// What the sweeper uses: the control plane it steps the node through, the taps the hub
+/// fills while a sweep runs, the force worker whose estimates it waits for, shutdown, and
+/// where its messages go.
+pub(crate) struct SweeperLinks {
+    pub control: Arc<Control>,
+    pub frames: Arc<FrameTap>,
+    pub forces: Arc<Tap<ForceOutcome>>,
+    pub force: Arc<ForceLink>,
+    pub shutdown: watch::Receiver<bool>,
+    pub publish: Publish,
+}
+
 /// Runs until shutdown: waits for `/sweeper/enable`, runs the sweep, waits again.
-pub(crate) async fn run(state: Arc<AppState>) {
-    let Some(mut frames) = state.sweep_frames.take_receiver() else {
+pub(crate) async fn run(links: SweeperLinks) {
+    let Some(mut frames) = links.frames.take_receiver() else {
         return;
     };
-    let Some(mut forces) = state.sweep_force.take_receiver() else {
+    let Some(mut forces) = links.forces.take_receiver() else {
         return;
     };
-    let mut changes = state.control.subscribe();
-    let mut shutdown = state.shutdown.clone();
+    let mut changes = links.control.subscribe();
+    let mut shutdown = links.shutdown.clone();
     loop {
-        let current = state.control.current();
+        let current = links.control.current();
         if current.settings.sweeper.enable {
-            if run_sweep(&state, current, &mut frames, &mut forces, &mut changes)
+            if run_sweep(&links, current, &mut frames, &mut forces, &mut changes)
                 .await
                 .is_err()
             {
@@ -268,38 +286,9 @@ fn restore_values(s: &Settings, w: &SweeperSettings) -> Vec<(String, Value)> {
     values
 }
 
-/// Sends one `sweep` message with `fields` after the envelope.
-fn send(state: &AppState, t: f64, t_synth_ns: u64, fields: Map<String, Value>) {
-    super::hub::distribute(
-        state,
-        StreamKind::Sweep,
-        (t_synth_ns, 0),
-        |seq| envelope(seq, t, t_synth_ns, &fields),
-        |seq| {
-            protocol::json_binary(
-                StreamKind::Sweep,
-                seq,
-                t,
-                t_synth_ns,
-                &envelope(seq, t, t_synth_ns, &fields),
-            )
-        },
-    );
-}
-
-fn envelope(seq: u64, t: f64, t_synth_ns: u64, fields: &Map<String, Value>) -> String {
-    let mut m = Map::new();
-    m.insert("stream".into(), json!("sweep"));
-    m.insert("seq".into(), json!(seq));
-    m.insert("t".into(), json!(t));
-    m.insert("t_synth_ns".into(), json!(t_synth_ns));
-    m.extend(fields.clone());
-    Value::Object(m).to_string()
-}
-
 /// Runs the sweep `settings.sweeper` describes. `Err` only when the daemon shuts down.
 async fn run_sweep(
-    state: &Arc<AppState>,
+    links: &SweeperLinks,
     start: crate::instrument::Current,
     frames: &mut mpsc::Receiver<DemodFrame>,
     forces: &mut mpsc::Receiver<ForceOutcome>,
@@ -358,14 +347,14 @@ async fn run_sweep(
     };
     while frames.try_recv().is_ok() {}
     while forces.try_recv().is_ok() {}
-    let dropped_before = state.sweep_frames.dropped.load(Ordering::Relaxed)
-        + state.sweep_force.dropped.load(Ordering::Relaxed);
-    state.sweep_frames.set_active(true);
-    state.sweep_force.set_active(force_off.is_none());
+    let dropped_before =
+        links.frames.dropped.load(Ordering::Relaxed) + links.forces.dropped.load(Ordering::Relaxed);
+    links.frames.set_active(true);
+    links.forces.set_active(force_off.is_none());
     // Each point waits for its estimator: the builder does not rest between them, until
     // the sweep ends, however it ends.
-    let _awaiting = force_off.is_none().then(|| Awaiting::new(&state.force));
-    let mut shutdown = state.shutdown.clone();
+    let _awaiting = force_off.is_none().then(|| Awaiting::new(&links.force));
+    let mut shutdown = links.shutdown.clone();
     let mut measured: Vec<Measured> = Vec::with_capacity(points.len());
     let (mut t_last, mut t_synth_last) = (0.0, 0u64);
     let mut outcome = Outcome::Done;
@@ -376,7 +365,7 @@ async fn run_sweep(
         let (before, swept_now) = (mine.clone(), swept.clone());
         // Checked and written in one step under the writer's lock: no client's change can
         // slip between the check and the point's values.
-        let change = state
+        let change = links
             .control
             .change(format!("sweep point {i}"), move |c| {
                 if let Some(why) = interrupted(request, &before, c, &swept_now) {
@@ -402,14 +391,14 @@ async fn run_sweep(
                     "{} = {} at point {i}: {}",
                     w.parameter.name(),
                     p.value,
-                    ProtocolError::from(e).message
+                    e
                 ));
                 break;
             }
         };
         let from = t_set + settle;
         // Force outcomes of an estimator built for this point's settings (or later).
-        let generation = state.force.requested();
+        let generation = links.force.requested();
         let mut force = ForcePoint::default();
         let mut force_done = force_off.is_some();
         let mut force_deadline = None;
@@ -447,7 +436,7 @@ async fn run_sweep(
                     if r.is_err() {
                         return Err(());
                     }
-                    if let Some(why) = interrupted(request, &mine, &state.control.current(), &swept) {
+                    if let Some(why) = interrupted(request, &mine, &links.control.current(), &swept) {
                         outcome = Outcome::Aborted(why);
                         break 'points;
                     }
@@ -511,11 +500,11 @@ async fn run_sweep(
             fields.insert("force".into(), force.json());
         }
         fields.insert("demods".into(), Value::Array(list));
-        send(state, t_last, t_synth_last, fields);
+        (links.publish)(t_last, t_synth_last, fields);
         measured.push(m);
     }
-    state.sweep_frames.set_active(false);
-    state.sweep_force.set_active(false);
+    links.frames.set_active(false);
+    links.forces.set_active(false);
 
     // Restore each swept node that still holds the sweep's own value (one a client set
     // meanwhile keeps the client's), and turn the sweep off unless a new one was requested
@@ -524,7 +513,7 @@ async fn run_sweep(
     let mut kept: Vec<String> = Vec::new();
     for _ in 0..20 {
         let (values, last) = (restore.clone(), mine.clone());
-        match state
+        match links
             .control
             .change(format!("sweep {id}: restore"), move |c| {
                 let (mut set, mut kept) = (Vec::new(), Vec::new());
@@ -562,7 +551,7 @@ async fn run_sweep(
     if let Err(why) = &restored {
         tracing::warn!(sweep = id, %why, "the swept node could not be restored");
         // Turn the sweep off at least, so it does not start over.
-        let _ = state
+        let _ = links
             .control
             .change(format!("sweep {id}: off"), move |c| {
                 let mut next = Settings::clone(&c.settings);
@@ -577,7 +566,7 @@ async fn run_sweep(
     let mut fields = Map::new();
     fields.insert("sweep".into(), json!(id));
     fields.insert("request".into(), json!(request));
-    fields.insert("epoch".into(), json!(state.control.epoch()));
+    fields.insert("epoch".into(), json!(links.control.epoch()));
     fields.insert("parameter".into(), json!(w.parameter.name()));
     fields.insert("done".into(), json!(true));
     let (name, reason) = match &outcome {
@@ -595,8 +584,8 @@ async fn run_sweep(
     fields.insert(
         "frames_dropped".into(),
         json!(
-            state.sweep_frames.dropped.load(Ordering::Relaxed)
-                + state.sweep_force.dropped.load(Ordering::Relaxed)
+            links.frames.dropped.load(Ordering::Relaxed)
+                + links.forces.dropped.load(Ordering::Relaxed)
                 - dropped_before
         ),
     );
@@ -609,7 +598,7 @@ async fn run_sweep(
     if w.parameter == SweepParameter::SurfaceDistance {
         fields.insert("approach".into(), approach_summary(&measured));
     }
-    send(state, t_last, t_synth_last, fields);
+    (links.publish)(t_last, t_synth_last, fields);
     tracing::info!(
         sweep = id,
         outcome = name,
