@@ -490,14 +490,20 @@ impl Pipeline {
         if settings.dsp != old.dsp {
             return Err(PipelineError::Restart("/dsp/threads"));
         }
+        // Everything the synthesis plan is built from; the pacing (`/synth/realtime`) is a
+        // flag the threads read, not part of the plan.
+        let unpaced = |s: &Settings| crate::config::SynthSettings {
+            realtime: false,
+            ..s.synth.clone()
+        };
         let synth_changed = settings.cantilever != old.cantilever
             || settings.tip != old.tip
             || settings.sample != old.sample
             || settings.drive != old.drive
             || settings.surface != old.surface
+            || settings.adhesion != old.adhesion
             || settings.noise != old.noise
-            || settings.synth.engine != old.synth.engine
-            || settings.synth.seed != old.synth.seed
+            || unpaced(settings) != unpaced(old)
             || settings.scan != old.scan
             || settings.feedback != old.feedback
             || settings.inclusions != old.inclusions;
