@@ -186,6 +186,9 @@ pub struct Continuation {
 struct Record {
     /// (t, g, δ) at every point in contact.
     force: Vec<(f64, f64, f64)>,
+    /// Time (s) of the steps with the tip in contact at either end, the contact's share of
+    /// the period wherever in it the contact falls (across t = 0 too).
+    contact_time: f64,
     /// Trapezoid sums over the whole period.
     drive_work: f64,
     damping_work: f64,
@@ -455,13 +458,8 @@ impl CoupledProblem {
             .fold((0.0f64, 0.0f64), |(f, d), &(_, g, delta)| {
                 (f.max(g), d.max(delta))
             });
-        let contact_time: f64 = record
-            .force
-            .windows(2)
-            .filter(|w| w[0].2 > 0.0 || w[1].2 > 0.0)
-            .map(|w| w[1].0 - w[0].0)
-            .sum();
-        let fwhm = full_width_at_half_maximum(&record.force, max_force);
+        let contact_time = record.contact_time;
+        let fwhm = full_width_at_half_maximum(&from_minimum(&record.force, t_period), max_force);
         let t_peak = record
             .force
             .iter()
@@ -539,6 +537,24 @@ impl CoupledOrbit {
     pub fn phase_shift_deg(&self) -> f64 {
         self.phase_shift.to_degrees()
     }
+}
+
+/// The force record as one period that starts at its smallest force: the samples before it
+/// move to the end, a period later, so a pulse that straddles t = 0 (and T) is one stretch.
+fn from_minimum(samples: &[(f64, f64, f64)], t_period: f64) -> Vec<(f64, f64, f64)> {
+    let Some(k) = samples
+        .iter()
+        .enumerate()
+        .min_by(|a, b| a.1.1.total_cmp(&b.1.1))
+        .map(|(i, _)| i)
+    else {
+        return Vec::new();
+    };
+    samples[k..]
+        .iter()
+        .copied()
+        .chain(samples[..k].iter().map(|&(t, g, d)| (t + t_period, g, d)))
+        .collect()
 }
 
 /// FWHM (s) of the force samples (t, g, δ), by linear interpolation at the half maximum.
@@ -922,6 +938,9 @@ impl<'a> PeriodMap<'a> {
             r.damping_work += 0.5 * dt * (before.1 + now.1);
             r.contact_work += 0.5 * dt * (before.2 + now.2);
             r.base_contact_work += 0.5 * dt * (before.3 + now.3);
+            if before.5 > 0.0 || now.5 > 0.0 {
+                r.contact_time += dt;
+            }
             if before.4 != 0.0 || now.4 != 0.0 {
                 let w = self.p.drive_omega;
                 // e^{−ikΩt} by powers of e^{−iΩt}, re-anchored every 64 harmonics: hundreds
@@ -1110,5 +1129,47 @@ mod tests {
         let record = map.measure_period(&orbit.initial_state, 1024).unwrap();
         assert_eq!(record.coefficients.len(), 1025);
         assert!(record.coefficients[1024].norm() > 0.0);
+    }
+}
+
+#[cfg(test)]
+mod light_tapping {
+    use super::super::contact::Elastic;
+    use super::*;
+
+    /// Light tapping, where the tip motion at the lower turning point is a parabola:
+    /// δ(t) = δm (1 − (t/tc)²) with tc = √(2δm/(A Ω²)), so the contact lasts a fraction
+    /// (1/π)·√(2δm/A) of the period, and the Hertz force Fm (1 − (t/tc)²)^(3/2) is above half
+    /// its peak for |t| < tc·√(1 − 2^(−2/3)): τ = 1.5·FWHM/T = 1.5·√(1 − 2^(−2/3))·fraction.
+    /// At 29.9 nm the pulse straddles drive phase 0 (its peak at 6.245 rad), at 29.5 nm it
+    /// does not: both must match.
+    #[test]
+    fn contact_time_and_width_match_the_parabolic_tip_motion_across_phase_zero() {
+        let beam = Cantilever::new(100e3, 20.0, &[100.0, 417.0, 340.0, 200.0, 26.0], 0).unwrap();
+        let si = Elastic {
+            youngs_modulus: 129e9,
+            poisson: 0.28,
+        };
+        for (distance, straddles) in [(29.9e-9, true), (29.5e-9, false)] {
+            let p = CoupledProblem::new(
+                &beam,
+                100e3,
+                30e-9,
+                distance,
+                HertzContact::new(si, si, 10e-9),
+            );
+            let o = p.solve(4).unwrap();
+            let half_width = PI * o.contact_fraction;
+            let to_zero = o.pulse_phase.min(2.0 * PI - o.pulse_phase);
+            assert_eq!(to_zero < half_width, straddles, "{distance:e}: {o:?}");
+            let fraction = (2.0 * o.max_indentation / o.tapping_amplitude).sqrt() / PI;
+            let tau = 1.5 * (1.0 - 2f64.powf(-2.0 / 3.0)).sqrt() * fraction;
+            println!(
+                "{distance:e} m: contact fraction {:.5} (parabola {fraction:.5}), τ {:.5} (parabola {tau:.5})",
+                o.contact_fraction, o.contact_time_ratio
+            );
+            assert!((o.contact_fraction / fraction - 1.0).abs() < 0.03, "{o:?}");
+            assert!((o.contact_time_ratio / tau - 1.0).abs() < 0.03, "{o:?}");
+        }
     }
 }
