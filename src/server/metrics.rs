@@ -268,7 +268,7 @@ pub(crate) fn render(state: &AppState) -> String {
     metric(
         "estimator_rests_total",
         "counter",
-        "Rests of the force stream's estimator builder after a build (it holds itself to a quarter of a core), by outcome (cut: a sweep was waiting for its estimates).",
+        "Rests of the force stream's estimator builder while its budget of build time is spent (a quarter of a core on average under a flood of changes), by outcome (cut: a sweep was waiting for its estimates).",
         &[
             (
                 "{outcome=\"taken\"}".into(),
@@ -283,7 +283,7 @@ pub(crate) fn render(state: &AppState) -> String {
     metric(
         "estimator_rebuild_seconds_total",
         "counter",
-        "CPU time spent rebuilding the force stream's FT-AFM estimator (its builder runs at nice 10 and at most a quarter of a core, but without rests while a sweep waits for its estimates).",
+        "CPU time spent rebuilding the force stream's FT-AFM estimator (its builder runs at nice 10 and at most a quarter of a core on average beyond a 4 s burst, but without rests while a sweep waits for its estimates).",
         &[(
             String::new(),
             f.rebuild_ns.load(Ordering::Relaxed) as f64 * 1e-9,
