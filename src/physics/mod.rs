@@ -11,7 +11,10 @@ pub mod spectrum;
 
 pub use beam::{Cantilever, Mode};
 pub use contact::{Adhesion, Elastic, HertzContact};
-pub use coupled::{Continuation, CoupledError, CoupledOrbit, CoupledProblem};
+pub use coupled::{
+    Branch, Continuation, CoupledError, CoupledOrbit, CoupledProblem, Jump, MAX_PERIODS,
+    SearchLimits,
+};
 pub use impact::{ImpactOscillator, ImpactSolution, SolveOptions};
 pub use sample_map::{Outline, Region, SampleMap};
 pub use spectrum::Harmonic;
