@@ -4,7 +4,7 @@
 use ftafm::config::NodeError;
 use ftafm::dsp::MAX_DEMODULATORS;
 use ftafm::pipeline::{DemodFrame, DemodValue, ScopeBuffer, SpectrumBuffer};
-use ftafm::server::protocol::ops::{Get, Hello, List, Set, Subscribe, Unsubscribe};
+use ftafm::server::protocol::ops::{Get, Hello, List, MAX_PATHS, Set, Subscribe, Unsubscribe};
 use ftafm::server::protocol::{
     BINARY_HEADER_BYTES, BINARY_MAGIC, BINARY_VERSION, DEMOD_RECORD_BYTES, ErrorCode, Format,
     MAX_MESSAGE_BYTES, Op, PROTOCOL_VERSION, ProtocolError, Request, StreamKind, decode_header,
@@ -272,7 +272,7 @@ fn every_op_parses() {
         parse_ok(r#"{"id":"g","op":"get","path":"/drive/frequency"}"#),
         Request {
             id: json!("g"),
-            op: Op::Get(Get {
+            op: Op::Get(Get::One {
                 path: "/drive/frequency".into()
             })
         }
@@ -440,6 +440,57 @@ fn op_names_match_parsing() {
 }
 
 #[test]
+fn a_get_of_many_paths_is_op_get_with_paths() {
+    let many = parse_ok(r#"{"op":"get","paths":["/b","/a","/demods/0/sample"]}"#);
+    assert_eq!(many.op.name(), "get");
+    assert_eq!(
+        many.op,
+        Op::Get(Get::Many {
+            paths: vec!["/b".into(), "/a".into(), "/demods/0/sample".into()]
+        })
+    );
+    // `paths: null` is absent: the single-path form.
+    assert_eq!(
+        parse_ok(r#"{"op":"get","path":"/a","paths":null}"#).op,
+        Op::Get(Get::One { path: "/a".into() })
+    );
+    let most = vec![json!("/a"); MAX_PATHS];
+    assert!(matches!(
+        parse_ok(&json!({"op": "get", "paths": most}).to_string()).op,
+        Op::Get(Get::Many { paths }) if paths.len() == MAX_PATHS
+    ));
+    let too_many = vec![json!("/a"); MAX_PATHS + 1];
+    for (text, words) in [
+        (
+            r#"{"id":1,"op":"get","paths":[]}"#.to_owned(),
+            &["\"paths\"", "empty"][..],
+        ),
+        (
+            r#"{"id":1,"op":"get","paths":"/a"}"#.to_owned(),
+            &["\"paths\"", "array", "a string (\"/a\")"][..],
+        ),
+        (
+            r#"{"id":1,"op":"get","paths":["/a",7]}"#.to_owned(),
+            &["\"paths\"", "a number (7)"][..],
+        ),
+        (
+            r#"{"id":1,"op":"get","paths":["/a","b"]}"#.to_owned(),
+            &["\"paths\"", "start with \"/\"", "\"b\""][..],
+        ),
+        (
+            r#"{"id":1,"op":"get","path":"/a","paths":["/b"]}"#.to_owned(),
+            &["\"path\"", "\"paths\"", "not both"][..],
+        ),
+        (
+            json!({"id": 1, "op": "get", "paths": too_many}).to_string(),
+            &["1025 paths", "at most 1024"][..],
+        ),
+    ] {
+        assert_error(&text, ErrorCode::BadRequest, json!(1), words);
+    }
+}
+
+#[test]
 fn id_is_echoed_as_given_and_null_when_absent() {
     assert_eq!(parse_ok(r#"{"op":"hello"}"#).id, Value::Null);
     for id in [
@@ -489,7 +540,7 @@ fn unknown_fields_are_ignored_and_whitespace_is_fine() {
     assert_eq!(r.id, json!(9));
     assert_eq!(
         r.op,
-        Op::Get(Get {
+        Op::Get(Get::One {
             path: "/a/b".into()
         })
     );

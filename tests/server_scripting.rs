@@ -152,6 +152,84 @@ async fn the_latest_output_of_a_demodulator_is_read_by_path() {
     );
     let beyond = call(&mut ws, json!({"op": "get", "path": "/demods/32/sample"})).await;
     assert_eq!(code(&beyond), "unknown_path", "{beyond}");
+
+    // Many paths in one request: every node of `list` and every demodulator's sample, read
+    // together; a disabled demodulator's sample is null with the reason, not a refusal.
+    let list = call(&mut ws, json!({"op": "list"})).await;
+    let nodes = list["nodes"].as_array().unwrap();
+    let mut paths: Vec<String> = nodes
+        .iter()
+        .map(|n| n["path"].as_str().unwrap().to_owned())
+        .collect();
+    paths.extend((0..32).map(|n| format!("/demods/{n}/sample")));
+    let all = call(&mut ws, json!({"id": 6, "op": "get", "paths": paths})).await;
+    assert_eq!(
+        (all["id"].clone(), all["ok"].clone()),
+        (json!(6), json!(true))
+    );
+    let values = all["values"].as_object().unwrap();
+    assert_eq!(values.len(), paths.len());
+    for node in nodes {
+        assert_eq!(
+            values[node["path"].as_str().unwrap()],
+            node["value"],
+            "{node}"
+        );
+    }
+    assert_eq!(
+        all["epoch"], set["epoch"],
+        "the settings of the last change"
+    );
+    assert!(values["/demods/0/sample"]["t"].as_f64().unwrap() > t);
+    assert_eq!(values["/demods/4/sample"], Value::Null);
+    let why = all["no_data"]["/demods/4/sample"].as_str().unwrap();
+    assert!(why.contains("/demods/4/enable"), "{all}");
+    assert_eq!(all["no_data"].as_object().unwrap().len(), 1, "{all}");
+    // One path that names nothing refuses the request, naming it.
+    let bad = call(
+        &mut ws,
+        json!({"op": "get", "paths": ["/drive/frequency", "/drive/frequncy"]}),
+    )
+    .await;
+    assert_eq!(code(&bad), "unknown_path", "{bad}");
+    assert!(
+        bad["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("/drive/frequncy")
+    );
+    let beyond = call(
+        &mut ws,
+        json!({"op": "get", "paths": ["/demods/32/sample"]}),
+    )
+    .await;
+    assert_eq!(code(&beyond), "unknown_path", "{beyond}");
+
+    // `list` says whether each end of a range is itself allowed.
+    let node = |path: &str| nodes.iter().find(|n| n["path"] == path).unwrap().clone();
+    let modulus = node("/sample/youngs_modulus");
+    assert_eq!(
+        (modulus["min"].as_f64(), modulus["max"].as_f64()),
+        (Some(0.0), Some(1e13))
+    );
+    assert_eq!(
+        (&modulus["min_inclusive"], &modulus["max_inclusive"]),
+        (&json!(false), &json!(true))
+    );
+    let drive = node("/drive/frequency");
+    assert_eq!(
+        drive["max"].as_f64(),
+        Some(1e6),
+        "Nyquist at 2 MHz sampling"
+    );
+    assert_eq!(drive["max_inclusive"], false, "{drive}");
+    let harmonic = node("/demods/3/harmonic");
+    assert_eq!(
+        (&harmonic["min_inclusive"], &harmonic["max_inclusive"]),
+        (&json!(true), &json!(true))
+    );
+    let enable = node("/demods/3/enable");
+    assert!(enable.get("min_inclusive").is_none() && enable.get("max_inclusive").is_none());
     d.shutdown().await;
 }
 

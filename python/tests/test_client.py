@@ -107,7 +107,8 @@ def test_poll_gives_arrays_per_stream(ftafm_instrument: ftafm.Instrument) -> Non
     assert isinstance(s, ftafm.SpectrumData) and len(s) >= 2
     assert s.magnitudes.shape[1] == 32768 // 2 + 1
     peak = s.frequency[np.argmax(s.magnitudes[-1])]
-    assert abs(peak - 100e3) <= s.bin_width[-1]
+    assert s.bin_width == inst.hello["sample_rate"] / 32768, "a number, the bins' spacing"
+    assert abs(peak - 100e3) <= s.bin_width
 
     sc = inst.poll("scope", 0.1)
     assert isinstance(sc, ftafm.ScopeData) and sc.samples.ndim == 2 and len(sc) >= 1
@@ -211,3 +212,64 @@ def test_poll_gives_scan_lines_as_images(tmp_path) -> None:
         assert np.all(np.diff(im.seq) == 1)
         assert set(np.unique(im.line)) <= set(range(16))
         assert np.all(np.isfinite(im.channels["amplitude"]))
+
+
+def test_no_daemon_says_so_and_how_to_start_one() -> None:
+    import socket
+
+    with socket.socket() as s:  # a port nothing listens on once closed
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    url = f"ws://127.0.0.1:{port}/ws"
+    with pytest.raises(ftafm.NoDaemon) as e:
+        ftafm.Instrument(url, timeout=5.0)
+    assert isinstance(e.value, ConnectionRefusedError), "code catching the bare one still works"
+    assert url in str(e.value) and "ftafm serve" in str(e.value)
+
+
+def test_many_values_in_one_request_and_the_node_tree_as_attributes(
+    ftafm_instrument: ftafm.Instrument,
+) -> None:
+    inst = ftafm_instrument
+    values = inst.get_many(["/sample/youngs_modulus", "/demods/16/harmonic", "/demods/0/sample"])
+    assert values["/sample/youngs_modulus"] == 129e9 and values["/demods/16/harmonic"] == 17
+    assert values["/demods/0/sample"]["harmonic"] == 1
+    # zhinst-toolkit's habit: call a node to get it, with a value to set it.
+    assert inst.sample.youngs_modulus() == 129e9
+    t = inst.sample.youngs_modulus(116.1e9)
+    assert t is not None and inst.get("/sample/youngs_modulus") == 116.1e9
+    assert inst.sample(16)["harmonic"] == 17, "sample() is still the demodulator's output"
+    assert len(inst.demods) == 32 and inst.demods[16].harmonic() == 17
+    assert [d.harmonic.path for d in inst.demods][:2] == ["/demods/0/harmonic", "/demods/1/harmonic"]
+    under = inst.demods[16]()
+    assert under["/demods/16/harmonic"] == 17 and "/demods/16/enable" in under
+    assert inst.drive.frequency.node.unit == "Hz"
+    with pytest.raises(AttributeError, match="youngs_modulus"):
+        inst.sample.youngs_modulos
+    with pytest.raises(IndexError):
+        inst.demods[32]
+
+
+def test_a_set_transaction_is_one_change_all_or_nothing(
+    ftafm_instrument: ftafm.Instrument,
+) -> None:
+    inst = ftafm_instrument
+    with inst.set_transaction() as tr:
+        inst.surface.distance(15e-9)
+        inst.set("/demods/3/harmonic", 6)
+        assert inst.get("/surface/distance") == 20e-9, "nothing sent before the end"
+    assert tr.t is not None and tr.values == {"/surface/distance": 15e-9, "/demods/3/harmonic": 6}
+    assert inst.get_many(["/surface/distance", "/demods/3/harmonic"]) == {
+        "/surface/distance": 15e-9,
+        "/demods/3/harmonic": 6,
+    }
+    # A refused batch changes nothing; a block that raises sends nothing.
+    with pytest.raises(ftafm.InstrumentError, match="/demods/3/harmonic"):
+        with inst.set_transaction():
+            inst.surface.distance(12e-9)
+            inst.demods[3].harmonic(-2)
+    with pytest.raises(KeyError):
+        with inst.set_transaction():
+            inst.surface.distance(12e-9)
+            raise KeyError("a script's own error")
+    assert inst.get("/surface/distance") == 15e-9

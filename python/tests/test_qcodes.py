@@ -2,47 +2,134 @@
 
 from __future__ import annotations
 
+import logging
+import math
+import warnings
+from typing import Any
+
 import pytest
 
 pytest.importorskip("qcodes", reason="the [qcodes] extra")
 
+from qcodes.instrument import ChannelList  # noqa: E402
+
 import ftafm  # noqa: E402
-from ftafm.qcodes import FTAFM, parameter_name  # noqa: E402
+from ftafm.qcodes import FTAFM, label, parameter_name  # noqa: E402
 from ftafm.testing import Daemon  # noqa: E402
 
 
-def test_every_node_is_a_parameter_with_unit_and_validator(ftafm_daemon: Daemon) -> None:
-    assert parameter_name("/sample/youngs_modulus") == "sample_youngs_modulus"
-    afm = FTAFM("afm_test", ftafm_daemon.url)
+@pytest.fixture
+def afm(ftafm_daemon: Daemon) -> Any:
+    driver = FTAFM("afm_test", ftafm_daemon.url)
+    saved = driver.client.settings_toml()
     try:
-        saved = afm.client.settings_toml()
-        nodes = afm.client.nodes()
-        for node in nodes:
-            assert parameter_name(node.path) in afm.parameters, node.path
-        p = afm.sample_youngs_modulus
-        assert p.unit == "Pa"
-        assert p() == 129e9
-        afm.surface_distance(15e-9)
-        assert afm.surface_distance() == 15e-9
-        assert afm.client.get("/surface/distance") == 15e-9
-        # The validator refuses out of range values before they are sent…
-        with pytest.raises(ValueError):
-            afm.drive_free_amplitude(1.0)
-        with pytest.raises(ValueError):
-            afm.spectrum_window("hamming")
-        afm.spectrum_window("hann")
-        assert afm.spectrum_window() == "hann"
-        # …and what only the daemon knows is its error, naming the node.
-        with pytest.raises(ftafm.InstrumentError, match="/inversion/harmonic_a"):
-            afm.demods_5_enable(False)
-        # Read-only nodes are get-only.
-        with pytest.raises(NotImplementedError):
-            afm.synth_sample_rate(20e6)
-        # Measured parameters.
-        assert 5e-9 < afm.demod0_r() < 30e-9
-        assert -3.2 < afm.demod0_phase() < 3.2
-        assert afm.force_max_force() > 0
-        assert afm.get_idn()["vendor"] == "ftafm"
-        afm.client._run(afm.client._async.request("load_settings", toml=saved))
+        yield driver
     finally:
-        afm.close()
+        driver.client._run(driver.client._async.request("load_settings", toml=saved))
+        driver.close()
+
+
+def count_requests(afm: FTAFM) -> list[str]:
+    """The ops the driver's client sends from now on."""
+    sent: list[str] = []
+    inner = afm.client._async.request
+
+    async def counting(op: str, **fields: Any) -> dict[str, Any]:
+        sent.append(op)
+        return await inner(op, **fields)
+
+    afm.client._async.request = counting  # type: ignore[method-assign]
+    return sent
+
+
+def test_the_node_tree_as_modules_and_channel_lists_with_readable_labels(afm: FTAFM) -> None:
+    nodes = afm.client.nodes()
+    assert set(afm.by_path) == {n.path for n in nodes}
+    assert isinstance(afm.demods, ChannelList) and len(afm.demods) == 32
+    assert isinstance(afm.inclusions, ChannelList) and len(afm.inclusions) == 8
+    assert afm.demods[3].harmonic is afm.by_path["/demods/3/harmonic"]
+    assert afm.sample.youngs_modulus is afm.by_path["/sample/youngs_modulus"]
+    e = afm.sample.youngs_modulus
+    assert (e.label, e.unit) == ("Sample Young's modulus", "Pa")
+    assert label("/demods/3/harmonic") == "Demodulator 3 harmonic"
+    assert afm.demods[16].r.label == "H17 amplitude" and afm.demods[16].r.unit == "m"
+    # The validators state the ranges as the daemon enforces them, open ends included.
+    assert repr(e.vals) == "<0 < value ≤ 1e13 Pa>"
+    assert repr(afm.drive.frequency.vals).endswith(" value < 5e6 Hz>"), "below Nyquist"
+    assert repr(afm.demods[3].harmonic.vals) == "<0 ≤ value ≤ 10000>"
+    assert e() == 129e9
+    afm.surface.distance(15e-9)
+    assert afm.surface.distance() == 15e-9
+    assert afm.client.get("/surface/distance") == 15e-9
+    # The validator refuses out of range values before they are sent, saying why…
+    with pytest.raises(ValueError, match="0 < value ≤ 1e13 Pa"):
+        e(0.0)
+    e.validate(1e13)  # the closed end is allowed
+    with pytest.raises(ValueError):
+        afm.drive.free_amplitude(1.0)
+    with pytest.raises(ValueError):
+        afm.spectrum.window("hamming")
+    afm.spectrum.window("hann")
+    assert afm.spectrum.window() == "hann"
+    # …and what only the daemon knows is its error, naming the node.
+    with pytest.raises(ftafm.InstrumentError, match="/inversion/harmonic_a"):
+        afm.demods[5].enable(False)
+    # Read-only nodes are get-only.
+    with pytest.raises(NotImplementedError):
+        afm.synth.sample_rate(20e6)
+    # Labels follow the harmonic a demodulator measures.
+    afm.demods[3].harmonic(9)
+    assert afm.demods[3].r.label == "H9 amplitude"
+    assert afm.get_idn()["vendor"] == "ftafm"
+
+
+def test_x_y_r_phase_of_one_frame_and_the_force_of_one_estimate(afm: FTAFM) -> None:
+    x, y, r, phase = afm.demods[0].sample()
+    assert math.isclose(r, math.hypot(x, y), rel_tol=1e-12) and 5e-9 < r < 30e-9
+    channel = afm.demods[0]
+    assert (channel.x.cache.get(), channel.y.cache.get(), channel.r.cache.get()) == (x, y, r)
+    assert -3.2 < afm.demods[0].phase() < 3.2
+    # The estimator may still be built after the previous test's changes (longer on a busy
+    # machine): wait as the daemon's sweeper does.
+    estimate = afm.force.read(timeout=120.0)
+    assert afm.force.max_force.cache.get() == estimate["max_force"] > 0
+    assert afm.force.youngs_modulus.cache.get() == estimate["youngs_modulus"] > 0
+    assert afm.force.max_force() > 0
+
+
+def test_a_snapshot_of_every_parameter_is_one_request_and_warns_of_nothing(
+    afm: FTAFM, caplog: pytest.LogCaptureFixture
+) -> None:
+    t = afm.client.set("/demods/4/enable", False)
+    assert t is not None
+    afm.client.wait_until(t + 0.01)  # the newest frame is one without it
+    sent = count_requests(afm)
+    caplog.set_level(logging.WARNING)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        snap = afm.snapshot(update=True)
+    assert [r for r in caplog.records if r.levelno >= logging.WARNING] == []
+    # One get of every node and demodulator; the force's subscription when it runs.
+    assert sent.count("get") == 1 and len(sent) <= 3, sent
+    params = 0
+    for module in snap["submodules"].values():
+        for channel in module.get("channels", {None: module}).values():
+            params += len(channel["parameters"])
+    assert params >= 307 + 32 * 6 + 4, params
+    demods = snap["submodules"]["demods"]["channels"]
+    h17 = demods["afm_test_demod16"]["parameters"]["r"]
+    assert h17["label"] == "H17 amplitude" and 1e-13 < h17["value"] < 1e-9
+    assert math.isnan(demods["afm_test_demod4"]["parameters"]["r"]["value"]), "disabled"
+    modulus = snap["submodules"]["sample"]["parameters"]["youngs_modulus"]
+    assert modulus["value"] == 129e9
+    assert demods["afm_test_demod4"]["parameters"]["enable"]["value"] is False
+
+
+def test_the_names_of_earlier_versions_reach_the_same_parameters(afm: FTAFM) -> None:
+    assert parameter_name("/sample/youngs_modulus") == "sample_youngs_modulus"
+    assert afm.sample_youngs_modulus is afm.sample.youngs_modulus
+    assert afm.demods_16_harmonic is afm.demods[16].harmonic
+    assert afm.demod16_r is afm.demods[16].r
+    assert afm.force_max_force is afm.force.max_force
+    with pytest.raises(AttributeError):
+        afm.no_such_parameter

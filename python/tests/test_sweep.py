@@ -65,3 +65,26 @@ def test_a_sweep_that_times_out_is_aborted_and_the_next_gets_its_own_points(
     assert tune.outcome == "done" and len(tune) == 5
     assert list(tune.value) == [99.5e3, 99.75e3, 100e3, 100.25e3, 100.5e3]
     assert inst.get("/drive/frequency") == 100e3, "restored"
+
+
+def test_each_sweep_has_its_own_defaults_and_reports_its_progress(
+    ftafm_instrument: ftafm.Instrument,
+) -> None:
+    inst = ftafm_instrument
+    inst.set("/surface/distance", 200e-9)
+    seen: list[tuple[int, int]] = []
+    both = inst.sweep(
+        "/drive/frequency", 99.9e3, 100.1e3, 3, direction="both", averaging=2,
+        progress=lambda done, total: seen.append((done, total)),
+    )
+    assert len(both) == 6 and both.leg == ["up"] * 3 + ["down"] * 3
+    assert seen == [(k, 6) for k in range(7)]
+    assert inst.get("/sweeper/direction") == "both"
+    # A later call without direction= is a call of its own: up, not what the last one left.
+    up = inst.sweep("/drive/frequency", 99.9e3, 100.1e3, 3, progress=True)
+    assert len(up) == 3 and up.leg == ["up"] * 3
+    assert inst.get_many(["/sweeper/direction", "/sweeper/averaging", "/sweeper/scale"]) == {
+        "/sweeper/direction": "up",
+        "/sweeper/averaging": 4,
+        "/sweeper/scale": "linear",
+    }

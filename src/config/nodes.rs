@@ -19,8 +19,8 @@ use super::spec::NodeSpec;
 impl NodeSpec {
     /// The lowest and highest value `set` would accept now, as the protocol's `list` reports
     /// them: the static range narrowed by the limits that depend on other nodes. Whether an
-    /// end itself is allowed is in the docs and in error messages; `null` for text, lists of
-    /// text and bool.
+    /// end itself is allowed is [`NodeSpec::inclusive`]; `null` for text, lists of text and
+    /// bool.
     pub(crate) fn bounds(&self, s: &Settings) -> (Value, Value) {
         let sample_rate = s.synth.sample_rate;
         match self.kind {
@@ -99,6 +99,31 @@ impl NodeSpec {
             Kind::Bool | Kind::Text(_) | Kind::TextList { .. } => (Value::Null, Value::Null),
         }
     }
+
+    /// Whether each end of [`NodeSpec::bounds`] is itself allowed (`min_inclusive`,
+    /// `max_inclusive` in `list`): the static range's for an end that is its own, the
+    /// relation's for an end another node narrows (only the Nyquist limit of the drive is
+    /// open: `/drive/frequency` < `/synth/sample_rate` / 2); integers include both ends.
+    /// `None` where `bounds` is `null`.
+    pub(crate) fn inclusive(&self, s: &Settings) -> Option<(bool, bool)> {
+        match self.kind {
+            Kind::Float(range) | Kind::FloatList { entry: range, .. } => {
+                let (low, high) = self.bounds(s);
+                let own = |end: &Value, bound: f64| end.as_f64() == Some(bound);
+                let min = !own(&low, range.min.value) || range.min.inclusive;
+                let max = if own(&high, range.max.value) {
+                    range.max.inclusive
+                } else {
+                    !matches!(self.field, Field::DriveFrequency | Field::CantileverF1)
+                };
+                Some((min, max))
+            }
+            Kind::Integer { .. } | Kind::PowerOfTwo { .. } | Kind::Even { .. } => {
+                Some((true, true))
+            }
+            Kind::Bool | Kind::Text(_) | Kind::TextList { .. } => None,
+        }
+    }
 }
 
 /// One entry of the protocol's `list` reply: a node with its current value.
@@ -119,6 +144,12 @@ pub struct NodeInfo {
     pub min: Value,
     /// Highest value accepted now, or `null`. For a list, the bound of each entry.
     pub max: Value,
+    /// Whether `min` itself is accepted (`0 < value`: false); absent where `min` is `null`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_inclusive: Option<bool>,
+    /// Whether `max` itself is accepted (`value ≤ 1e13`: true); absent where `max` is `null`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_inclusive: Option<bool>,
     /// One sentence with the unit.
     pub description: String,
     /// The value's type: `"float"`, `"integer"` (a power of two where `description` says
@@ -352,6 +383,7 @@ impl Settings {
             .filter_map(|spec| {
                 let value = spec.field.read(self)?.to_json();
                 let (min, max) = spec.bounds(self);
+                let inclusive = spec.inclusive(self);
                 Some(NodeInfo {
                     path: spec.path.clone(),
                     value,
@@ -359,6 +391,8 @@ impl Settings {
                     writable: spec.writable,
                     min,
                     max,
+                    min_inclusive: inclusive.map(|(low, _)| low),
+                    max_inclusive: inclusive.map(|(_, high)| high),
                     description: spec.description.clone(),
                     kind: spec.kind.type_name().to_owned(),
                     allowed: match spec.kind {

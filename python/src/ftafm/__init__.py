@@ -6,8 +6,10 @@
 ...     inst.wait_until(t + 0.05)
 ...     print(inst.sample(0)["r"])
 
-- :class:`Instrument` (synchronous) and :mod:`ftafm.aio` (asyncio): get, set, set_many,
-  sample, poll, wait_until, record (HDF5), save_settings, load_settings, presets.
+- :class:`Instrument` (synchronous) and :mod:`ftafm.aio` (asyncio): get, get_many, set,
+  set_many, sample, poll, sweep, wait_until, record (HDF5), save_settings, load_settings,
+  presets; the synchronous one also the node tree as attributes
+  (``inst.sample.youngs_modulus(116.1e9)``, :mod:`ftafm.tree`) and ``set_transaction``.
 - :mod:`ftafm.data`: stream messages as numpy arrays.
 - :mod:`ftafm.qcodes`: the QCoDeS driver (``pip install ftafm[qcodes]``).
 - :mod:`ftafm.testing`: a daemon on port 0 for test suites, and pytest fixtures.
@@ -25,7 +27,7 @@ from .data import (
     StreamData,
     SweepResult,
 )
-from .errors import ConnectionLost, InstrumentError
+from .errors import ConnectionLost, InstrumentError, NoDaemon
 
 __version__ = "0.1.0"
 
@@ -37,6 +39,7 @@ __all__ = [
     "ImageData",
     "Instrument",
     "InstrumentError",
+    "NoDaemon",
     "Node",
     "ScopeData",
     "SpectrumData",

@@ -13,13 +13,13 @@ import json
 import math
 import os
 from dataclasses import dataclass
-from typing import Any, AsyncGenerator, Iterable, Mapping, cast
+from typing import Any, AsyncGenerator, Callable, Iterable, Mapping, Sequence, cast
 
 import websockets
 from websockets.asyncio.client import ClientConnection
 
 from . import data
-from .errors import ConnectionLost, InstrumentError
+from .errors import ConnectionLost, InstrumentError, NoDaemon
 
 #: The requests that change the settings (their replies carry the change's epoch).
 _CHANGES = frozenset({"set", "preset", "load_settings"})
@@ -34,6 +34,18 @@ DEFAULT_URL = "ws://127.0.0.1:8700/ws"
 #: Default longest wait (s) for one sweep point: beyond the daemon's own 60 s wait for its
 #: force estimator, which a busy machine can starve (it is built at a lower priority).
 SWEEP_POINT_TIMEOUT = 120.0
+
+#: What ``sweep`` sets when the call does not say, as ``config/default.toml`` does: each call
+#: stands on its own, whatever an earlier sweep left in ``/sweeper/*``.
+SWEEP_DEFAULTS: dict[str, Any] = {
+    "scale": "linear",
+    "direction": "up",
+    "settling": 0.0,
+    "averaging": 4,
+}
+
+#: A sweep's progress callback: ``progress(done, total)``, points measured and to measure.
+Progress = Callable[[int, int], None]
 
 
 @dataclass(frozen=True)
@@ -50,6 +62,10 @@ class Node:
     description: str
     allowed: tuple[str, ...] | None = None
     warning: str | None = None
+    #: Whether ``min`` / ``max`` themselves are accepted (``0 < value ≤ 1e13``: False,
+    #: True); None for a node without a range (or a daemon too old to say).
+    min_inclusive: bool | None = None
+    max_inclusive: bool | None = None
 
     @classmethod
     def from_json(cls, n: Mapping[str, Any]) -> "Node":
@@ -65,6 +81,8 @@ class Node:
             description=n.get("description", ""),
             allowed=tuple(allowed) if allowed is not None else None,
             warning=n.get("warning"),
+            min_inclusive=n.get("min_inclusive"),
+            max_inclusive=n.get("max_inclusive"),
         )
 
 
@@ -114,8 +132,14 @@ class Instrument:
     # -- connection ----------------------------------------------------------------------
 
     async def connect(self) -> "Instrument":
-        """Opens the connection and greets the daemon (``hello``)."""
-        self._ws = await websockets.connect(self.url, max_size=None, open_timeout=self.timeout)
+        """Opens the connection and greets the daemon (``hello``); raises
+        :class:`ftafm.NoDaemon` when no daemon answers at the URL."""
+        try:
+            self._ws = await websockets.connect(
+                self.url, max_size=None, open_timeout=self.timeout
+            )
+        except (OSError, asyncio.TimeoutError, websockets.InvalidHandshake) as e:
+            raise NoDaemon(self.url, str(e) or type(e).__name__) from e
         self._closed = None
         self._reader = asyncio.create_task(self._read())
         self.hello = await self.request("hello")
@@ -206,6 +230,15 @@ class Instrument:
     async def get(self, path: str) -> Any:
         """The value of the node at ``path`` (or a measured value: ``/demods/N/sample``)."""
         return (await self.request("get", path=path))["value"]
+
+    async def get_many(self, paths: Sequence[str]) -> dict[str, Any]:
+        """The values at ``paths`` (nodes and measured values mixed), read in one request
+        from one version of the settings: path → value, ``None`` for a measured value that
+        does not exist now (a disabled demodulator's ``/demods/N/sample``)."""
+        if not paths:
+            return {}
+        reply = await self.request("get", paths=list(paths))
+        return cast(dict[str, Any], reply["values"])
 
     async def set(self, path: str, value: Any) -> float | None:
         """Sets one node; returns the simulated time (s) at which the change took effect."""
@@ -302,9 +335,10 @@ class Instrument:
         finally:
             await self._unsubscribe(stream, queue)
 
-    async def next(self, stream: str) -> dict[str, Any]:
-        """The next message of ``stream``."""
-        gen = self.messages(stream)
+    async def next(self, stream: str, *, timeout: float | None = None) -> dict[str, Any]:
+        """The next message of ``stream``; ``timeout`` (s, default: the client's) bounds the
+        wait."""
+        gen = self.messages(stream, timeout=timeout)
         try:
             return await gen.__anext__()
         finally:
@@ -353,43 +387,58 @@ class Instrument:
         stop: float,
         points: int = 121,
         *,
-        scale: str | None = None,
-        direction: str | None = None,
-        settling: float | None = None,
-        averaging: int | None = None,
+        scale: str = SWEEP_DEFAULTS["scale"],
+        direction: str = SWEEP_DEFAULTS["direction"],
+        settling: float = SWEEP_DEFAULTS["settling"],
+        averaging: int = SWEEP_DEFAULTS["averaging"],
         timeout: float | None = None,
+        progress: bool | Progress | None = None,
     ) -> data.SweepResult:
         """Sweeps the node at ``path`` from ``start`` to ``stop`` in ``points`` points with
         the daemon's sweeper (``/sweeper/*``; docs/sweeper.md) and returns every point.
 
         ``scale`` ``"linear"``/``"log"``, ``direction`` ``"up"``/``"down"``/``"both"``,
-        ``settling`` (s, 0 automatic) and ``averaging`` (frames) default to the daemon's
-        ``/sweeper`` nodes. A frequency sweep holds the base amplitude constant (a tune);
-        the swept node is restored afterwards. ``timeout`` (s) bounds the wait for each
-        point; by default the larger of the client's timeout and
-        :data:`SWEEP_POINT_TIMEOUT`, since a point may wait up to 60 s for the daemon's
-        force estimator on a busy machine.
+        ``settling`` (s, 0 automatic) and ``averaging`` (frames) are this call's own
+        (:data:`SWEEP_DEFAULTS` when not given), never what an earlier sweep left in
+        ``/sweeper``. A frequency sweep holds the base amplitude constant (a tune); the swept
+        node is restored afterwards. ``timeout`` (s) bounds the wait for each point; by
+        default the larger of the client's timeout and :data:`SWEEP_POINT_TIMEOUT`, since a
+        point may wait up to 60 s for the daemon's force estimator on a busy machine.
+
+        ``progress``: ``True`` shows a tqdm bar (``pip install tqdm``), or a callable
+        ``progress(done, total)`` is called with the points measured so far and the total,
+        once at the start (0) and after every point (in the client's event loop thread:
+        keep it short).
         """
         values: dict[str, Any] = {
             "/sweeper/parameter": path,
-            "/sweeper/start": start,
-            "/sweeper/stop": stop,
-            "/sweeper/points": points,
+            "/sweeper/start": _plain(start),
+            "/sweeper/stop": _plain(stop),
+            "/sweeper/points": _plain(points),
+            "/sweeper/scale": scale,
+            "/sweeper/direction": direction,
+            "/sweeper/settling": _plain(settling),
+            "/sweeper/averaging": _plain(averaging),
+            "/sweeper/enable": True,
         }
-        for key, value in (("scale", scale), ("direction", direction),
-                           ("settling", settling), ("averaging", averaging)):
-            if value is not None:
-                values[f"/sweeper/{key}"] = value
-        values["/sweeper/enable"] = True
+        for key, value in values.items():
+            _check_finite(value, key)
+        total = int(points) * (2 if direction == "both" else 1)
         queue: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue()
         wait = max(self.timeout, SWEEP_POINT_TIMEOUT) if timeout is None else timeout
-        await self._subscribe("sweep", queue)
+        report, finish = _progress(progress, total, path)
+        try:
+            await self._subscribe("sweep", queue)
+        except BaseException:
+            finish()
+            raise
         rows: list[dict[str, Any]] = []
         finished = False
         try:
             # The epoch of the change that asks for the sweep is its request: every message
             # of this sweep carries it, and no other sweep's does.
             request = (await self.request("set", values=values))["epoch"]
+            report(0)
             while True:
                 try:
                     msg = await asyncio.wait_for(queue.get(), wait)
@@ -405,7 +454,9 @@ class Instrument:
                     finished = True
                     return data.SweepResult.from_messages(rows, msg)
                 rows.append(msg)
+                report(len(rows))
         finally:
+            finish()
             if not finished and self._closed is None:
                 # Interrupted, timed out or cancelled: the sweep is this call's, so it
                 # ends with it (the daemon restores the swept node).
@@ -455,6 +506,27 @@ class Instrument:
         from .record import record
 
         return await record(self, file, list(streams), seconds)
+
+
+def _progress(
+    progress: bool | Progress | None, total: int, path: str
+) -> tuple[Callable[[int], None], Callable[[], None]]:
+    """A sweep's ``report(done)`` and ``finish()`` for its ``progress`` argument."""
+    if progress is None or progress is False:
+        return (lambda done: None), (lambda: None)
+    if progress is True:
+        try:
+            from tqdm.auto import tqdm  # type: ignore[import-untyped]
+        except ImportError as e:
+            raise ImportError("progress=True shows a tqdm bar: pip install tqdm") from e
+        bar = tqdm(total=total, desc=f"sweep {path}", unit="point")
+
+        def advance(done: int) -> None:
+            bar.update(done - bar.n)
+
+        return advance, bar.close
+    callback = progress
+    return (lambda done: callback(done, total)), (lambda: None)
 
 
 async def connect(url: str | None = None, *, timeout: float = 10.0) -> Instrument:

@@ -2,7 +2,9 @@
 
 Each method runs the coroutine of the same name of :class:`ftafm.aio.Instrument` on a
 private event loop in a background thread, so it works in scripts, notebooks (whose own
-loop it leaves alone) and QCoDeS alike.
+loop it leaves alone) and QCoDeS alike. Beside the methods, the node tree is there as
+attributes (``inst.sample.youngs_modulus(116.1e9)``, :mod:`ftafm.tree`), and
+``with inst.set_transaction():`` batches sets into one ``set_many``.
 """
 
 from __future__ import annotations
@@ -10,9 +12,10 @@ from __future__ import annotations
 import asyncio
 import os
 import threading
-from typing import Any, Coroutine, Iterable, Mapping, TypeVar
+from contextlib import contextmanager
+from typing import Any, Coroutine, Iterable, Iterator, Mapping, Sequence, TypeVar
 
-from . import aio, data
+from . import aio, data, tree
 
 T = TypeVar("T")
 
@@ -32,6 +35,8 @@ class Instrument:
         )
         self._thread.start()
         self._async = aio.Instrument(url, timeout=timeout)
+        self._tree: tree.NodeBranch | None = None
+        self._transaction: Transaction | None = None
         try:
             self._run(self._async.connect())
         except BaseException:
@@ -96,18 +101,70 @@ class Instrument:
         """The value of the node at ``path`` (or a measured value: ``/demods/N/sample``)."""
         return self._run(self._async.get(path))
 
+    def get_many(self, paths: Sequence[str]) -> dict[str, Any]:
+        """The values at ``paths`` in one request, from one version of the settings: path →
+        value (``None`` for a measured value that does not exist now)."""
+        return self._run(self._async.get_many(paths))
+
     def set(self, path: str, value: Any) -> float | None:
-        """Sets one node; returns the simulated time (s) at which it took effect."""
+        """Sets one node; returns the simulated time (s) at which it took effect. Inside
+        :meth:`set_transaction`, queues it instead and returns ``None``."""
+        if self._transaction is not None:
+            self._transaction.values[path] = value
+            return None
         return self._run(self._async.set(path, value))
 
     def set_many(self, values: Mapping[str, Any]) -> float | None:
         """Sets several nodes together at one sample boundary, all or nothing; returns the
         simulated time (s) at which they took effect."""
+        if self._transaction is not None:
+            self._transaction.values.update(values)
+            return None
         return self._run(self._async.set_many(values))
 
-    def sample(self, demod: int = 0) -> dict[str, float]:
-        """The newest output of demodulator ``demod`` (t, harmonic, x, y, r, phase)."""
-        return self._run(self._async.sample(demod))
+    @contextmanager
+    def set_transaction(self) -> Iterator["Transaction"]:
+        """Batches every ``set`` (and node-tree set) inside the ``with`` into one
+        ``set_many`` at its end: one change at one sample boundary, all or nothing (as
+        zhinst-toolkit's ``set_transaction``). Nothing is sent if the block raises. The
+        transaction's ``t`` is the simulated time the change took effect."""
+        if self._transaction is not None:
+            raise RuntimeError("a set_transaction is already open on this Instrument")
+        transaction = Transaction()
+        self._transaction = transaction
+        try:
+            yield transaction
+        finally:
+            self._transaction = None
+        if transaction.values:
+            transaction.t = self._run(self._async.set_many(transaction.values))
+
+    @property
+    def root(self) -> tree.NodeBranch:
+        """The node tree (built from ``list`` on first use): ``inst.root.sample`` is
+        ``inst.sample``; see :mod:`ftafm.tree`."""
+        if self._tree is None:
+            self._tree = tree.build(self, self.nodes())
+        return self._tree
+
+    def __getattr__(self, name: str) -> Any:
+        # Only names that are not methods come here: the node tree's top-level branches.
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self.root, name)
+
+    def __dir__(self) -> list[str]:
+        names = set(super().__dir__())
+        if self._tree is not None:
+            names.update(self._tree.__dir__())
+        return sorted(names)
+
+    @property
+    def sample(self) -> "SampleBranch":
+        """Called, ``sample(demod=0)`` is the newest output of demodulator ``demod`` (t,
+        harmonic, x, y, r, phase); as a branch, the ``/sample`` nodes
+        (``inst.sample.youngs_modulus()``)."""
+        return SampleBranch(self)
 
     def wait_until(self, t: float, *, timeout: float | None = None) -> float:
         """Waits until the signal is processed up to simulated time ``t`` (s)."""
@@ -126,13 +183,16 @@ class Instrument:
         **options: Any,
     ) -> data.SweepResult:
         """Sweeps ``path`` from ``start`` to ``stop`` with the daemon's sweeper and returns
-        every point (options: ``scale``, ``direction``, ``settling``, ``averaging``,
-        ``timeout``; see :meth:`ftafm.aio.Instrument.sweep`)."""
+        every point (options: ``scale`` ``"linear"``, ``direction`` ``"up"``, ``settling``
+        0 (automatic), ``averaging`` 4 unless given, whatever an earlier sweep left;
+        ``timeout``; ``progress`` ``True`` for a tqdm bar or ``progress(done, total)``; see
+        :meth:`ftafm.aio.Instrument.sweep`)."""
         return self._run(self._async.sweep(path, start, stop, points, **options))
 
-    def next(self, stream: str) -> dict[str, Any]:
-        """The next message of ``stream``, as the daemon sent it."""
-        return self._run(self._async.next(stream))
+    def next(self, stream: str, *, timeout: float | None = None) -> dict[str, Any]:
+        """The next message of ``stream``, as the daemon sent it; ``timeout`` (s, default:
+        the client's) bounds the wait."""
+        return self._run(self._async.next(stream, timeout=timeout))
 
     def record(
         self,
@@ -162,3 +222,31 @@ class Instrument:
     def load_settings(self, file: str | os.PathLike[str]) -> float | None:
         """Lays the config in ``file`` over the running settings as one change."""
         return self._run(self._async.load_settings(file))
+
+
+class Transaction:
+    """The sets queued by :meth:`Instrument.set_transaction` (``values``), and after the
+    ``with`` block, ``t``: the simulated time (s) the change took effect."""
+
+    def __init__(self) -> None:
+        self.values: dict[str, Any] = {}
+        self.t: float | None = None
+
+
+class SampleBranch:
+    """``inst.sample``: called, the newest output of a demodulator (the method it always
+    was); otherwise the ``/sample`` branch of the node tree."""
+
+    def __init__(self, client: Instrument):
+        self._client = client
+
+    def __call__(self, demod: int = 0) -> dict[str, float]:
+        return self._client._run(self._client._async.sample(demod))
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self._client.root._children["sample"], name)
+
+    def __dir__(self) -> list[str]:
+        return list(self._client.root._children["sample"].__dir__())

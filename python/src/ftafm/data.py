@@ -17,7 +17,7 @@ import numpy as np
 #: Demodulators of the daemon's bank; demodulator N is column N of the demods arrays.
 DEMODULATORS = 32
 
-#: SI unit of each array, by stream and field (what HDF5 recordings store as ``unit``).
+#: SI unit of each array, by stream and field (what HDF5 recordings store as ``units``).
 UNITS: dict[str, dict[str, str]] = {
     "common": {"t": "s", "seq": "1", "t_synth_ns": "ns"},
     "demods": {"harmonic": "1", "x": "m", "y": "m", "r": "m", "phase": "rad"},
@@ -155,17 +155,19 @@ class DemodData(StreamData):
 
 @dataclass
 class SpectrumData(StreamData):
-    """Sliding-FFT magnitudes: ``magnitudes`` (spectra × bins, peak m), ``frequency`` (Hz)."""
+    """Sliding-FFT magnitudes: ``magnitudes`` (spectra × bins, peak m), ``frequency`` (Hz,
+    the bins' centres) and ``bin_width`` (Hz), the newest spectrum's (NaN if none): bin k
+    is at k × ``bin_width``."""
 
-    bin_width: np.ndarray = field(default_factory=lambda: np.empty(0))
+    bin_width: float = float("nan")
     magnitudes: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
     frequency: np.ndarray = field(default_factory=lambda: np.empty(0))
 
     @classmethod
     def from_messages(cls, messages: Sequence[dict[str, Any]]) -> "SpectrumData":
         mags = _rows([m["magnitudes"] for m in messages])
-        bw = _floats([m["bin_width"] for m in messages])
-        freq = np.arange(mags.shape[1]) * (bw[-1] if len(bw) else 0.0)
+        bw = float(messages[-1]["bin_width"]) if messages else float("nan")
+        freq = np.arange(mags.shape[1]) * (bw if messages else 0.0)
         return cls(**cls._common("spectrum", messages), bin_width=bw, magnitudes=mags,
                    frequency=freq)
 
@@ -234,7 +236,13 @@ class ForceData(StreamData):
 @dataclass
 class StatusData(StreamData):
     """Pipeline health: ``realtime_factor``, ``ring_fill``, ``messages_dropped`` as arrays,
-    and every message whole in ``messages`` (counters, latencies, warnings)."""
+    and every message whole in ``messages`` (counters, latencies, warnings).
+
+    A status message's ``t`` is the simulated time of the newest sample the lock-in had
+    processed when it was made (every 0.5 s of wall time), on the same clock as the other
+    streams: at or after the ``t`` of every ``demods`` frame sent before it (a frame is
+    sent at the end of its period: typically 0.03–0.7 ms behind at 1 kHz, tens of ms while
+    the daemon starts), while frames sent after it carry later times."""
 
     realtime_factor: np.ndarray = field(default_factory=lambda: np.empty(0))
     ring_fill: np.ndarray = field(default_factory=lambda: np.empty(0))

@@ -25,3 +25,18 @@ class ConnectionLost(InstrumentError):
 
     def __init__(self, message: str):
         super().__init__("connection_lost", message)
+
+
+class NoDaemon(InstrumentError, ConnectionRefusedError):
+    """No ftafm daemon answers at the URL (nothing listens there, or it is not a daemon's
+    WebSocket). A :class:`ConnectionRefusedError` too, for code written against the bare
+    one."""
+
+    def __init__(self, url: str, reason: str):
+        super().__init__(
+            "no_daemon",
+            f"no ftafm daemon answers at {url} ({reason}). Start one with `ftafm serve` "
+            "(or `cargo run --release` in the repository; `--bind ADDR` for another "
+            "address), or give the URL of a running one (url=..., or $FTAFM_URL).",
+        )
+        self.url = url

@@ -1,14 +1,22 @@
 """Recording streams to HDF5 (``pip install ftafm[hdf5]``).
 
-Layout, readable with h5py alone (and into pandas with ``pd.DataFrame``):
+Layout, readable with h5py alone (and into pandas with ``pd.DataFrame``), following the
+NeXus conventions so that h5web, silx and other NeXus viewers plot it without code:
 
-- root attributes: ``ftafm_version``, ``protocol``, ``sample_rate`` (Hz), ``created``
-  (UTC, ISO 8601), ``url``, ``settings`` (the running settings as a config file, TOML,
-  taken when the recording started: ``ftafm --config`` accepts it) and ``seconds``.
+- root attributes: ``NX_class`` ``NXroot``, ``default`` (the first stream recorded),
+  ``ftafm_version``, ``protocol``, ``sample_rate`` (Hz), ``created`` (UTC, ISO 8601),
+  ``url``, ``settings`` (the running settings as a config file, TOML, taken when the
+  recording started: ``ftafm --config`` accepts it) and ``seconds``.
 - one group per stream (``/demods``, ``/force``, ...) with a dataset per array of
   :mod:`ftafm.data` (``t``, ``seq``, ``t_synth_ns``, then the stream's own: ``x``, ``y``,
   ``r``, ``phase``, ``harmonic`` as frames × 32 demodulators; ``magnitudes`` as spectra ×
-  bins; ...), each with its SI ``unit`` attribute; image channels under ``channels/``.
+  bins and ``frequency`` once, the bins' centres; ...), each with its SI ``units``
+  attribute; image channels under ``channels/``.
+- each stream group is an ``NXdata`` (``NX_class``) whose ``signal`` attribute names the
+  dataset to plot (:data:`SIGNALS`: ``r`` for demods, ``magnitudes`` for the spectrum,
+  ...), ``axes`` the dataset along each of its dimensions (``t``, ``frequency``, or ``.``
+  for a plain index such as the demodulator number) and ``auxiliary_signals`` the others
+  of the same shape; an image's ``channels`` group is the ``NXdata`` (its lines × pixels).
 - each group's attributes: ``messages`` recorded, ``gaps`` (messages the daemon dropped for
   this client in between, from ``seq``), ``skipped`` (messages whose shape changed mid-way,
   e.g. a new ``/spectrum/size``: not stored, counted), and for status the whole messages
@@ -36,6 +44,19 @@ if TYPE_CHECKING:
 
 _FLUSH_EVERY = 0.25
 
+#: What NeXus viewers plot of each stream: its ``signal`` dataset, the ``axes`` along each
+#: of its dimensions and the ``auxiliary_signals`` shown with it.
+SIGNALS: dict[str, tuple[str, list[str], list[str]]] = {
+    "demods": ("r", ["t", "."], ["x", "y", "phase"]),
+    "spectrum": ("magnitudes", ["t", "frequency"], []),
+    "scope": ("samples", ["t", "."], []),
+    "force": ("max_force", ["t"], ["contact_time_ratio", "youngs_modulus", "pulse_phase"]),
+    "status": ("realtime_factor", ["t"], ["ring_fill", "messages_dropped"]),
+}
+
+#: Arrays the same in every message (an axis, not a row per message): written once.
+_ONCE = {"spectrum": {"frequency"}}
+
 
 class _StreamWriter:
     def __init__(self, h5: Any, stream: str):
@@ -62,6 +83,11 @@ class _StreamWriter:
         if len(batch.seq):
             self.last_seq = int(batch.seq[-1])
         arrays = batch.arrays()
+        for name in _ONCE.get(self.stream, ()):
+            axis = arrays.pop(name)
+            if name not in self.group:
+                self.group.create_dataset(name, data=axis)
+                self.group[name].attrs["units"] = data.unit(self.stream, name)
         keep = np.ones(len(batch), dtype=bool)
         # A row whose width differs from what the file holds (a new spectrum size, scope
         # length or raster) cannot be appended: skip it, counted.
@@ -89,7 +115,7 @@ class _StreamWriter:
                     if isinstance(batch, data.ImageData) and name.startswith("channels/")
                     else data.unit(self.stream, leaf)
                 )
-                self.group[name].attrs["unit"] = unit
+                self.group[name].attrs["units"] = unit
             else:
                 ds = self.group[name]
                 n = ds.shape[0]
@@ -119,6 +145,35 @@ class _StreamWriter:
         self.group.attrs["messages"] = self.count
         self.group.attrs["gaps"] = self.gaps
         self.group.attrs["skipped"] = self.skipped
+        self.describe()
+
+    def describe(self) -> None:
+        """The NeXus attributes: what a viewer plots (only of datasets the file holds)."""
+        if self.stream in SIGNALS and SIGNALS[self.stream][0] in self.group:
+            signal, axes, auxiliary = SIGNALS[self.stream]
+            _nxdata(self.group, signal, axes, [a for a in auxiliary if a in self.group])
+        elif self.stream == "image" and "channels" in self.group:
+            self.group.attrs["NX_class"] = "NXcollection"
+            self.group.attrs["default"] = "channels"
+            channels = sorted(self.group["channels"])
+            _nxdata(self.group["channels"], channels[0], [".", "."], channels[1:])
+        else:
+            self.group.attrs["NX_class"] = "NXcollection"
+
+    @property
+    def plottable(self) -> bool:
+        """Whether :meth:`describe` made this stream's group (or its channels) an NXdata."""
+        return (
+            self.stream in SIGNALS and SIGNALS[self.stream][0] in self.group
+        ) or (self.stream == "image" and "channels" in self.group)
+
+
+def _nxdata(group: Any, signal: str, axes: list[str], auxiliary: list[str]) -> None:
+    group.attrs["NX_class"] = "NXdata"
+    group.attrs["signal"] = signal
+    group.attrs["axes"] = axes
+    if auxiliary:
+        group.attrs["auxiliary_signals"] = auxiliary
 
 
 async def record(
@@ -141,6 +196,7 @@ async def record(
     settings = await inst.settings_toml()
     queue: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue()
     with h5py.File(file, "w") as h5:
+        h5.attrs["NX_class"] = "NXroot"
         h5.attrs["ftafm_version"] = str(inst.hello.get("version", ""))
         h5.attrs["protocol"] = int(inst.hello.get("protocol", 0))
         h5.attrs["sample_rate"] = float(inst.hello.get("sample_rate", 0.0))
@@ -183,4 +239,7 @@ async def record(
                 await inst._unsubscribe(s, queue)
             for w in writers.values():
                 w.close()
+            shown = [s for s, w in writers.items() if w.plottable]
+            if shown:
+                h5.attrs["default"] = shown[0]
         return {s: w.count for s, w in writers.items()}

@@ -34,7 +34,7 @@ use super::{ErrorCode, ProtocolError, StreamKind};
 use crate::instrument::Control;
 use crate::pipeline::DemodFrame;
 
-pub use get::Get;
+pub use get::{Get, MAX_PATHS};
 pub use hello::Hello;
 pub use list::List;
 pub use load_settings::LoadSettings;
