@@ -41,28 +41,24 @@ impl NodeSpec {
                         high = Bound { value, inclusive };
                     }
                 };
+                // The lower limits from other nodes all allow their end.
+                let mut above = |value: f64| {
+                    if value > low.value {
+                        low = Bound {
+                            value,
+                            inclusive: true,
+                        };
+                    }
+                };
                 match self.field {
                     Field::DriveFrequency | Field::CantileverF1
                         if self.field == Field::DriveFrequency || s.drive.follow_f1 =>
                     {
                         // The Nyquist frequency itself is excluded.
                         below(relations::highest_drive_frequency(s), false);
-                        let lowest = relations::lowest_drive_frequency(s);
-                        if lowest > low.value {
-                            low = Bound {
-                                value: lowest,
-                                inclusive: true,
-                            };
-                        }
+                        above(relations::lowest_drive_frequency(s));
                     }
-                    Field::DemodTimeconstant(_) => {
-                        if 1.0 / sample_rate > low.value {
-                            low = Bound {
-                                value: 1.0 / sample_rate,
-                                inclusive: true,
-                            };
-                        }
-                    }
+                    Field::DemodTimeconstant(_) => above(1.0 / sample_rate),
                     Field::DemodRate(_) | Field::SpectrumRate => below(sample_rate, true),
                     Field::ScopeRate => below(relations::highest_scope_rate(s), true),
                     // An inclusion given relative to the base material must stay a modulus.

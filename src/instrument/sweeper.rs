@@ -655,7 +655,7 @@ fn retract_distance(
         .map(|p| base * crate::model::free_response_per_base(cantilever, p.value))
         .fold(0.0, f64::max);
     let wanted = RETRACT_CLEARANCE * peak;
-    if !(s.surface.distance < wanted) {
+    if s.surface.distance >= wanted {
         return None;
     }
     let longest = crate::config::limits::LENGTH.max.value;
