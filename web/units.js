@@ -7,7 +7,7 @@ const SYMBOL = { "-24": "y", "-21": "z", "-18": "a", "-15": "f", "-12": "p", "-9
 /** Whether a unit takes SI prefixes ("1" is dimensionless, "" is text or boolean). */
 export function prefixable(unit) {
   // "1/s" would read "1.2 k1/s": reciprocal units are shown without a prefix
-  return !!unit && unit !== "1" && unit !== "bit" && unit !== "samples" && unit !== "pixels" && unit !== "clients" && unit !== "messages" && unit !== "K" && unit !== "°" && unit !== "%" && !unit.startsWith("1/");
+  return !!unit && unit !== "1" && unit !== "bit" && unit !== "samples" && unit !== "pixels" && unit !== "frames" && unit !== "clients" && unit !== "messages" && unit !== "K" && unit !== "°" && unit !== "%" && !unit.startsWith("1/");
 }
 
 /** The exponent (a multiple of 3, -24 … 18) of the prefix that shows `x` as 1 … 999. */

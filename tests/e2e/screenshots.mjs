@@ -43,10 +43,11 @@ try {
   await page.locator("#p-image").scrollIntoViewIfNeeded();
   await page.waitForFunction(() => window.ftafm.image().subscribed);
   await page.click("#scan-start");
-  // The first frame almost complete on screen (64 lines at 2 lines/s).
-  await page.waitForFunction(() => window.ftafm.image().pixels === 64 && window.ftafm.image().lines >= 60, null, { timeout: 180000 });
+  // The first frame almost complete on screen (64 lines at 2 lines/s; the image clears at
+  // the next frame, 4 s after line 56).
+  await page.waitForFunction(() => { const i = window.ftafm.image(); return i.pixels === 64 && i.frame === 0 && i.lines >= 56; }, null, { timeout: 180000 });
   await page.locator("#p-force").scrollIntoViewIfNeeded();
-  await page.waitForTimeout(1500);
+  await page.waitForTimeout(1000);
   await page.evaluate(() => window.scrollTo(0, document.getElementById("p-force").offsetTop - 10));
   await page.waitForTimeout(500);
   await page.screenshot({ path: path.join(docs, "dashboard-scan.png") });
