@@ -9,7 +9,7 @@
 /// and reloads in its loop sit in whole cache lines. Without it the frame's alignment
 /// follows the stack's, which address-space randomisation shifts by 16 bytes from run to
 /// run: in about half the runs each 512-bit spill split across two cache lines and the
-/// synthesis loop ran 30 % slower (docs/benchmarks.md).
+/// synthesis loop ran markedly slower (docs/benchmarks.md has the figures).
 #[inline(always)]
 pub(crate) fn align_frame() {
     #[repr(align(64))]

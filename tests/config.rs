@@ -82,7 +82,7 @@ fn default_is_the_papers_silicon_case() {
         ScanSettings {
             enable: false,
             size: 1e-6,
-            pixels: 128,
+            pixels: 64,
             line_rate: 2.0,
             x: 0.0,
             y: 0.0,
@@ -131,10 +131,11 @@ fn default_is_the_papers_silicon_case() {
             }
         );
     }
-    // Each pixel of the default scan lasts 195 drive periods (at least 10 are required).
+    // Each pixel of the default scan lasts 390 drive periods (at least 10 are required), a
+    // frame 32 s.
     let pixel = 1.0 / (2.0 * f64::from(s.scan.pixels) * s.scan.line_rate);
-    assert_eq!((pixel * s.drive.frequency).floor(), 195.0);
-    assert_eq!(f64::from(s.scan.pixels) / s.scan.line_rate, 64.0);
+    assert_eq!((pixel * s.drive.frequency).floor(), 390.0);
+    assert_eq!(f64::from(s.scan.pixels) / s.scan.line_rate, 32.0);
     assert_eq!(s.demods.len(), 32);
     for (n, demod) in s.demods.iter().enumerate() {
         assert!(demod.enable);
@@ -179,7 +180,7 @@ fn settings_serialise_to_toml_that_loads_back() {
     assert!(at("[inclusions.7]") < at("[demods.0]"));
     assert_eq!(json["inclusions"]["0"]["shape"], json!("disc"));
     assert_eq!(json["inclusions"]["0"]["youngs_modulus"], json!(116.1e9));
-    assert_eq!(json["scan"]["pixels"], json!(128));
+    assert_eq!(json["scan"]["pixels"], json!(64));
     assert_eq!(json["feedback"]["setpoint"], json!(0.0));
     // Shapes are written by name and come back.
     let mut s = default_settings();
@@ -1366,16 +1367,16 @@ fn inversion_nodes_change_at_runtime() {
 // ---------------------------------------------------------------------------------------------
 // Scan, feedback and the sample map
 
-const LINE_RATE_TOO_HIGH: &str = "/scan/line_rate = 50 Hz: with 128 pixels per line \
+const LINE_RATE_TOO_HIGH: &str = "/scan/line_rate = 100 Hz: with 64 pixels per line \
                                   (/scan/pixels) each pixel must last at least 10 drive \
                                   periods (10 / /drive/frequency = 100 µs), so at most \
-                                  /drive/frequency / (20 × /scan/pixels) = 39.0625 Hz";
+                                  /drive/frequency / (20 × /scan/pixels) = 78.125 Hz";
 
 const DRIVE_TOO_LOW_FOR_SCAN: &str = "cannot set /drive/frequency = 2000: /scan/line_rate = \
-                                      2 Hz: with 128 pixels per line (/scan/pixels) each \
+                                      2 Hz: with 64 pixels per line (/scan/pixels) each \
                                       pixel must last at least 10 drive periods (10 / \
                                       /drive/frequency = 5 ms), so at most /drive/frequency \
-                                      / (20 × /scan/pixels) = 781.25 mHz";
+                                      / (20 × /scan/pixels) = 1.5625 Hz";
 
 const UNKNOWN_INCLUSION: &str =
     "unknown key /inclusions/8 in site.toml; keys of [inclusions]: 0 … 7";
@@ -1509,38 +1510,38 @@ fn scan_and_feedback_ranges_name_the_key() {
 
 #[test]
 fn scan_line_rate_leaves_ten_drive_periods_per_pixel() {
-    // 100 kHz / (20 × 128 pixels) = 39.0625 Hz: allowed, and just above it refused.
-    let s = load_str("[scan]\nline_rate = 39.0625\n", "t.toml").unwrap();
-    assert_eq!(s.scan.line_rate, 39.0625);
+    // 100 kHz / (20 × 64 pixels) = 78.125 Hz: allowed, and just above it refused.
+    let s = load_str("[scan]\nline_rate = 78.125\n", "t.toml").unwrap();
+    assert_eq!(s.scan.line_rate, 78.125);
     assert_eq!(
-        error_of("[scan]\nline_rate = 50\n"),
+        error_of("[scan]\nline_rate = 100\n"),
         format!("test.toml: {LINE_RATE_TOO_HIGH}")
     );
     assert_eq!(
-        load_str("[scan]\nline_rate = 50\n", "t.toml")
+        load_str("[scan]\nline_rate = 100\n", "t.toml")
             .unwrap_err()
             .path(),
         Some("/scan/line_rate")
     );
     assert_mentions(
-        &error_of("[scan]\nline_rate = 39.07\n"),
-        &["/scan/line_rate = 39.07 Hz", "at most", "= 39.0625 Hz"],
+        &error_of("[scan]\nline_rate = 78.13\n"),
+        &["/scan/line_rate = 78.13 Hz", "at most", "= 78.125 Hz"],
     );
     // Checked while the scan is off, so starting it never fails.
     assert_mentions(
-        &error_of("[scan]\nline_rate = 50\nenable = false\n"),
-        &["/scan/line_rate = 50 Hz"],
+        &error_of("[scan]\nline_rate = 100\nenable = false\n"),
+        &["/scan/line_rate = 100 Hz"],
     );
-    // Fewer pixels, or a faster drive in the same file (150 kHz / (20 × 128) = 58.6 Hz), make
+    // Fewer pixels, or a faster drive in the same file (150 kHz / (20 × 64) = 117 Hz), make
     // room: the order of the keys does not matter.
-    let s = load_str("[scan]\nline_rate = 50\npixels = 64\n", "t.toml").unwrap();
-    assert_eq!((s.scan.line_rate, s.scan.pixels), (50.0, 64));
+    let s = load_str("[scan]\nline_rate = 100\npixels = 32\n", "t.toml").unwrap();
+    assert_eq!((s.scan.line_rate, s.scan.pixels), (100.0, 32));
     let s = load_str(
-        "[scan]\nline_rate = 50\n[drive]\nfrequency = 150e3\n[cantilever]\nf1 = 150e3\n",
+        "[scan]\nline_rate = 100\n[drive]\nfrequency = 150e3\n[cantilever]\nf1 = 150e3\n",
         "t.toml",
     )
     .unwrap();
-    assert_eq!(s.scan.line_rate, 50.0);
+    assert_eq!(s.scan.line_rate, 100.0);
     // More pixels at the default 2 Hz: 100 kHz / (20 × 2 Hz) = 2500 ≥ 1024, always fine;
     // at 10 Hz at most 500.
     assert!(load_str("[scan]\npixels = 1024\n", "t.toml").is_ok());
@@ -1560,9 +1561,13 @@ fn the_image_stream_carries_at_most_20000_pixels_per_second() {
     // A 1 MHz drive leaves 50000 / pixels by the dwell time; the stream's 20000 pixels per
     // second bind first: 128 pixels allow 78.125 lines per second.
     let fast = "[synth]\nsample_rate = 100e6\n[drive]\nfrequency = 1e6\n[cantilever]\nf1 = 1e6\n";
-    let s = load_str(&format!("{fast}[scan]\nline_rate = 78.125\n"), "t.toml").unwrap();
+    let s = load_str(
+        &format!("{fast}[scan]\npixels = 128\nline_rate = 78.125\n"),
+        "t.toml",
+    )
+    .unwrap();
     assert_eq!(s.scan.line_rate, 78.125);
-    let message = error_of(&format!("{fast}[scan]\nline_rate = 100\n"));
+    let message = error_of(&format!("{fast}[scan]\npixels = 128\nline_rate = 100\n"));
     assert_eq!(
         message,
         "test.toml: /scan/line_rate = 100 Hz: with 128 pixels per line (/scan/pixels) the \
@@ -1575,7 +1580,7 @@ fn the_image_stream_carries_at_most_20000_pixels_per_second() {
 fn scan_relation_by_set_names_the_node_set() {
     let mut s = default_settings();
     let before = s.clone();
-    let error = s.set("/scan/line_rate", &json!(50)).unwrap_err();
+    let error = s.set("/scan/line_rate", &json!(100)).unwrap_err();
     assert_eq!(error.code(), "invalid_value");
     assert_eq!(error.path(), "/scan/line_rate");
     assert_eq!(error.to_string(), LINE_RATE_TOO_HIGH);
@@ -1599,11 +1604,11 @@ fn scan_relation_by_set_names_the_node_set() {
     // `list` reports the limits as they stand.
     let info = |s: &Settings, path: &str| s.nodes_under(path).into_iter().next().unwrap();
     assert_eq!(info(&s, "/scan/pixels").max, json!(250));
-    assert_eq!(info(&s, "/scan/line_rate").max, json!(39.0625));
+    assert_eq!(info(&s, "/scan/line_rate").max, json!(78.125));
     assert_eq!(s.set("/scan/pixels", &json!(250)).unwrap(), json!(250));
     assert_eq!(info(&s, "/scan/line_rate").max, json!(20.0));
     assert!(s.set("/scan/pixels", &json!(251)).is_err());
-    s.set("/scan/pixels", &json!(128)).unwrap();
+    s.set("/scan/pixels", &json!(64)).unwrap();
     s.set("/scan/line_rate", &json!(2.0)).unwrap();
     assert_eq!(s, before);
 }
@@ -2126,12 +2131,18 @@ fn list_entries_have_the_protocol_fields() {
             "writable",
             "min",
             "max",
+            "min_inclusive",
+            "max_inclusive",
             "description",
             "type"
         ])
     );
     let poisson = nodes.iter().find(|n| n.path == "/sample/poisson").unwrap();
     assert_eq!((&poisson.min, &poisson.max), (&json!(-1.0), &json!(0.5)));
+    assert_eq!(
+        (poisson.min_inclusive, poisson.max_inclusive),
+        (Some(false), Some(false))
+    );
     assert_eq!(poisson.unit, "1");
     let rate = nodes
         .iter()
@@ -2181,8 +2192,8 @@ fn list_entries_have_the_protocol_fields() {
         ("/scan/size", "m", json!(0.0), json!(100e-6)),
         // 2 Hz allows up to 2500 pixels by the dwell time: the static 1024 stands.
         ("/scan/pixels", "pixels", json!(8), json!(1024)),
-        // 100 kHz / (20 × 128 pixels).
-        ("/scan/line_rate", "Hz", json!(0.001), json!(39.0625)),
+        // 100 kHz / (20 × 64 pixels).
+        ("/scan/line_rate", "Hz", json!(0.001), json!(78.125)),
         ("/scan/x", "m", json!(-1e-3), json!(1e-3)),
         ("/scan/y", "m", json!(-1e-3), json!(1e-3)),
         ("/feedback/enable", "", Value::Null, Value::Null),
@@ -2744,8 +2755,27 @@ fn list_ranges_are_what_set_accepts() {
     let s = default_settings();
     let find = |path: &str| s.nodes().into_iter().find(|n| n.path == path).unwrap();
     assert_eq!(find("/drive/frequency").max, json!(5e6));
-    // 20 × 128 pixels × 2 Hz: each pixel lasts ten drive periods at 5.12 kHz.
-    assert_eq!(find("/drive/frequency").min, json!(5120.0));
+    // 20 × 64 pixels × 2 Hz: each pixel lasts ten drive periods at 2.56 kHz.
+    assert_eq!(find("/drive/frequency").min, json!(2560.0));
+    // Which ends are themselves allowed, as the checks enforce them: the Nyquist frequency
+    // is excluded, the dwell-time limit allowed; the 0 of `0 < value` excluded.
+    let ends = |path: &str| (find(path).min_inclusive, find(path).max_inclusive);
+    assert_eq!(ends("/drive/frequency"), (Some(true), Some(false)));
+    assert!(s.clone().set("/drive/frequency", &json!(2560.0)).is_ok());
+    assert!(s.clone().set("/drive/frequency", &json!(5e6)).is_err());
+    assert_eq!(ends("/sample/youngs_modulus"), (Some(false), Some(true)));
+    assert!(
+        s.clone()
+            .set("/sample/youngs_modulus", &json!(0.0))
+            .is_err()
+    );
+    assert!(
+        s.clone()
+            .set("/sample/youngs_modulus", &json!(1e13))
+            .is_ok()
+    );
+    assert_eq!(ends("/scan/pixels"), (Some(true), Some(true)));
+    assert_eq!(ends("/noise/enable"), (None, None));
     assert_eq!(find("/cantilever/extra_modes").max, json!(11));
     assert!(s.clone().set("/cantilever/extra_modes", &json!(11)).is_ok());
     assert!(

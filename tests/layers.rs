@@ -1,4 +1,4 @@
-//! The layering of `src/` (architecture.md): each layer uses only those below it, and the
+//! The layering of `src/` (the README's layout table): each layer uses only those below it, and the
 //! two real-time stages, `synth` and `dsp`, meet only through the ring; what both need (the
 //! phase words, the pre-decimation grid) lives in `timebase`, below them.
 

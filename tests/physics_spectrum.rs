@@ -131,7 +131,7 @@ fn spectrum_mean_and_fundamental_follow_from_the_transfer_function() {
         "H0 {}",
         si[0].amplitude
     );
-    // Harmonic 1: mode 1 at resonance amplifies by Q = 100; ≈ 19 nm (contract.md example).
+    // Harmonic 1: mode 1 at resonance amplifies by Q = 100; ≈ 19 nm (the dashboard's H1 readout).
     assert!(
         (18.5e-9..20e-9).contains(&si[1].amplitude),
         "H1 {}",

@@ -1451,3 +1451,49 @@ fn a_batch_set_that_gives_a_node_twice_is_refused() {
         })
     );
 }
+
+// ---------------------------------------------------------------------------------------
+// docs/protocol.md against the code
+
+/// The binary header's table names every stream by the code the encoders write, and the
+/// payload table has a row for every stream: a new stream cannot go undocumented.
+#[test]
+fn docs_list_every_binary_stream_code() {
+    let docs =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/protocol.md")).unwrap();
+    let row = docs
+        .lines()
+        .find(|l| l.starts_with("| 6 | 1 | u8 | stream |"))
+        .expect("docs/protocol.md's header table has the stream row (offset 6)");
+    let cell = row.split('|').nth(5).unwrap();
+    let documented: Vec<(u8, String)> = cell
+        .split(',')
+        .map(|entry| {
+            let (code, name) = entry.trim().split_once(' ').unwrap();
+            (code.parse().unwrap(), name.trim_matches('`').to_owned())
+        })
+        .collect();
+    let code: Vec<(u8, String)> = StreamKind::ALL
+        .iter()
+        .map(|s| (s.code(), s.name().to_owned()))
+        .collect();
+    assert_eq!(
+        documented, code,
+        "the stream codes in docs/protocol.md: {row}"
+    );
+    let payloads = docs
+        .split("### Payloads")
+        .nth(1)
+        .and_then(|rest| rest.split("\n#").next())
+        .expect("docs/protocol.md has the binary payloads section");
+    for s in StreamKind::ALL {
+        assert_eq!(StreamKind::from_code(s.code()), Some(s));
+        assert!(
+            payloads
+                .lines()
+                .any(|l| l.starts_with(&format!("| `{}` | ", s.name()))),
+            "docs/protocol.md's payload table has no row for {}",
+            s.name()
+        );
+    }
+}

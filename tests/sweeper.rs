@@ -78,6 +78,8 @@ async fn a_free_tune_finds_f1_and_q_and_restores_the_drive() {
     }
     assert!((f0 / 100e3 - 1.0).abs() < 5e-4, "f0 = {f0}");
     assert!((q / 100.0 - 1.0).abs() < 0.03, "Q = {q}");
+    // 200 nm is out of the 30 nm tip's reach: no retract.
+    assert_eq!(done["retracted"], Value::Null, "{done}");
     // The phase against the drive crosses −90° at resonance.
     let phase = tune["phase_to_drive_at_f0"].as_f64().unwrap();
     assert!(
@@ -99,6 +101,42 @@ async fn a_free_tune_finds_f1_and_q_and_restores_the_drive() {
     ] {
         let r = call(&mut ws, json!({"op": "get", "path": path})).await;
         assert_eq!(r["value"], value, "{path}");
+    }
+    d.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tune_at_the_tapping_distance_retracts_the_tip_and_finds_the_free_resonance() {
+    // The defaults tap (20 nm from the surface, 30 nm free amplitude): tuned there, the
+    // resonance would be the tapping lever's, shifted and broadened. The tune retracts.
+    let d = Daemon::start(fast()).await;
+    let mut ws = connect(d.addr).await;
+    let (points, done) = sweep(
+        &mut ws,
+        json!({"/sweeper/parameter": "/drive/frequency",
+               "/sweeper/start": 99e3, "/sweeper/stop": 101e3, "/sweeper/points": 61}),
+    )
+    .await;
+    assert_eq!(done["outcome"], "done", "{done}");
+    assert_eq!(points.len(), 61);
+    let r = &done["retracted"];
+    println!("tune: {}, retracted: {r}", done["tune"]);
+    assert_eq!(r["from"], 20e-9, "{r}");
+    assert_eq!(r["clear"], true, "{r}");
+    // Clear of the tip's largest swing (the 30 nm free amplitude at f1) by as much again.
+    let distance = r["distance"].as_f64().unwrap();
+    assert!((59e-9..=62e-9).contains(&distance), "{r}");
+    let tune = &done["tune"];
+    let (f0, q) = (tune["f0"].as_f64().unwrap(), tune["q"].as_f64().unwrap());
+    assert!((f0 / 100e3 - 1.0).abs() < 5e-4, "f0 = {f0}");
+    assert!((q / 100.0 - 1.0).abs() < 0.03, "Q = {q}");
+    for (path, value) in [
+        ("/surface/distance", json!(20e-9)),
+        ("/drive/frequency", json!(100e3)),
+        ("/drive/follow_f1", json!(true)),
+    ] {
+        let r = call(&mut ws, json!({"op": "get", "path": path})).await;
+        assert_eq!(r["value"], value, "{path} restored");
     }
     d.shutdown().await;
 }

@@ -1,18 +1,19 @@
 // Controls for the main nodes, built from the daemon's `list` (unit, range, description).
 // Numbers are typed with SI prefixes in the node's unit ("116.1 GPa", "20 nm"); Enter (or
-// leaving the field) sends `set`. A refused value shows the server's message verbatim under
-// the control, and the control returns to the server's value.
+// leaving the field) sends `set`. A refused value shows the server's message under the
+// control, its numbers in the node's unit with SI prefixes, and the control returns to the
+// server's value. The range beside each field shows which ends are allowed ("0 < E ≤ 10 TPa").
 
-import { parseSI, siShort } from "./units.js";
+import { inUserUnits, parseSI, rangeText, siShort } from "./units.js";
 
 const GROUPS = [
   { legend: "Sample and surface", items: [
-    { path: "/sample/youngs_modulus", label: "Young's modulus E" },
-    { path: "/surface/distance", label: "Surface distance A_set" },
+    { path: "/sample/youngs_modulus", label: "Young's modulus E", sym: "E" },
+    { path: "/surface/distance", label: "Surface distance A_set", sym: "d" },
   ] },
   { legend: "Drive", items: [
-    { path: "/drive/free_amplitude", label: "Free amplitude A₀" },
-    { path: "/drive/frequency", label: "Drive frequency" },
+    { path: "/drive/free_amplitude", label: "Free amplitude A₀", sym: "A₀" },
+    { path: "/drive/frequency", label: "Drive frequency", sym: "f" },
   ] },
   { legend: "Synthesis", items: [
     { path: "/noise/enable", label: "Noise" },
@@ -82,7 +83,7 @@ class Control {
     if (!this.input) this.build();
     this.input.dataset.path = this.path;
     this.errEl.dataset.for = this.path;
-    if (this.rangeEl) this.rangeEl.textContent = this.rangeText();
+    if (this.rangeEl) this.rangeEl.textContent = this.rangeEl.title = rangeText(node, this.spec.sym);
     if (!this.editing && !this.pending) this.show();
   }
 
@@ -121,13 +122,6 @@ class Control {
       this.input.addEventListener("change", () => this.commitText());
       this.input.addEventListener("blur", () => { if (!this.pending) { this.editing = false; this.show(); } });
     }
-  }
-
-  rangeText() {
-    const { min, max, unit } = this.node;
-    if (min == null && max == null) return "";
-    const f = (v) => siShort(v, unit, 4);
-    return `${f(min)} … ${f(max)}`;
   }
 
   /** Shows the server's value. */
@@ -183,7 +177,7 @@ class Control {
       this.panel.app.onSet(this.path, reply.value, reply.t ?? null);
       this.panel.app.stats.sets++;
     } catch (e) {
-      this.reject(e.message);
+      this.reject(inUserUnits(e.message, this.node.unit));
       this.panel.refresh(this);
     } finally {
       this.pending = false;

@@ -12,7 +12,10 @@
 
 import { si, siShort } from "./units.js";
 
-const DEFAULT_CHANNEL = "h17";
+// The channel shown first: the height (the feedback's output), where the default scan's
+// softer disc stands out of the noise pixel by pixel (docs/scan.md, "Measured"); h17 and
+// h18, the paper's channels, need longer pixels for that and are among the thumbnails.
+const DEFAULT_CHANNEL = "height";
 const THUMBS = ["height", "amplitude", "phase", "h6", "h17", "h18"];
 const FT_CHANNELS = ["contact_time_ratio", "max_force", "youngs_modulus"];
 const UNITS = { height: "m", amplitude: "m", phase: "rad", contact_time_ratio: "1", max_force: "N", youngs_modulus: "Pa" };

@@ -45,7 +45,7 @@ export class StatusPanel {
     this.last = now;
     const s = this.s, st = this.app.stats;
     const rows = [];
-    const add = (k, v, cls = "", title = "") => rows.push(`<dt${title ? ` title="${title}"` : ""}>${k}</dt><dd class="${cls}" data-key="${k}">${v}</dd>`);
+    const add = (k, v, cls = "", title = "") => rows.push(`<dt class="${cls.includes("wide") ? "wide" : ""}"${title ? ` title="${title}"` : ""}>${k}</dt><dd class="${cls}" data-key="${k}">${v}</dd>`);
     if (s) {
       const c = s.counters || {};
       add("sample rate", si(s.sample_rate, "Hz", 4));
@@ -62,7 +62,8 @@ export class StatusPanel {
       add("latency p50/p99", `${ns(l.p50)} / ${ns(l.p99)}`, "", "synthesis → handed to a client's socket (server's view)");
       if (c.clipped_samples > 0) add("clipped samples", group(c.clipped_samples), "warn", "samples beyond ±/noise/adc_range");
       // The operating point in words (out-of-band demodulators, clipping, …), as the server says it.
-      for (const w of s.warnings || []) add("warning", escapeHtml(w), "warn");
+      // A whole row each, wrapped: a long warning must not widen the panel (nor the page).
+      for (const w of s.warnings || []) add("warning", escapeHtml(w), "warn wide");
     }
     const lat = st.latency.slice(0, Math.min(st.latencyCount, st.latency.length)).sort();
     const p50 = pct(lat, 0.5), p99 = pct(lat, 0.99);

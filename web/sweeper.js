@@ -5,7 +5,7 @@
 // sets nodes and draws what the stream brings.
 
 import { Plot, COLORS } from "./plot.js";
-import { si } from "./units.js";
+import { si, siShort } from "./units.js";
 
 const UNITS = {
   "/drive/frequency": "Hz",
@@ -147,9 +147,9 @@ export class SweeperPanel {
     if (m.outcome === "failed") return `failed: ${m.reason}`;
     if (m.tune) {
       const t = m.tune;
-      return `f0 = ${si(t.f0, "Hz", 7)}, Q = ${t.q.toFixed(1)}, phase at f0 ${(t.phase_to_drive_at_f0 * 180 / Math.PI).toFixed(1)}°`;
+      return `f0 = ${si(t.f0, "Hz", 7)}, Q = ${t.q.toFixed(1)}, phase at f0 ${(t.phase_to_drive_at_f0 * 180 / Math.PI).toFixed(1)}°${this.retracted(m)}`;
     }
-    if (m.tune === null) return "the tune did not fit a resonance";
+    if (m.tune === null) return `the tune did not fit a resonance${this.retracted(m)}`;
     if (m.approach) {
       const a = m.approach;
       const at = (v) => (v == null ? "—" : si(v, "m", 3));
@@ -157,6 +157,15 @@ export class SweeperPanel {
       return `contact at ${at(a.contact_up)} (up), ${at(a.contact_down)} (down); ${a.jumps.length} jump${a.jumps.length === 1 ? "" : "s"}; hysteresis ${h}`;
     }
     return "";
+  }
+
+  /** What a tune did to the surface: it retracts the tip out of reach, as an auto-tune does. */
+  retracted(m) {
+    const r = m.retracted;
+    if (!r) return "";
+    const back = m.restored ? `, then back to ${siShort(r.from, "m", 4)}` : "";
+    const where = `surface retracted from ${siShort(r.from, "m", 4)} to ${siShort(r.distance, "m", 4)} for the tune${back}`;
+    return r.clear ? `; ${where} (the free lever's resonance)` : `; ${where}: not clear of the tip's swing, it may still touch`;
   }
 
   /** r and phase of harmonic `k` at a point (NaN where it was not measured). */

@@ -7,7 +7,7 @@ const SYMBOL = { "-24": "y", "-21": "z", "-18": "a", "-15": "f", "-12": "p", "-9
 /** Whether a unit takes SI prefixes ("1" is dimensionless, "" is text or boolean). */
 export function prefixable(unit) {
   // "1/s" would read "1.2 k1/s": reciprocal units are shown without a prefix
-  return !!unit && unit !== "1" && unit !== "bit" && unit !== "samples" && unit !== "pixels" && unit !== "clients" && unit !== "messages" && unit !== "K" && unit !== "°" && unit !== "%" && !unit.startsWith("1/");
+  return !!unit && unit !== "1" && unit !== "bit" && unit !== "samples" && unit !== "pixels" && unit !== "frames" && unit !== "clients" && unit !== "messages" && unit !== "K" && unit !== "°" && unit !== "%" && !unit.startsWith("1/");
 }
 
 /** The exponent (a multiple of 3, -24 … 18) of the prefix that shows `x` as 1 … 999. */
@@ -101,6 +101,36 @@ function example(unit) {
     case "s": return "“500 µs” or “0.5 ms”";
     default: return "“42”";
   }
+}
+
+/** A bound of a range: 0 plain, others with their prefix and unit ("0", "1 mHz", "10 TPa"). */
+function bound(value, unit) {
+  return value === 0 || !prefixable(unit) ? siShort(value, "1", 4) : siShort(value, unit, 4);
+}
+
+/**
+ * A node's allowed range as the daemon enforces it, each end open or closed: "0 < E ≤ 10 TPa",
+ * "8 ≤ x ≤ 1024 pixels". `symbol` stands for the value; "" when there is no range.
+ */
+export function rangeText({ min, max, min_inclusive: lo = true, max_inclusive: hi = true, unit }, symbol = "x") {
+  if (typeof min !== "number" || typeof max !== "number") return "";
+  return `${bound(min, unit)} ${lo ? "≤" : "<"} ${symbol} ${hi ? "≤" : "<"} ${siShort(max, unit, 4)}`;
+}
+
+const NUM = String.raw`[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:e[+-]?\d+)?`;
+
+/**
+ * A daemon's refusal in the node's units: the plain numbers it writes for the value and its
+ * range ("/sample/youngs_modulus = -5e9 is out of range: allowed 0 < value ≤ 1e13 Pa")
+ * with SI prefixes ("= -5 GPa …: allowed 0 < value ≤ 10 TPa"). Other text is kept as is.
+ */
+export function inUserUnits(message, unit) {
+  if (!prefixable(unit)) return message;
+  const u = unitSuffix(unit).replace(/[.*+?^${}()|[\]\\/]/g, "\\$&");
+  return String(message)
+    .replace(new RegExp(`allowed (${NUM}) (<|≤) value (<|≤) (${NUM})(?: ${u})?`),
+      (_, lo, a, b, hi) => `allowed ${bound(Number(lo), unit)} ${a} value ${b} ${siShort(Number(hi), unit, 4)}`)
+    .replace(new RegExp(`( = )(${NUM})(?= is |$)`), (_, eq, v) => `${eq}${siShort(Number(v), unit, 4)}`);
 }
 
 /** Latency in ns → "0.63 ms" / "850 µs". */

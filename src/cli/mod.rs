@@ -27,7 +27,7 @@ pub struct ConfigArg {
     pub config: Option<PathBuf>,
 }
 
-/// Exit status for bad arguments or an invalid configuration (contract.md).
+/// Exit status for bad arguments or an invalid configuration (README.md, "Exit status").
 pub const EXIT_USAGE: u8 = 2;
 
 /// The settings the flags name: the embedded default, the presets, then the file; the

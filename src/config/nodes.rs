@@ -10,6 +10,7 @@ use super::error::NodeError;
 use super::field::Field;
 use super::kind::Kind;
 use super::limits::MAX_YOUNGS_MODULUS;
+use super::range::Bound;
 use super::registry::{self, node, registry};
 use super::relations;
 use super::settings::Settings;
@@ -18,27 +19,51 @@ use super::spec::NodeSpec;
 
 impl NodeSpec {
     /// The lowest and highest value `set` would accept now, as the protocol's `list` reports
-    /// them: the static range narrowed by the limits that depend on other nodes. Whether an
-    /// end itself is allowed is [`NodeSpec::inclusive`]; `null` for text, lists of text and
-    /// bool.
+    /// them: the static range narrowed by the limits that depend on other nodes; `null` for
+    /// text, lists of text and bool. Whether each end is itself allowed:
+    /// [`Self::bounds_and_ends`].
     pub(crate) fn bounds(&self, s: &Settings) -> (Value, Value) {
+        let (min, max, _) = self.bounds_and_ends(s);
+        (min, max)
+    }
+
+    /// [`Self::bounds`], and whether the lowest and the highest value are themselves
+    /// allowed (`0 < value` excludes its 0); `None` where the node has no bounds.
+    fn bounds_and_ends(&self, s: &Settings) -> (Value, Value, Option<(bool, bool)>) {
         let sample_rate = s.synth.sample_rate;
         match self.kind {
             Kind::Float(range) | Kind::FloatList { entry: range, .. } => {
-                let (mut low, mut high) = (range.min.value, range.max.value);
+                let (mut low, mut high) = (range.min, range.max);
+                // A limit from another node replaces an end it lies inside of, or excludes
+                // an end it shares.
+                let mut below = |value: f64, inclusive: bool| {
+                    if value < high.value || (value == high.value && !inclusive) {
+                        high = Bound { value, inclusive };
+                    }
+                };
+                // The lower limits from other nodes all allow their end.
+                let mut above = |value: f64| {
+                    if value > low.value {
+                        low = Bound {
+                            value,
+                            inclusive: true,
+                        };
+                    }
+                };
                 match self.field {
                     Field::DriveFrequency | Field::CantileverF1
                         if self.field == Field::DriveFrequency || s.drive.follow_f1 =>
                     {
-                        high = high.min(relations::highest_drive_frequency(s));
-                        low = low.max(relations::lowest_drive_frequency(s));
+                        // The Nyquist frequency itself is excluded.
+                        below(relations::highest_drive_frequency(s), false);
+                        above(relations::lowest_drive_frequency(s));
                     }
-                    Field::DemodTimeconstant(_) => low = low.max(1.0 / sample_rate),
-                    Field::DemodRate(_) | Field::SpectrumRate => high = high.min(sample_rate),
-                    Field::ScopeRate => high = high.min(relations::highest_scope_rate(s)),
+                    Field::DemodTimeconstant(_) => above(1.0 / sample_rate),
+                    Field::DemodRate(_) | Field::SpectrumRate => below(sample_rate, true),
+                    Field::ScopeRate => below(relations::highest_scope_rate(s), true),
                     // An inclusion given relative to the base material must stay a modulus.
                     Field::InclusionRelativeModulus(_) => {
-                        high = high.min(MAX_YOUNGS_MODULUS / s.sample.youngs_modulus);
+                        below(MAX_YOUNGS_MODULUS / s.sample.youngs_modulus, true);
                     }
                     Field::SampleYoungsModulus => {
                         let most = s
@@ -47,13 +72,17 @@ impl NodeSpec {
                             .map(|i| i.relative_modulus)
                             .fold(0.0, f64::max);
                         if most > 0.0 {
-                            high = high.min(MAX_YOUNGS_MODULUS / most);
+                            below(MAX_YOUNGS_MODULUS / most, true);
                         }
                     }
-                    Field::ScanLineRate => high = high.min(relations::highest_line_rate(s)),
+                    Field::ScanLineRate => below(relations::highest_line_rate(s), true),
                     _ => {}
                 }
-                (Value::from(low), Value::from(high))
+                (
+                    Value::from(low.value),
+                    Value::from(high.value),
+                    Some((low.inclusive, high.inclusive)),
+                )
             }
             Kind::Integer { mut min, mut max } => {
                 let enabled = |i: usize| s.demods.get(i).is_some_and(|d| d.enable);
@@ -91,37 +120,12 @@ impl NodeSpec {
                     Field::CantileverExtraModes => max = max.min(relations::most_extra_modes(s)),
                     _ => {}
                 }
-                (Value::from(min), Value::from(max))
+                (Value::from(min), Value::from(max), Some((true, true)))
             }
             Kind::PowerOfTwo { min, max } | Kind::Even { min, max } => {
-                (Value::from(min), Value::from(max))
+                (Value::from(min), Value::from(max), Some((true, true)))
             }
-            Kind::Bool | Kind::Text(_) | Kind::TextList { .. } => (Value::Null, Value::Null),
-        }
-    }
-
-    /// Whether each end of [`NodeSpec::bounds`] is itself allowed (`min_inclusive`,
-    /// `max_inclusive` in `list`): the static range's for an end that is its own, the
-    /// relation's for an end another node narrows (only the Nyquist limit of the drive is
-    /// open: `/drive/frequency` < `/synth/sample_rate` / 2); integers include both ends.
-    /// `None` where `bounds` is `null`.
-    pub(crate) fn inclusive(&self, s: &Settings) -> Option<(bool, bool)> {
-        match self.kind {
-            Kind::Float(range) | Kind::FloatList { entry: range, .. } => {
-                let (low, high) = self.bounds(s);
-                let own = |end: &Value, bound: f64| end.as_f64() == Some(bound);
-                let min = !own(&low, range.min.value) || range.min.inclusive;
-                let max = if own(&high, range.max.value) {
-                    range.max.inclusive
-                } else {
-                    !matches!(self.field, Field::DriveFrequency | Field::CantileverF1)
-                };
-                Some((min, max))
-            }
-            Kind::Integer { .. } | Kind::PowerOfTwo { .. } | Kind::Even { .. } => {
-                Some((true, true))
-            }
-            Kind::Bool | Kind::Text(_) | Kind::TextList { .. } => None,
+            Kind::Bool | Kind::Text(_) | Kind::TextList { .. } => (Value::Null, Value::Null, None),
         }
     }
 }
@@ -139,15 +143,17 @@ pub struct NodeInfo {
     /// Whether `set` may change it at runtime.
     pub writable: bool,
     /// Lowest value accepted now (an end that is itself excluded, like the 0 of `0 < value`,
-    /// is still reported), or `null` (text, booleans, lists of text). For a list of numbers,
-    /// the bound of each entry.
+    /// is still reported: see `min_inclusive`), or `null` (text, booleans, lists of text).
+    /// For a list of numbers, the bound of each entry.
     pub min: Value,
     /// Highest value accepted now, or `null`. For a list, the bound of each entry.
     pub max: Value,
-    /// Whether `min` itself is accepted (`0 < value`: false); absent where `min` is `null`.
+    /// Whether `min` itself is accepted (`false` for the 0 of `0 < value`); absent where
+    /// `min` is `null`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub min_inclusive: Option<bool>,
-    /// Whether `max` itself is accepted (`value ≤ 1e13`: true); absent where `max` is `null`.
+    /// Whether `max` itself is accepted (`false` for the Nyquist frequency of
+    /// `/drive/frequency`); absent where `max` is `null`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_inclusive: Option<bool>,
     /// One sentence with the unit.
@@ -382,8 +388,7 @@ impl Settings {
             })
             .filter_map(|spec| {
                 let value = spec.field.read(self)?.to_json();
-                let (min, max) = spec.bounds(self);
-                let inclusive = spec.inclusive(self);
+                let (min, max, ends) = spec.bounds_and_ends(self);
                 Some(NodeInfo {
                     path: spec.path.clone(),
                     value,
@@ -391,8 +396,8 @@ impl Settings {
                     writable: spec.writable,
                     min,
                     max,
-                    min_inclusive: inclusive.map(|(low, _)| low),
-                    max_inclusive: inclusive.map(|(_, high)| high),
+                    min_inclusive: ends.map(|e| e.0),
+                    max_inclusive: ends.map(|e| e.1),
                     description: spec.description.clone(),
                     kind: spec.kind.type_name().to_owned(),
                     allowed: match spec.kind {

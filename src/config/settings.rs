@@ -115,8 +115,8 @@ pub struct AdhesionSettings {
 pub enum Engine {
     /// Cut-cosine pulse train with F, τ and phase from the 1-DOF model (the paper's method).
     Paper,
-    /// Contact force from the instantaneous tip position of all modes. Not implemented yet:
-    /// the name is known, but [`Settings::validate`] refuses it.
+    /// Contact force from the instantaneous tip position of all modes, integrated sample
+    /// by sample with the modes (docs/physics.md, "The coupled orbit").
     Coupled,
 }
 

@@ -32,6 +32,10 @@ const FRAME_WAIT: Duration = Duration::from_secs(10);
 const FORCE_WAIT: Duration = Duration::from_secs(60);
 /// Inaccuracy the automatic settling time allows for (relative).
 const SETTLE_TO: f64 = 1e-3;
+/// How far a tune lifts the surface, as a multiple of the largest free amplitude its points
+/// drive: the tip's swing then stays clear of the surface by as much again, as an
+/// instrument's auto-tune retracts so that the resonance it fits is the free lever's.
+const RETRACT_CLEARANCE: f64 = 2.0;
 
 /// While alive, the force builder knows a sweep waits for each point's estimate.
 struct Awaiting<'a>(&'a ForceLink);
@@ -269,8 +273,9 @@ fn point_values(
     values
 }
 
-/// The nodes a sweep of `w` changes, as they are before it: what it restores.
-fn restore_values(s: &Settings, w: &SweeperSettings) -> Vec<(String, Value)> {
+/// The nodes a sweep of `w` changes, as they are before it: what it restores (with the
+/// surface distance when a tune retracts the tip).
+fn restore_values(s: &Settings, w: &SweeperSettings, retract: bool) -> Vec<(String, Value)> {
     let mut values: Vec<(String, Value)> = match w.parameter {
         SweepParameter::DriveFrequency => vec![
             ("/drive/frequency".to_owned(), json!(s.drive.frequency)),
@@ -282,6 +287,9 @@ fn restore_values(s: &Settings, w: &SweeperSettings) -> Vec<(String, Value)> {
         ],
         p => vec![(p.name().to_owned(), s.get(p.name()).unwrap_or(Value::Null))],
     };
+    if retract {
+        values.push(("/surface/distance".to_owned(), json!(s.surface.distance)));
+    }
     values.push(("/sweeper/enable".to_owned(), json!(false)));
     values
 }
@@ -319,7 +327,10 @@ async fn run_sweep(
                 / crate::model::free_response_per_base(&c, settings.drive.frequency);
             (c, base)
         });
-    let restore = restore_values(settings, &w);
+    let retract = tune
+        .as_ref()
+        .and_then(|(c, base)| retract_distance(settings, c, *base, &points));
+    let restore = restore_values(settings, &w, retract.is_some());
     // The nodes the sweep writes (all but /sweeper/enable, which is restore's last).
     let swept: Vec<String> = restore
         .iter()
@@ -360,7 +371,10 @@ async fn run_sweep(
     let mut outcome = Outcome::Done;
     let mut point_epoch;
     'points: for (i, p) in points.iter().enumerate() {
-        let values = point_values(&w, p.value, tune.as_ref());
+        let mut values = point_values(&w, p.value, tune.as_ref());
+        if let (0, Some(r)) = (i, &retract) {
+            values.push(("/surface/distance".to_owned(), json!(r.distance)));
+        }
         let paths: Vec<String> = values.iter().map(|(p, _)| p.clone()).collect();
         let (before, swept_now) = (mine.clone(), swept.clone());
         // Checked and written in one step under the writer's lock: no client's change can
@@ -594,6 +608,10 @@ async fn run_sweep(
     }
     if w.parameter == SweepParameter::DriveFrequency {
         fields.insert("tune".into(), tune_summary(&measured));
+        fields.insert(
+            "retracted".into(),
+            retract.as_ref().map_or(Value::Null, Retract::json),
+        );
     }
     if w.parameter == SweepParameter::SurfaceDistance {
         fields.insert("approach".into(), approach_summary(&measured));
@@ -606,6 +624,46 @@ async fn run_sweep(
         "sweep ended"
     );
     Ok(())
+}
+
+/// Where a tune puts the surface so that the tip swings free: the distance (m) and the one
+/// it had before, which the tune restores.
+struct Retract {
+    distance: f64,
+    from: f64,
+    /// Whether the tip's largest swing stays below `distance` with the full clearance
+    /// (false when the longest distance allowed is not enough).
+    clear: bool,
+}
+
+impl Retract {
+    fn json(&self) -> Value {
+        json!({"distance": self.distance, "from": self.from, "clear": self.clear})
+    }
+}
+
+/// The retract a tune of `points` needs: `None` when the surface already lies
+/// [`RETRACT_CLEARANCE`] times the largest free amplitude of the tune's points away.
+fn retract_distance(
+    s: &Settings,
+    cantilever: &crate::physics::Cantilever,
+    base: f64,
+    points: &[sweep::Point],
+) -> Option<Retract> {
+    let peak = points
+        .iter()
+        .map(|p| base * crate::model::free_response_per_base(cantilever, p.value))
+        .fold(0.0, f64::max);
+    let wanted = RETRACT_CLEARANCE * peak;
+    if s.surface.distance >= wanted {
+        return None;
+    }
+    let longest = crate::config::limits::LENGTH.max.value;
+    Some(Retract {
+        distance: wanted.min(longest),
+        from: s.surface.distance,
+        clear: wanted <= longest,
+    })
 }
 
 /// The phase (rad, in (−π, π]) of harmonic 1 against the excitation, as an instrument's

@@ -3,13 +3,13 @@
 //! fixed-width lane arithmetic so that the compiler keeps all eight lanes in vector
 //! registers (two AVX2 registers of `u64`, one of `f32`). Where the CPU has AVX-512 the
 //! transform runs on two successive batches at once, one to each half of a register: the
-//! same operations lane by lane, so the same bits, and 1.4× the deviates a second on the
-//! Zen 4 (docs/benchmarks.md), whose long chains (the logarithm's polynomial, the square
-//! root) then carry twice the lanes through the core's window of instructions in flight.
+//! same operations lane by lane, so the same bits, and more deviates a second on a core
+//! whose long chains (the logarithm's polynomial, the square root) then carry twice the
+//! lanes through its window of instructions in flight (figures: docs/benchmarks.md).
 //!
 //! Why not `rand_distr`'s ziggurat: it draws one deviate at a time through data-dependent
-//! branches and table look-ups, ≈ 2.5 ns a deviate in the synthesiser, where a sample needs
-//! one per mode and one for the detector; this draws them at a fraction of that
+//! branches and table look-ups, where a sample of the synthesiser needs one deviate per
+//! mode and one for the detector; this draws them at a fraction of its cost
 //! (docs/benchmarks.md). No maintained crate offers vectorised normal deviates on stable
 //! Rust (`rand`'s SIMD support needs the nightly `portable_simd`).
 //!
@@ -25,8 +25,8 @@
 //! deviates' own statistical scatter. Each multiply–add of the polynomials is fused (one
 //! rounding): FMA instructions in the vector build, `f32::mul_add` in the portable one, so
 //! every build of the crate, whatever its vector width, gives the same bits. Fused, the
-//! transform's chains are shorter and its instructions fewer: 18 % more deviates a second
-//! than the unfused ones on the Zen 4 (docs/benchmarks.md).
+//! transform's chains are shorter and its instructions fewer, so it is faster too
+//! (docs/benchmarks.md).
 
 // The lanes are read and written in lock-step by index: the form the compiler vectorises.
 #![allow(clippy::needless_range_loop)]

@@ -4,24 +4,18 @@
 //
 // docs/dashboard.png: spectrum, harmonics, Fig. 3b (reference at 129 GPa, now 116.1 GPa,
 // 2 s means), the photodiode trace folded on the drive cycle (Fig. 4) and the status.
-// docs/dashboard-scan.png: the live FT-AFM force panel and a scan of the default sample.
+// docs/dashboard-scan.png: the live FT-AFM force panel and the default scan of the default
+// sample, started from the page as a user starts it (the height shown first).
 // Not a test (node --test does not pick it up); run it when the dashboard changes.
 
 import path from "node:path";
-import { mkdtempSync, rmSync, writeFileSync } from "node:fs";
-import { tmpdir } from "node:os";
 import { fileURLToPath } from "node:url";
 import { chromium } from "playwright-core";
 import { startDaemon, stopDaemon } from "./daemon.mjs";
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const docs = path.join(here, "../../docs");
-const work = mkdtempSync(path.join(tmpdir(), "ftafm-shots-"));
-const overlay = path.join(work, "scan.toml");
-// A 24 × 24 scan at 1 line/s (21 ms per pixel, a frame in 24 s): long enough a dwell that
-// the softer disc shows in h17 above the default noise.
-writeFileSync(overlay, "[scan]\nenable = true\npixels = 24\nline_rate = 1.0\n");
-const daemon = await startDaemon("127.0.0.1:0", ["--config", overlay]);
+const daemon = await startDaemon("127.0.0.1:0");
 const browser = await chromium.launch({
   executablePath: process.env.CHROMIUM ?? "/usr/bin/chromium",
   args: ["--headless", "--no-sandbox", "--disable-gpu"],
@@ -47,10 +41,13 @@ try {
   await page.waitForTimeout(500);
   await page.screenshot({ path: path.join(docs, "dashboard.png") });
   await page.locator("#p-image").scrollIntoViewIfNeeded();
-  // A frame almost complete on screen (the image clears at each new frame).
-  await page.waitForFunction(() => { const i = window.ftafm.image(); return i.framesFinished >= 1 && i.lines >= 22; }, null, { timeout: 180000 });
+  await page.waitForFunction(() => window.ftafm.image().subscribed);
+  await page.click("#scan-start");
+  // The first frame almost complete on screen (64 lines at 2 lines/s; the image clears at
+  // the next frame, 4 s after line 56).
+  await page.waitForFunction(() => { const i = window.ftafm.image(); return i.pixels === 64 && i.frame === 0 && i.lines >= 56; }, null, { timeout: 180000 });
   await page.locator("#p-force").scrollIntoViewIfNeeded();
-  await page.waitForTimeout(1500);
+  await page.waitForTimeout(1000);
   await page.evaluate(() => window.scrollTo(0, document.getElementById("p-force").offsetTop - 10));
   await page.waitForTimeout(500);
   await page.screenshot({ path: path.join(docs, "dashboard-scan.png") });
@@ -61,5 +58,4 @@ try {
 } finally {
   await browser.close();
   await stopDaemon(daemon);
-  rmSync(work, { recursive: true, force: true });
 }

@@ -11,8 +11,8 @@
 //! small context (the control plane, the newest measured values, the client's
 //! subscriptions); the session owns the socket and calls it.
 //!
-//! Everything a client sees is documented in `docs/protocol.md`; the WebSocket section of
-//! the design contract is the promise this module keeps.
+//! Everything a client sees is documented in `docs/protocol.md`, the promise this module
+//! keeps.
 
 mod data;
 mod fields;
