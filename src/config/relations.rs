@@ -856,8 +856,8 @@ mod tests {
     #[test]
     fn scan_limits_agree_with_the_check() {
         let mut s = default_settings();
-        // 100 kHz drive, 128 pixels: 100e3 / (20 × 128) = 39.0625 Hz; 20000 / 256 = 78.125.
-        assert_eq!(highest_line_rate(&s), 39.0625);
+        // 100 kHz drive, 64 pixels: 100e3 / (20 × 64) = 78.125 Hz; 20000 / 128 = 156.25.
+        assert_eq!(highest_line_rate(&s), 78.125);
         // At 2 Hz: 100e3 / 40 = 2500 pixels by dwell, 5000 by the stream: capped at 1024.
         assert_eq!(highest_scan_pixels(&s), 1024);
         for rate in [2.0, 3.0, 7.7, 39.0625, 50.0, 99.9, 100.0, 1e-3] {
