@@ -101,8 +101,9 @@ pub struct SearchLimits<'a> {
     pub cancel: Option<&'a AtomicBool>,
 }
 
-/// The default budget of a search: 20 000 periods, 2–60 s on one core of this project's
-/// machines (docs/physics.md §6); the cases of its grid use a few hundred to a few thousand.
+/// The default budget of a search: 20 000 periods, about 7× the costliest point of the
+/// preset grid in `tests/orbit_search.rs` (2825 periods; its `--nocapture` output lists each
+/// point's periods and time).
 pub const MAX_PERIODS: usize = 20_000;
 
 impl Default for SearchLimits<'_> {
