@@ -326,6 +326,8 @@ impl<'a> PeriodMap<'a> {
             };
             let step = dt.min(cap).min(t_end - t);
             let t_before = t;
+            // The step's start, for the record's quadrature over it.
+            let h_before = record.is_some().then(|| h.clone());
             let (trial, err) = self.dp_step(t, &h, step);
             if err > 1.0 && step > 1e-14 * t_end {
                 dt = step * (0.9 * err.powf(-0.2)).max(0.2);
@@ -369,7 +371,8 @@ impl<'a> PeriodMap<'a> {
             let g = self.p.force(self.indentation(t, &h));
             impulse += 0.5 * (g_last + g) * (t - t_before);
             g_last = g;
-            if let Some(r) = record.as_deref_mut() {
+            if let (Some(r), Some(h0)) = (record.as_deref_mut(), h_before) {
+                self.add_step_coefficients(r, t_before, &h0, t);
                 self.accumulate(r, t, &h);
             }
         }
