@@ -256,6 +256,82 @@ pub fn jumps(values: &[f64], r: &[f64], threshold: f64) -> Vec<Jump> {
         .collect()
 }
 
+/// The tapping regime of one point of an approach curve, as the coupled engine names its
+/// orbits (physics.md §6, `Branch`): by the sign of the mean tip–sample force.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Regime {
+    /// The amplitude and phase of harmonic 1 are the free ones (within `drop` and `twist`).
+    Free,
+    /// The mean force pulls the tip towards the sample.
+    Attractive,
+    /// The mean force pushes the tip away.
+    Repulsive,
+}
+
+impl Regime {
+    /// `"free"`, `"attractive"` or `"repulsive"`, as the approach summary names it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Regime::Free => "free",
+            Regime::Attractive => "attractive",
+            Regime::Repulsive => "repulsive",
+        }
+    }
+}
+
+/// One point of an approach curve as the regime reads it: harmonic 1's amplitude `r` and
+/// phase against the drive (rad), and the mean deflection (m) where a demodulator measures
+/// harmonic 0.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ApproachPoint {
+    /// Harmonic 1's amplitude.
+    pub r: f64,
+    /// Harmonic 1's phase against the drive (rad).
+    pub phase: f64,
+    /// The mean deflection (m), if measured.
+    pub mean: Option<f64>,
+}
+
+/// The regime at `p` against the free point `free` (the same leg's far end): free while
+/// the amplitude is within `drop` of the free one and the phase within `twist` rad of it;
+/// otherwise the sign of the mean deflection (k times it is the mean force) if it is
+/// measured and farther from the free one than `mean_floor` (m), else the sign of the phase
+/// shift: a net attractive force makes the tip lag the drive more than free, a net repulsive
+/// one less (García & San Paulo, Phys. Rev. B 60, 4961, 1999: the phase lag above or below
+/// 90° at resonance), so the phase against the drive falls or rises.
+pub fn regime(
+    p: ApproachPoint,
+    free: ApproachPoint,
+    drop: f64,
+    twist: f64,
+    mean_floor: f64,
+) -> Regime {
+    let shift = wrap_phase(p.phase - free.phase);
+    if p.r >= (1.0 - drop) * free.r && shift.abs() <= twist {
+        return Regime::Free;
+    }
+    if let (Some(m), Some(m0)) = (p.mean, free.mean)
+        && (m - m0).abs() > mean_floor
+    {
+        return if m > m0 {
+            Regime::Repulsive
+        } else {
+            Regime::Attractive
+        };
+    }
+    if shift < 0.0 {
+        Regime::Attractive
+    } else {
+        Regime::Repulsive
+    }
+}
+
+/// `x` wrapped into (−π, π].
+pub fn wrap_phase(x: f64) -> f64 {
+    let p = (x + PI).rem_euclid(2.0 * PI) - PI;
+    if p == -PI { PI } else { p }
+}
+
 /// Hysteresis between the legs: the largest difference of the amplitudes measured at the
 /// same value on the way up and on the way down, relative to the larger, and where.
 pub fn hysteresis(up: &[(f64, f64)], down: &[(f64, f64)]) -> Option<(f64, f64)> {
@@ -271,6 +347,41 @@ pub fn hysteresis(up: &[(f64, f64)], down: &[(f64, f64)]) -> Option<(f64, f64)> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_regime_reads_the_mean_deflection_before_the_phase() {
+        let free = ApproachPoint {
+            r: 10e-9,
+            phase: -1.5,
+            mean: Some(0.0),
+        };
+        let at = |r: f64, phase: f64, mean: Option<f64>| {
+            regime(ApproachPoint { r, phase, mean }, free, 0.02, 0.02, 1e-12)
+        };
+        assert_eq!(at(9.9e-9, -1.51, Some(0.0)), Regime::Free);
+        // Lagging more: attractive; less: repulsive.
+        assert_eq!(at(8e-9, -1.9, None), Regime::Attractive);
+        assert_eq!(at(8e-9, -1.1, None), Regime::Repulsive);
+        // The mean deflection decides where it is measured.
+        assert_eq!(at(8e-9, -1.9, Some(5e-12)), Regime::Repulsive);
+        assert_eq!(at(8e-9, -1.1, Some(-5e-12)), Regime::Attractive);
+        // Below its floor the phase does.
+        assert_eq!(at(8e-9, -1.9, Some(1e-13)), Regime::Attractive);
+        // Across ±π.
+        let wrapped = ApproachPoint {
+            r: 8e-9,
+            phase: 3.1,
+            mean: None,
+        };
+        let free_wrapped = ApproachPoint {
+            phase: -3.1,
+            ..free
+        };
+        assert_eq!(
+            regime(wrapped, free_wrapped, 0.02, 0.02, 1e-12),
+            Regime::Attractive
+        );
+    }
 
     #[test]
     fn points_cover_both_ends_on_each_leg() {

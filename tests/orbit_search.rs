@@ -124,8 +124,8 @@ fn coexisting_branches_are_both_found_and_named() {
     assert!(approached.force_coefficients[0].re < 0.0 && approached.jumps.is_empty());
     assert_eq!(contact.branch, Branch::Repulsive);
     assert!(contact.force_coefficients[0].re > 0.0);
-    // In the attractive regime the tip lags the free phase less than on the repulsive one
-    // (θ above and below the free lever's, García & San Paulo 1999).
+    // In the attractive regime the tip lags the drive more than the free lever, in the
+    // repulsive one less (θ above and below zero, García & San Paulo 1999).
     assert!(approached.phase_shift > contact.phase_shift);
 }
 

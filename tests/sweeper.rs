@@ -458,3 +458,143 @@ async fn an_approach_reports_the_force_estimates_and_mean_deflection_of_each_poi
     }
     d.shutdown().await;
 }
+
+/// Where an attractive and a repulsive orbit coexist (the tap300 lever with adhesion at 4 nm,
+/// tests/orbit_search.rs), the live approach names the regime of every point as the offline
+/// solver names the orbit it is on: each point's H1 is matched to the nearer of the two
+/// offline orbits at its distance (the approach's from far and the contact start's), whose
+/// branch (the sign of its mean force) the point's regime must be. The approach starts
+/// attractive and ends repulsive, and the change is reported as a jump.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_approach_names_the_branch_of_every_point() {
+    use ftafm::physics::spectrum::photodiode_transfer;
+    use rustfft::num_complex::Complex64;
+    let mut settings = fast();
+    settings.synth.engine = ftafm::config::Engine::Coupled;
+    settings.synth.sample_rate = 6e6;
+    settings.cantilever.f1 = 300e3;
+    settings.cantilever.k = 40.0;
+    settings.cantilever.q = vec![500.0, 2085.0, 1700.0, 1000.0, 130.0];
+    settings.cantilever.tip_radius = 8e-9;
+    settings.drive.frequency = 300e3;
+    settings.drive.free_amplitude = 4e-9;
+    settings.surface.distance = 8e-9;
+    settings.adhesion.enable = true;
+    for d in &mut settings.demods {
+        d.harmonic = d.harmonic.min(5);
+    }
+    let d = Daemon::start(settings.clone()).await;
+    let mut ws = connect(d.addr).await;
+    let (points, done) = sweep(
+        &mut ws,
+        json!({"/sweeper/parameter": "/surface/distance", "/sweeper/start": 3.9e-9,
+               "/sweeper/stop": 2.3e-9, "/sweeper/points": 5, "/sweeper/direction": "both",
+               "/sweeper/averaging": 20}),
+    )
+    .await;
+    d.shutdown().await;
+    assert_eq!(done["outcome"], "done", "{done}");
+    let approach = &done["approach"];
+    println!("{approach}");
+    let regimes = approach["regimes"].as_array().unwrap();
+    assert_eq!(regimes.len(), points.len(), "{approach}");
+    let plan = ftafm::synth::SynthPlan::new(&settings).unwrap();
+    let cantilever = ftafm::model::cantilever(&settings).unwrap();
+    let omega = 2.0 * std::f64::consts::PI * plan.drive_frequency;
+    let gain = plan.front_end_gain(plan.drive_frequency / settings.synth.sample_rate);
+    let h1_of = |o: &ftafm::physics::CoupledOrbit| {
+        gain * (plan.free_signal()
+            + photodiode_transfer(&cantilever, omega) * o.force_coefficients[1] * 2.0)
+    };
+    // The offline orbits at each distance: the approach's from far, and the repulsive
+    // branch traced upwards from the nearest distance by continuation, as a retract does.
+    let problem_at = |dist: f64| {
+        let mut s = settings.clone();
+        s.surface.distance = dist;
+        ftafm::model::coupled_problem(&s, &cantilever, s.sample, s.drive.frequency)
+    };
+    let mut distances: Vec<f64> = points
+        .iter()
+        .map(|p| p["value"].as_f64().unwrap())
+        .collect();
+    distances.sort_by(f64::total_cmp);
+    distances.dedup();
+    let mut orbits: Vec<(f64, ftafm::physics::CoupledOrbit)> = Vec::new();
+    let mut from: Option<(f64, ftafm::physics::Continuation)> = None;
+    for &dist in &distances {
+        let problem = problem_at(dist);
+        orbits.push((dist, problem.solve(1).unwrap()));
+        let traced = match from.take() {
+            None => problem.solve_for_continuation(1).ok(),
+            // In steps of 0.05 nm: Newton's basin on this branch is narrow.
+            Some((last, mut c)) => {
+                let steps = ((dist - last) / 0.05e-9).ceil() as usize;
+                let mut out = None;
+                for i in 1..=steps {
+                    let at = last + (dist - last) * i as f64 / steps as f64;
+                    match problem_at(at).solve_continued(1, &c) {
+                        Ok((o, next)) => {
+                            c = next;
+                            out = Some((o, c.clone()));
+                        }
+                        Err(_) => {
+                            out = None;
+                            break;
+                        }
+                    }
+                }
+                out
+            }
+        };
+        from = traced.as_ref().map(|(_, c)| (dist, c.clone()));
+        orbits.extend(traced.map(|(o, _)| (dist, o)));
+    }
+    for (d, o) in &orbits {
+        let h = h1_of(o);
+        println!(
+            "offline {:.2} nm: {:?} θ {:+.2}°, H1 {:.3} nm ∠{:+.3}",
+            d * 1e9,
+            o.branch,
+            o.phase_shift_deg(),
+            h.norm() * 1e9,
+            h.arg()
+        );
+    }
+    for (p, r) in points.iter().zip(regimes) {
+        assert_eq!(r["value"], p["value"]);
+        let dist = p["value"].as_f64().unwrap();
+        let (amplitude, phase) = h1(p);
+        let live = Complex64::from_polar(amplitude, phase);
+        let nearest = orbits
+            .iter()
+            .filter(|(d, _)| *d == dist)
+            .map(|(_, o)| o)
+            .min_by(|a, b| {
+                (h1_of(a) - live)
+                    .norm()
+                    .total_cmp(&(h1_of(b) - live).norm())
+            })
+            .unwrap();
+        let off = (h1_of(nearest) - live).norm() / live.norm();
+        println!(
+            "{} {:.2} nm: H1 {:.3} nm ∠{phase:+.3}: {}; nearest orbit {:?} (θ {:+.2}°, {:.2} % off)",
+            p["leg"],
+            dist * 1e9,
+            amplitude * 1e9,
+            r["regime"],
+            nearest.branch,
+            nearest.phase_shift_deg(),
+            off * 100.0
+        );
+        assert!(off < 0.05, "H1 {live} matches no orbit at {dist:e} m");
+        assert_eq!(r["regime"], nearest.branch.name(), "{approach}");
+    }
+    assert_eq!(regimes[0]["regime"], "attractive", "{approach}");
+    assert_eq!(regimes[4]["regime"], "repulsive", "{approach}");
+    let jump = &approach["jumps"][0];
+    assert_eq!(
+        (&jump["leg"], &jump["regime_before"], &jump["regime_after"]),
+        (&json!("up"), &json!("attractive"), &json!("repulsive")),
+        "{approach}"
+    );
+}

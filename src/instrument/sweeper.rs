@@ -614,7 +614,7 @@ async fn run_sweep(
         );
     }
     if w.parameter == SweepParameter::SurfaceDistance {
-        fields.insert("approach".into(), approach_summary(&measured));
+        fields.insert("approach".into(), approach_summary(&measured, settings));
     }
     (links.publish)(t_last, t_synth_last, fields);
     tracing::info!(
@@ -701,10 +701,60 @@ fn tune_summary(measured: &[Measured]) -> Value {
            "phase_to_drive_at_f0": phase.map(phase_to_drive)})
 }
 
+/// Harmonic 1 within this share of its free amplitude and this phase (rad) of its free
+/// phase, a point of an approach is free; a mean deflection within this (m) of the free
+/// one leaves the regime to the phase (the default noise puts an averaged point's mean
+/// within ~2 pm of it).
+const FREE_DROP: f64 = 0.02;
+const FREE_TWIST: f64 = 0.02;
+const MEAN_FLOOR: f64 = 5e-12;
+
+/// What harmonic 1 reads on the free lever at `settings`' drive: the synthesiser's own free
+/// response through the ADC's front end, and no mean deflection. The reference of an
+/// approach's regimes: the phase is so sensitive to a force gradient (Q·k_ts/k) that the
+/// far end of a few-nanometre approach with adhesion is already attractive.
+fn free_reading(settings: &Settings) -> Option<sweep::ApproachPoint> {
+    let plan = crate::synth::SynthPlan::new(settings).ok()?;
+    let free = plan.free_signal();
+    let gain = plan.front_end_gain(plan.drive_frequency / settings.synth.sample_rate);
+    Some(sweep::ApproachPoint {
+        r: free.norm() * gain,
+        phase: phase_to_drive(free.arg()),
+        mean: Some(0.0),
+    })
+}
+
+/// Each point's regime (`sweep::regime`) against the free lever's reading `free`.
+fn regimes(measured: &[Measured], free: sweep::ApproachPoint) -> Vec<(Leg, f64, sweep::Regime)> {
+    measured
+        .iter()
+        .filter_map(|m| {
+            let p = sweep::ApproachPoint {
+                r: m.r_at(1)?,
+                phase: phase_to_drive(m.phase_at(1)?),
+                mean: m.mean_deflection(),
+            };
+            Some((
+                m.leg,
+                m.value,
+                sweep::regime(p, free, FREE_DROP, FREE_TWIST, MEAN_FLOOR),
+            ))
+        })
+        .collect()
+}
+
 /// An approach curve's contact onset per leg (the first distance, in the order measured,
 /// where harmonic 1 falls 2 % below its free amplitude), jumps (consecutive points 10 %
-/// apart) and hysteresis between the legs.
-fn approach_summary(measured: &[Measured]) -> Value {
+/// apart, or in different regimes) with the regime on each side, each point's regime (free, attractive or
+/// repulsive: the branch it is on) and hysteresis between the legs.
+fn approach_summary(measured: &[Measured], settings: &Settings) -> Value {
+    let regimes = free_reading(settings).map_or_else(Vec::new, |free| regimes(measured, free));
+    let regime_at = |l: Leg, v: f64| {
+        regimes
+            .iter()
+            .find(|(leg, value, _)| *leg == l && *value == v)
+            .map(|(_, _, r)| r.name())
+    };
     let leg = |l: Leg| -> Vec<(f64, f64)> {
         measured
             .iter()
@@ -721,13 +771,38 @@ fn approach_summary(measured: &[Measured]) -> Value {
         let (v, r): (Vec<f64>, Vec<f64>) = p.into_iter().unzip();
         sweep::contact_onset(&v, &r, 3, 0.02)
     };
+    // A jump: the amplitude's, or a change of regime between two points in contact (at
+    // small amplitudes with adhesion, the phase jumps by a radian where the amplitude moves
+    // by 1 %).
     let jumps = |l: Leg, points: &[(f64, f64)]| -> Vec<Value> {
         let (v, r): (Vec<f64>, Vec<f64>) = points.iter().copied().unzip();
-        sweep::jumps(&v, &r, 0.1)
+        let mut found = sweep::jumps(&v, &r, 0.1);
+        for (w, r) in v.windows(2).zip(r.windows(2)) {
+            let (a, b) = (regime_at(l, w[0]), regime_at(l, w[1]));
+            if a != b
+                && a != Some("free")
+                && b != Some("free")
+                && !found.iter().any(|j| j.from == w[0])
+            {
+                found.push(sweep::Jump {
+                    from: w[0],
+                    to: w[1],
+                    r_before: r[0],
+                    r_after: r[1],
+                });
+            }
+        }
+        found.sort_by(|a, b| {
+            let at = |x: f64| v.iter().position(|&y| y == x).unwrap_or(usize::MAX);
+            at(a.from).cmp(&at(b.from))
+        });
+        found
             .into_iter()
             .map(|j| {
                 json!({"leg": l.name(), "from": j.from, "to": j.to,
-                       "r_before": j.r_before, "r_after": j.r_after})
+                       "r_before": j.r_before, "r_after": j.r_after,
+                       "regime_before": regime_at(l, j.from),
+                       "regime_after": regime_at(l, j.to)})
             })
             .collect()
     };
@@ -737,6 +812,10 @@ fn approach_summary(measured: &[Measured]) -> Value {
         "contact_up": onset(&up),
         "contact_down": onset(&down),
         "jumps": all_jumps,
+        "regimes": regimes
+            .iter()
+            .map(|(l, v, r)| json!({"leg": l.name(), "value": v, "regime": r.name()}))
+            .collect::<Vec<_>>(),
         "hysteresis": sweep::hysteresis(&up, &down).map(|(rel, at)| json!({"max": rel, "at": at})),
     })
 }
