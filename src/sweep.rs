@@ -256,6 +256,14 @@ pub fn jumps(values: &[f64], r: &[f64], threshold: f64) -> Vec<Jump> {
         .collect()
 }
 
+/// Harmonic 1 within this share of its free amplitude and this phase (rad) of its free
+/// phase, a point of an approach is free; a mean deflection within this (m) of the free
+/// one leaves the regime to the phase (the default noise puts an averaged point's mean
+/// within ~2 pm of it).
+pub const FREE_DROP: f64 = 0.02;
+pub const FREE_TWIST: f64 = 0.02;
+pub const MEAN_FLOOR: f64 = 5e-12;
+
 /// The tapping regime of one point of an approach curve, as the coupled engine names its
 /// orbits (physics.md §6, `Branch`): by the sign of the mean tip–sample force.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -330,6 +338,30 @@ pub fn regime(
 pub fn wrap_phase(x: f64) -> f64 {
     let p = (x + PI).rem_euclid(2.0 * PI) - PI;
     if p == -PI { PI } else { p }
+}
+
+/// The phase (rad, in (−π, π]) of harmonic 1 against the excitation, as an instrument's
+/// tune shows it: the demodulators measure against cos θ while the base moves as sin θ, so
+/// it is the demodulator's phase + π/2 (−π/2 at resonance, 0 well below it).
+pub fn phase_to_drive(phase: f64) -> f64 {
+    let p = (phase + std::f64::consts::FRAC_PI_2).rem_euclid(std::f64::consts::TAU);
+    if p > std::f64::consts::PI {
+        p - std::f64::consts::TAU
+    } else {
+        p
+    }
+}
+
+/// The free lever's point at `settings`' drive (`crate::synth::plan::free_reading`), the
+/// reference of every regime: the phase is so sensitive to a force gradient (Q·k_ts/k) that
+/// the far end of a few-nanometre approach with adhesion is already attractive.
+pub fn free_point(settings: &crate::config::Settings) -> Option<ApproachPoint> {
+    let free = crate::synth::plan::free_reading(settings)?;
+    Some(ApproachPoint {
+        r: free.norm(),
+        phase: phase_to_drive(free.arg()),
+        mean: Some(0.0),
+    })
 }
 
 /// Hysteresis between the legs: the largest difference of the amplitudes measured at the

@@ -492,6 +492,21 @@ async fn an_approach_names_the_branch_of_every_point() {
                "/sweeper/averaging": 20}),
     )
     .await;
+    // `status` names the live regime too: deep in (repulsive on either path) and far out.
+    let r = call(&mut ws, json!({"op": "subscribe", "stream": "status"})).await;
+    assert_eq!(r["ok"], true, "{r}");
+    for (distance, want) in [(2.3e-9, "repulsive"), (40e-9, "free")] {
+        let r = call(
+            &mut ws,
+            json!({"op": "set", "values": {"/surface/distance": distance}}),
+        )
+        .await;
+        assert_eq!(r["ok"], true, "{r}");
+        // Settled: 20 ms is 40 of mode 1's and the demodulators' time constants.
+        let after = r["t"].as_f64().unwrap() + 0.02;
+        let status = first_of(&mut ws, "status", |m| m["t"].as_f64().unwrap() > after).await;
+        assert_eq!(status["regime"], want, "at {distance:e} m: {status}");
+    }
     d.shutdown().await;
     assert_eq!(done["outcome"], "done", "{done}");
     let approach = &done["approach"];

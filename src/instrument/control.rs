@@ -69,6 +69,9 @@ pub struct Current {
     /// a preset, whole settings): a sweep's request, its id. A sweep runs for the request
     /// it started with; a newer request ends it.
     pub sweep_request: u64,
+    /// The simulated time (s) from which the stream runs under these settings (0 for the
+    /// first; `None` when the synthesiser did not say in time, or without a pipeline).
+    pub t: Option<f64>,
 }
 
 /// A committed change as its followers see it (the force estimator, the images, the
@@ -144,6 +147,7 @@ impl Control {
                 epoch: 0,
                 range_warnings,
                 sweep_request: 0,
+                t: Some(0.0),
             }),
             writer: Arc::new(Mutex::new(Writer { pipeline, epoch: 0 })),
             counters,
@@ -281,6 +285,7 @@ impl Control {
             epoch,
             range_warnings,
             sweep_request,
+            t,
         };
         match self.current.write() {
             Ok(mut c) => *c = next,

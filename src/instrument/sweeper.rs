@@ -505,7 +505,10 @@ async fn run_sweep(
             );
         }
         if let Some(phase) = m.phase_at(1) {
-            fields.insert("h1_phase_to_drive".into(), json!(phase_to_drive(phase)));
+            fields.insert(
+                "h1_phase_to_drive".into(),
+                json!(sweep::phase_to_drive(phase)),
+            );
         }
         if let Some(mean) = m.mean_deflection() {
             fields.insert("mean_deflection".into(), json!(mean));
@@ -666,18 +669,6 @@ fn retract_distance(
     })
 }
 
-/// The phase (rad, in (−π, π]) of harmonic 1 against the excitation, as an instrument's
-/// tune shows it: the demodulators measure against cos θ while the base moves as sin θ, so
-/// it is the demodulator's phase + π/2 (−π/2 at resonance, 0 well below it).
-fn phase_to_drive(phase: f64) -> f64 {
-    let p = (phase + std::f64::consts::FRAC_PI_2).rem_euclid(std::f64::consts::TAU);
-    if p > std::f64::consts::PI {
-        p - std::f64::consts::TAU
-    } else {
-        p
-    }
-}
-
 /// A tune's fit of harmonic 1: f0 (Hz), Q, the detector's base amplitude (m) and the
 /// phase against the drive (rad) measured nearest f0; `null` if it does not fit.
 fn tune_summary(measured: &[Measured]) -> Value {
@@ -698,30 +689,7 @@ fn tune_summary(measured: &[Measured]) -> Value {
         })
         .and_then(|m| m.phase_at(1));
     json!({"f0": fit.f0, "q": fit.q, "amplitude": fit.amplitude,
-           "phase_to_drive_at_f0": phase.map(phase_to_drive)})
-}
-
-/// Harmonic 1 within this share of its free amplitude and this phase (rad) of its free
-/// phase, a point of an approach is free; a mean deflection within this (m) of the free
-/// one leaves the regime to the phase (the default noise puts an averaged point's mean
-/// within ~2 pm of it).
-const FREE_DROP: f64 = 0.02;
-const FREE_TWIST: f64 = 0.02;
-const MEAN_FLOOR: f64 = 5e-12;
-
-/// What harmonic 1 reads on the free lever at `settings`' drive: the synthesiser's own free
-/// response through the ADC's front end, and no mean deflection. The reference of an
-/// approach's regimes: the phase is so sensitive to a force gradient (Q·k_ts/k) that the
-/// far end of a few-nanometre approach with adhesion is already attractive.
-fn free_reading(settings: &Settings) -> Option<sweep::ApproachPoint> {
-    let plan = crate::synth::SynthPlan::new(settings).ok()?;
-    let free = plan.free_signal();
-    let gain = plan.front_end_gain(plan.drive_frequency / settings.synth.sample_rate);
-    Some(sweep::ApproachPoint {
-        r: free.norm() * gain,
-        phase: phase_to_drive(free.arg()),
-        mean: Some(0.0),
-    })
+           "phase_to_drive_at_f0": phase.map(sweep::phase_to_drive)})
 }
 
 /// Each point's regime (`sweep::regime`) against the free lever's reading `free`.
@@ -731,13 +699,19 @@ fn regimes(measured: &[Measured], free: sweep::ApproachPoint) -> Vec<(Leg, f64, 
         .filter_map(|m| {
             let p = sweep::ApproachPoint {
                 r: m.r_at(1)?,
-                phase: phase_to_drive(m.phase_at(1)?),
+                phase: sweep::phase_to_drive(m.phase_at(1)?),
                 mean: m.mean_deflection(),
             };
             Some((
                 m.leg,
                 m.value,
-                sweep::regime(p, free, FREE_DROP, FREE_TWIST, MEAN_FLOOR),
+                sweep::regime(
+                    p,
+                    free,
+                    sweep::FREE_DROP,
+                    sweep::FREE_TWIST,
+                    sweep::MEAN_FLOOR,
+                ),
             ))
         })
         .collect()
@@ -748,7 +722,7 @@ fn regimes(measured: &[Measured], free: sweep::ApproachPoint) -> Vec<(Leg, f64, 
 /// apart, or in different regimes) with the regime on each side, each point's regime (free, attractive or
 /// repulsive: the branch it is on) and hysteresis between the legs.
 fn approach_summary(measured: &[Measured], settings: &Settings) -> Value {
-    let regimes = free_reading(settings).map_or_else(Vec::new, |free| regimes(measured, free));
+    let regimes = sweep::free_point(settings).map_or_else(Vec::new, |free| regimes(measured, free));
     let regime_at = |l: Leg, v: f64| {
         regimes
             .iter()

@@ -433,6 +433,11 @@ pub(crate) async fn run(
             {
                 warnings.push(w);
             }
+            let regime = state
+                .latest_demods
+                .lock()
+                .ok()
+                .and_then(|f| f.as_ref().and_then(|f| live_regime(f, &current)));
             let report = StatusReport {
                 sample_rate: state.sample_rate,
                 realtime_factor: processed as f64 / elapsed.as_secs_f64() / state.sample_rate,
@@ -445,6 +450,7 @@ pub(crate) async fn run(
                 latency_synth_to_send: synth_to_send.take_interval(),
                 counters,
                 warnings,
+                regime: regime.map(crate::sweep::Regime::name),
                 epoch: current.epoch,
                 ..state.status_fields()
             };
@@ -474,6 +480,32 @@ pub(crate) async fn run(
             }
         }
     }
+}
+
+/// The regime (`crate::sweep::regime`) of `frame` against the free lever at `current`'s
+/// settings, if the frame was synthesised under them and measures harmonic 1.
+fn live_regime(
+    frame: &crate::pipeline::DemodFrame,
+    current: &crate::instrument::Current,
+) -> Option<crate::sweep::Regime> {
+    if current.t.is_none_or(|t| frame.t < t) {
+        return None;
+    }
+    let at = |k: u32| frame.values().iter().find(|v| v.harmonic == k);
+    let h1 = at(1)?;
+    let point = crate::sweep::ApproachPoint {
+        r: h1.r(),
+        phase: crate::sweep::phase_to_drive(h1.phase()),
+        mean: at(0).map(|v| v.x),
+    };
+    let free = crate::sweep::free_point(&current.settings)?;
+    Some(crate::sweep::regime(
+        point,
+        free,
+        crate::sweep::FREE_DROP,
+        crate::sweep::FREE_TWIST,
+        crate::sweep::MEAN_FLOOR,
+    ))
 }
 
 /// The warning of a status interval in which the paced chain fell behind real time

@@ -150,6 +150,11 @@ pub struct StatusReport {
     /// of band, an inversion harmonic replaced, a clipping photodiode signal. Empty when all
     /// is well.
     pub warnings: Vec<String>,
+    /// The tapping regime the live orbit is in, `"free"`, `"attractive"` or `"repulsive"`
+    /// (the branch it is on, as an approach curve names it: `crate::sweep::regime`), from
+    /// the newest demodulator frame synthesised under the settings in force; `None` before
+    /// one, or without a demodulator at harmonic 1.
+    pub regime: Option<&'static str>,
     /// Every connected client: messages written to its socket and dropped for it, and the
     /// latency at its socket since it connected.
     pub clients_detail: Vec<ClientReport>,

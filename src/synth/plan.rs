@@ -242,29 +242,9 @@ impl SynthPlan {
             .map(|m| ModalKernel::new(m, h))
             .collect();
 
-        // Base excitation: a uniform inertial load, G·Pn·sin θ on mode n (Pn = ∫φn dξ),
-        // with G such that the free tip deflection amplitude is /drive/free_amplitude.
-        let unit: Vec<Complex64> = cantilever
-            .modes
-            .iter()
-            .map(|m| {
-                Complex64::new(0.0, -m.participation) * m.transfer(omega) / (m.omega * m.omega)
-            })
-            .collect();
-        let tip: Complex64 = cantilever
-            .modes
-            .iter()
-            .zip(&unit)
-            .map(|(m, u)| u * m.tip_value)
-            .sum();
-        let gain = settings.drive.free_amplitude / tip.norm();
-        let drive_response: Vec<Complex64> = unit.iter().map(|u| u * gain).collect();
-        let drive_signal = cantilever
-            .modes
-            .iter()
-            .zip(&drive_response)
-            .map(|(m, y)| y * (2.0 / 3.0 * m.tip_slope))
-            .sum();
+        let (drive_response, gain) =
+            free_drive_response(&cantilever, omega, settings.drive.free_amplitude);
+        let drive_signal = photodiode_of(&cantilever, &drive_response);
 
         let tap = match engine {
             Engine::Paper => {
@@ -454,4 +434,57 @@ impl SynthPlan {
             })
             .collect()
     }
+}
+
+/// Each mode's free steady response to the base excitation at `omega` (rad/s): a uniform
+/// inertial load G·Pn·sin θ on mode n (Pn = ∫φn dξ), with G such that the free tip
+/// deflection amplitude is `free_amplitude` (m). Peak phasors (m) of Re[Y·e^{iθ}], and G
+/// (m/s²).
+fn free_drive_response(
+    cantilever: &Cantilever,
+    omega: f64,
+    free_amplitude: f64,
+) -> (Vec<Complex64>, f64) {
+    let unit: Vec<Complex64> = cantilever
+        .modes
+        .iter()
+        .map(|m| Complex64::new(0.0, -m.participation) * m.transfer(omega) / (m.omega * m.omega))
+        .collect();
+    let tip: Complex64 = cantilever
+        .modes
+        .iter()
+        .zip(&unit)
+        .map(|(m, u)| u * m.tip_value)
+        .sum();
+    let gain = free_amplitude / tip.norm();
+    (unit.iter().map(|u| u * gain).collect(), gain)
+}
+
+/// The photodiode's phasor (nominal m) of modal phasors `modes`: the light lever reads the
+/// tip slope, 2/3·φn′(L) per mode.
+fn photodiode_of(cantilever: &Cantilever, modes: &[Complex64]) -> Complex64 {
+    cantilever
+        .modes
+        .iter()
+        .zip(modes)
+        .map(|(m, y)| y * (2.0 / 3.0 * m.tip_slope))
+        .sum()
+}
+
+/// What a demodulator at harmonic 1 reads (X + iY, m) of the free lever at `settings`' drive:
+/// [`SynthPlan::free_signal`] through the ADC's front end, without building a plan (no
+/// orbit, no tables: cheap enough for every `status`). `None` for settings no plan accepts.
+pub fn free_reading(settings: &Settings) -> Option<Complex64> {
+    let cantilever = model::cantilever(settings).ok()?;
+    let sample_rate = settings.synth.sample_rate;
+    let word = frequency_word(settings.drive.frequency, sample_rate).ok()?;
+    let drive_frequency = word as f64 / TWO_POW_64 * sample_rate;
+    let omega = 2.0 * PI * drive_frequency;
+    let (response, _) = free_drive_response(&cantilever, omega, settings.drive.free_amplitude);
+    let gain = if settings.synth.anti_alias {
+        adc::gain(&adc::grid_taps(), drive_frequency / sample_rate)
+    } else {
+        1.0
+    };
+    Some(photodiode_of(&cantilever, &response) * gain)
 }
