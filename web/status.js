@@ -58,6 +58,7 @@ export class StatusPanel {
         "samples the DSP could not take in time, since start");
       add("dropped msgs", group(s.messages_dropped), s.messages_dropped > 0 ? "warn" : "", "data messages dropped for slow clients since start (server, all clients)");
       add("clients", group(s.clients));
+      if (s.regime) add("regime", s.regime, "", "the tapping regime the live orbit is in (the branch it is on): the sign of the mean tip–sample force, read from harmonic 1's amplitude and phase against the free lever's (and the mean deflection where a demodulator measures harmonic 0)");
       const l = s.latency_synth_to_send || {};
       add("latency p50/p99", `${ns(l.p50)} / ${ns(l.p99)}`, "", "synthesis → handed to a client's socket (server's view)");
       if (c.clipped_samples > 0) add("clipped samples", group(c.clipped_samples), "warn", "samples beyond ±/noise/adc_range");

@@ -154,7 +154,10 @@ export class SweeperPanel {
       const a = m.approach;
       const at = (v) => (v == null ? "—" : si(v, "m", 3));
       const h = a.hysteresis ? `${(a.hysteresis.max * 100).toFixed(2)} % at ${at(a.hysteresis.at)}` : "—";
-      return `contact at ${at(a.contact_up)} (up), ${at(a.contact_down)} (down); ${a.jumps.length} jump${a.jumps.length === 1 ? "" : "s"}; hysteresis ${h}`;
+      // Each jump with the branches it joins: where attractive and repulsive orbits coexist,
+      // which one the curve is on is the physics.
+      const jumps = a.jumps.map((j) => `${j.leg} ${at(j.from)} → ${at(j.to)}${j.regime_before && j.regime_after ? ` (${j.regime_before} → ${j.regime_after})` : ""}`);
+      return `contact at ${at(a.contact_up)} (up), ${at(a.contact_down)} (down); ${a.jumps.length} jump${a.jumps.length === 1 ? "" : "s"}${jumps.length ? ": " + jumps.join(", ") : ""}; hysteresis ${h}`;
     }
     return "";
   }

@@ -147,7 +147,7 @@ test("the Status panel keeps its labels and values in view beside a long warning
     }
     // Labels stay on one line (they wrapped word by word); the warning wraps instead.
     for (const l of m.labels) assert.equal(l.lines, 1, `label "${l.text}" on one line at ${width} px`);
-    for (const key of ["overruns", "latency p50/p99", "warning"]) {
+    for (const key of ["overruns", "latency p50/p99", "regime", "warning"]) {
       assert.ok(await page.isVisible(`#status dd[data-key="${key}"]`), `${key} visible at ${width} px`);
     }
   }
