@@ -13,15 +13,18 @@ use ftafm::cli::{self, ConfigArg, serve::ServeArgs};
     version,
     about = "Real-time virtual instrument for Fourier-transform AFM",
     after_help = "Without a command, ftafm runs `serve` (and takes its flags: `ftafm --config \
-                  FILE --bind ADDR`).",
-    args_conflicts_with_subcommands = true
+                  FILE --bind ADDR`). --preset and --config go before or after the command \
+                  (`ftafm --preset pdms info`); presets apply in the order given."
 )]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
-    /// `serve`'s flags, for `ftafm` without a command.
+    /// The configuration flags before the command; they come first, then the command's own.
     #[command(flatten)]
-    serve: ServeArgs,
+    config: ConfigArg,
+    /// `serve`'s address, for `ftafm` without a command (default 127.0.0.1:8700).
+    #[arg(long, value_name = "ADDR")]
+    bind: Option<String>,
 }
 
 #[derive(Subcommand)]
@@ -161,10 +164,37 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let command = cli.command.unwrap_or(Command::Serve(cli.serve));
+    let command = match (cli.command, cli.bind) {
+        (None, bind) => Command::Serve(ServeArgs {
+            config: ConfigArg::default(),
+            bind: bind.unwrap_or_else(|| cli::serve::DEFAULT_BIND.to_owned()),
+        }),
+        (Some(_), Some(_)) => {
+            eprintln!(
+                "ftafm: --bind is serve's flag: put it after the command (`ftafm serve --bind ADDR`)"
+            );
+            return ExitCode::from(cli::EXIT_USAGE);
+        }
+        (Some(command), None) => command,
+    };
+    let command = match with_leading_config(command, cli.config) {
+        Ok(command) => command,
+        Err(e) => {
+            eprintln!("ftafm: {e}");
+            return ExitCode::from(cli::EXIT_USAGE);
+        }
+    };
     if let Err(e) = ftafm::cpu::isa_from_env() {
         eprintln!("error: {e}");
         return ExitCode::from(2);
+    }
+    if matches!(command, Command::Serve(_) | Command::Soak { .. }) {
+        // The daemon and the WebSocket client keep Rust's ignored SIGPIPE: a peer that
+        // closes its socket is an error to handle, not a reason to die.
+    } else {
+        // The other commands write reports for pipes (`ftafm info | head -1`): a reader that
+        // closes early ends them quietly, as it does any Unix tool.
+        cli::restore_sigpipe();
     }
     if matches!(command, Command::Serve(_)) {
         // Before anything slow (the config's orbit, the pipeline's start): a SIGTERM or
@@ -206,4 +236,29 @@ fn main() -> ExitCode {
         Command::Stalls { seconds, json } => cli::stalls::command(seconds, json),
     };
     result.unwrap_or_else(|code| code)
+}
+
+/// `command` with the --preset/--config flags given before it put first; refused for the
+/// commands that read no configuration.
+fn with_leading_config(mut command: Command, leading: ConfigArg) -> Result<Command, String> {
+    let own = match &mut command {
+        Command::Serve(ServeArgs { config, .. })
+        | Command::Paper { config, .. }
+        | Command::Scan { config, .. }
+        | Command::Bench { config, .. }
+        | Command::Info { config } => config,
+        Command::Presets { .. } | Command::Soak { .. } | Command::Stalls { .. } => {
+            return if leading.is_empty() {
+                Ok(command)
+            } else {
+                Err(
+                    "--preset and --config do not apply to this command: it reads no \
+                     configuration"
+                        .to_owned(),
+                )
+            };
+        }
+    };
+    *own = leading.then(std::mem::take(own))?;
+    Ok(command)
 }

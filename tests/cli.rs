@@ -213,9 +213,93 @@ fn info_summarises_the_embedded_default() {
     let out = ftafm(&["info"]);
     assert!(out.status.success(), "{}", stderr(&out));
     let text = String::from_utf8(out.stdout).unwrap();
+    // The daemon's engine (/synth/engine = coupled) computes the force; values carry the SI
+    // prefix that fits them.
     assert!(
-        text.contains("5 modes") && text.contains("F = 65.9"),
+        text.contains("5 modes")
+            && text.contains("f1 = 100 kHz")
+            && text.contains("sample E = 129 GPa")
+            && text.contains("by the coupled engine (/synth/engine): F = 66"),
         "{text}"
+    );
+    let paper = config_file("[synth]\nengine = \"paper\"\n");
+    let out = ftafm(&["info", "--config", paper.path()]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        text.contains("by the paper engine (/synth/engine): F = 65.95 nN"),
+        "{text}"
+    );
+}
+
+#[test]
+fn preset_and_config_go_before_or_after_the_command_in_order() {
+    // Before the command, as README shows it: PDMS's modulus with the prefix that fits.
+    let out = ftafm(&["--preset", "pdms", "info"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("sample E = 2 MPa"), "{text}");
+    // Both sides: the lever before, the sample after; a file before is applied after both.
+    let file = config_file("[cantilever]\nk = 41.0\n");
+    let out = ftafm(&[
+        "--preset",
+        "tap300",
+        "--config",
+        file.path(),
+        "info",
+        "--preset",
+        "pdms",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        text.contains("f1 = 300 kHz, k = 41 N/m, sample E = 2 MPa"),
+        "{text}"
+    );
+    // Where they mean nothing, or twice a file: refused, naming why.
+    for args in [
+        &["--preset", "pdms", "presets"][..],
+        &["--config", file.path(), "stalls"][..],
+        &["--config", file.path(), "info", "--config", file.path()][..],
+        &["--bind", "127.0.0.1:9", "info"][..],
+    ] {
+        let out = ftafm(args);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {}", stderr(&out));
+        assert!(
+            stderr(&out).contains("--preset and --config do not apply")
+                || stderr(&out).contains("--config is given twice")
+                || stderr(&out).contains("--bind is serve's flag"),
+            "{args:?}: {}",
+            stderr(&out)
+        );
+    }
+}
+
+#[test]
+fn a_reader_that_closes_early_ends_the_command_quietly() {
+    use std::io::{BufRead, BufReader};
+    use std::os::unix::process::ExitStatusExt;
+    use std::process::Stdio;
+    // `paper` prints its first engine's tables, then runs the other engine for a second or
+    // more before it prints again: by then the reader below has closed the pipe.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ftafm"))
+        .arg("paper")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("the binary runs");
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    let mut first = String::new();
+    stdout.read_line(&mut first).unwrap();
+    assert!(first.starts_with("Engine: "), "{first}");
+    drop(stdout);
+    let out = child.wait_with_output().unwrap();
+    let err = stderr(&out);
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(
+        out.status.success() || out.status.signal() == Some(libc::SIGPIPE),
+        "{:?}: {err}",
+        out.status
     );
 }
 

@@ -128,7 +128,7 @@ async fn a_set_flood_costs_one_estimator_build_at_a_time() {
     );
     // Every change was either built or superseded by a newer one, and the builder never
     // spent more than its quarter of the wall time since the start, beyond its 4 s burst
-    // (src/server/build_budget.rs; the last build may end the interval), whatever the
+    // (src/instrument/build_budget.rs; the last build may end the interval), whatever the
     // machine's speed.
     assert!(
         build_s <= 0.25 * since_start + 4.0 + build_s / built,

@@ -1,5 +1,5 @@
 //! The real-time coupled engine (physics.md §6) against the offline coupled orbit (a
-//! tight-tolerance Runge–Kutta with shooting, `src/physics/coupled.rs`, itself checked by
+//! tight-tolerance Runge–Kutta with shooting, `src/physics/coupled/`, itself checked by
 //! energy balance and Liouville in `tests/physics_coupled.rs`), and against its own
 //! promises: a settled start, the paper engine's exact free motion and noise where the tip
 //! does not touch, a physical transient when the engine is switched while running.

@@ -5,7 +5,7 @@
 // sets nodes and draws what the stream brings.
 
 import { Plot, COLORS } from "./plot.js";
-import { si, siShort } from "./units.js";
+import { parseSI, refusalInUserUnits, si, siShort } from "./units.js";
 
 const UNITS = {
   "/drive/frequency": "Hz",
@@ -55,6 +55,8 @@ export class SweeperPanel {
         const r = await conn.request("get", { path: `/sweeper/${key}` });
         this.el[key].value = r.value;
       }
+      // The ends in the swept node's unit, as the user types them ("99 kHz").
+      for (const key of ["start", "stop"]) this.el[key].value = siShort(Number(this.el[key].value), this.unit());
       const enabled = (await conn.request("get", { path: "/sweeper/enable" })).value;
       this.setRunning(enabled);
     } catch (e) {
@@ -62,21 +64,33 @@ export class SweeperPanel {
     }
   }
 
+  /** The unit of the node `path` (default: the swept one), from `list`. */
+  unit(path = this.el.parameter.value) {
+    return this.app.nodes.get(path)?.unit ?? UNITS[path] ?? "";
+  }
+
   /** Around the node's present value: f1 ± 1 % for a tune, 40 → 8 nm for an approach. */
   suggestRange() {
     const p = this.el.parameter.value;
     const v = this.app.nodes.get(p)?.value;
+    const show = (x) => siShort(x, this.unit(), 6);
     if (p === "/drive/frequency" && v) {
-      this.el.start.value = String(Math.round(v * 0.99));
-      this.el.stop.value = String(Math.round(v * 1.01));
+      this.el.start.value = show(Math.round(v * 0.99));
+      this.el.stop.value = show(Math.round(v * 1.01));
     } else if (p === "/surface/distance") {
-      this.el.start.value = "40e-9";
-      this.el.stop.value = "8e-9";
+      this.el.start.value = show(40e-9);
+      this.el.stop.value = show(8e-9);
       this.el.direction.value = "both";
     } else if (v) {
-      this.el.start.value = String(v * 0.5);
-      this.el.stop.value = String(v * 1.5);
+      this.el.start.value = show(v * 0.5);
+      this.el.stop.value = show(v * 1.5);
     }
+  }
+
+  /** A refusal in the user's units: the sweep's ends in the swept node's, others in their own. */
+  refusal(message) {
+    return refusalInUserUnits(message, (path) =>
+      path === "/sweeper/start" || path === "/sweeper/stop" ? this.unit() : this.unit(path));
   }
 
   setRunning(running) {
@@ -87,17 +101,27 @@ export class SweeperPanel {
 
   async run() {
     const num = (el) => Number(el.value);
+    this.el.result.textContent = "";
+    this.el.result.classList.remove("error");
+    let start, stop;
+    try {
+      // Typed in the swept node's unit, with or without a prefix ("99.5 kHz", "99500").
+      start = parseSI(this.el.start.value, this.unit());
+      stop = parseSI(this.el.stop.value, this.unit());
+    } catch (e) {
+      this.el.result.textContent = e.message;
+      this.el.result.classList.add("error");
+      return;
+    }
     const values = {
       "/sweeper/parameter": this.el.parameter.value,
-      "/sweeper/start": num(this.el.start),
-      "/sweeper/stop": num(this.el.stop),
+      "/sweeper/start": start,
+      "/sweeper/stop": stop,
       "/sweeper/points": num(this.el.points),
       "/sweeper/direction": this.el.direction.value,
       "/sweeper/averaging": num(this.el.averaging),
       "/sweeper/enable": true,
     };
-    this.el.result.textContent = "";
-    this.el.result.classList.remove("error");
     try {
       // The first point may arrive before the reply: its new sweep id starts the display.
       const before = this.sweepId;
@@ -107,7 +131,7 @@ export class SweeperPanel {
         this.el.progress.textContent = "starting…";
       }
     } catch (e) {
-      this.el.result.textContent = e.message;
+      this.el.result.textContent = this.refusal(e.message);
       this.el.result.classList.add("error");
       this.app.stats.rejects++;
     }
@@ -118,7 +142,7 @@ export class SweeperPanel {
     try {
       await this.app.conn.request("set", { path: "/sweeper/enable", value: false });
     } catch (e) {
-      this.el.result.textContent = e.message;
+      this.el.result.textContent = this.refusal(e.message);
     }
   }
 

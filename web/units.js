@@ -121,8 +121,10 @@ const NUM = String.raw`[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:e[+-]?\d+)?`;
 
 /**
  * A daemon's refusal in the node's units: the plain numbers it writes for the value and its
- * range ("/sample/youngs_modulus = -5e9 is out of range: allowed 0 < value ≤ 1e13 Pa")
- * with SI prefixes ("= -5 GPa …: allowed 0 < value ≤ 10 TPa"). Other text is kept as is.
+ * range ("/sample/youngs_modulus = -5e9 is out of range: allowed 0 < value ≤ 1e13 Pa", a
+ * sweep's "/sweeper/start = -5e9 is outside the range of … now: allowed 0 … 1e13 Pa") with
+ * SI prefixes ("= -5 GPa …: allowed 0 < value ≤ 10 TPa", "allowed 0 … 10 TPa"). Other text
+ * is kept as is.
  */
 export function inUserUnits(message, unit) {
   if (!prefixable(unit)) return message;
@@ -130,7 +132,18 @@ export function inUserUnits(message, unit) {
   return String(message)
     .replace(new RegExp(`allowed (${NUM}) (<|≤) value (<|≤) (${NUM})(?: ${u})?`),
       (_, lo, a, b, hi) => `allowed ${bound(Number(lo), unit)} ${a} value ${b} ${siShort(Number(hi), unit, 4)}`)
-    .replace(new RegExp(`( = )(${NUM})(?= is |$)`), (_, eq, v) => `${eq}${siShort(Number(v), unit, 4)}`);
+    .replace(new RegExp(`allowed (${NUM}) … (${NUM})(?: ${u})?`),
+      (_, lo, hi) => `allowed ${bound(Number(lo), unit)} … ${siShort(Number(hi), unit, 4)}`)
+    .replace(new RegExp(`( = )(${NUM})(?= is |: |$)`, "g"), (_, eq, v) => `${eq}${siShort(Number(v), unit, 4)}`);
+}
+
+/**
+ * A refusal of a `set` in the user's units: the unit of the node it names first
+ * ("/x/y = …"), as `unitOf(path)` gives it, applied by `inUserUnits`.
+ */
+export function refusalInUserUnits(message, unitOf) {
+  const path = /^(\/[\w/]+) = /.exec(String(message))?.[1];
+  return path ? inUserUnits(message, unitOf(path) ?? "") : String(message);
 }
 
 /** Latency in ns → "0.63 ms" / "850 µs". */

@@ -1,47 +1,47 @@
-//! `ftafm info`: the configured instrument.
+//! `ftafm info`: the configured instrument, its numbers from the engine the daemon runs.
 
 use std::process::ExitCode;
 
 use super::{ConfigArg, load};
+use crate::config::quantity::quantity_rounded as si;
 
 pub fn command(config: &ConfigArg) -> Result<ExitCode, ExitCode> {
     let settings = load(config)?;
-    let report = super::paper::compute(&settings, 1.0).map_err(|e| {
+    let cantilever = crate::model::cantilever(&settings).map_err(|e| {
         eprintln!("ftafm: {e}");
         ExitCode::FAILURE
     })?;
-    let m = &report.materials[0];
     println!(
-        "ftafm {}: {} modes, f1 = {} kHz, k = {} N/m, sample E = {} GPa",
+        "ftafm {}: {} modes, f1 = {}, k = {}, sample E = {}",
         env!("CARGO_PKG_VERSION"),
-        report.modes.len(),
-        settings.cantilever.f1 / 1e3,
-        settings.cantilever.k,
-        settings.sample.youngs_modulus / 1e9
+        cantilever.modes.len(),
+        si(settings.cantilever.f1, "Hz", 6),
+        si(settings.cantilever.k, "N/m", 4),
+        si(settings.sample.youngs_modulus, "Pa", 4)
     );
     println!(
         "{:>4}  {:>12}  {:>8}  {:>12}  {:>9}",
-        "mode", "f (kHz)", "Q", "K_n (N/m)", "L·φ'(L)"
+        "mode", "f", "Q", "K_n", "L·φ'(L)"
     );
-    for mode in &report.modes {
+    for mode in &cantilever.modes {
         println!(
-            "{:>4}  {:>12.3}  {:>8.1}  {:>12.4e}  {:>9.4}",
+            "{:>4}  {:>12}  {:>8.1}  {:>12}  {:>9.4}",
             mode.n,
-            mode.frequency / 1e3,
+            si(mode.frequency, "Hz", 6),
             mode.q,
-            mode.stiffness,
+            si(mode.stiffness, "N/m", 5),
             mode.tip_slope
         );
     }
     println!(
-        "drive {} kHz{}, sample rate {} MS/s",
-        settings.drive.frequency / 1e3,
+        "drive {}{}, sample rate {}",
+        si(settings.drive.frequency, "Hz", 6),
         if settings.drive.follow_f1 {
             " (follows f1)"
         } else {
             ""
         },
-        settings.synth.sample_rate / 1e6
+        si(settings.synth.sample_rate, "S/s", 4)
     );
     for warning in settings
         .warnings()
@@ -50,14 +50,27 @@ pub fn command(config: &ConfigArg) -> Result<ExitCode, ExitCode> {
     {
         println!("warning: {warning}");
     }
-    println!(
-        "tapping at A_free = {:.1} nm, A_set = {:.1} nm: F = {:.2} nN, tau = {:.4}, theta = {:.2} deg",
-        settings.drive.free_amplitude * 1e9,
-        settings.surface.distance * 1e9,
-        m.max_force * 1e9,
-        m.contact_time_ratio,
-        m.phase_shift_deg
+    // The engine the daemon runs (/synth/engine); the other one's figures differ (`ftafm
+    // paper` shows both).
+    let engine = settings.synth.engine;
+    let tapping = format!(
+        "tapping at A_free = {}, A_set = {}",
+        si(settings.drive.free_amplitude, "m", 4),
+        si(settings.surface.distance, "m", 4)
     );
+    match super::paper::sample_row(&settings, engine) {
+        Ok(m) => println!(
+            "{tapping}, by the {} engine (/synth/engine): F = {}, tau = {:.4}, theta = {:.2} deg",
+            engine.name(),
+            si(m.max_force, "N", 4),
+            m.contact_time_ratio,
+            m.phase_shift_deg
+        ),
+        Err(e) => println!(
+            "{tapping}: the {} engine (/synth/engine) has no result: {e}",
+            engine.name()
+        ),
+    }
     println!("`ftafm serve` runs this instrument live; `ftafm paper` prints the full report");
     Ok(ExitCode::SUCCESS)
 }

@@ -15,8 +15,9 @@ use std::process::ExitCode;
 
 use crate::config::{self, Settings};
 
-/// The configuration flags every command shares.
-#[derive(clap::Args)]
+/// The configuration flags of the commands that read a configuration; they go before the
+/// command, after it, or both (those before first).
+#[derive(clap::Args, Default)]
 pub struct ConfigArg {
     /// A real cantilever or sample (`ftafm presets` lists them) overlaid on the embedded
     /// default, in the order given, before --config; e.g. --preset tap300 --preset mica.
@@ -25,6 +26,39 @@ pub struct ConfigArg {
     /// TOML file overlaid on the embedded default configuration (after the presets).
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
+}
+
+impl ConfigArg {
+    /// Whether neither flag was given.
+    pub fn is_empty(&self) -> bool {
+        self.preset.is_empty() && self.config.is_none()
+    }
+
+    /// These flags followed by `later`'s: the presets of both in order; one --config at most.
+    pub fn then(self, later: ConfigArg) -> Result<ConfigArg, String> {
+        if self.config.is_some() && later.config.is_some() {
+            return Err(
+                "--config is given twice (before and after the command): give one file".to_owned(),
+            );
+        }
+        let mut preset = self.preset;
+        preset.extend(later.preset);
+        Ok(ConfigArg {
+            preset,
+            config: self.config.or(later.config),
+        })
+    }
+}
+
+/// Restores SIGPIPE's default action, so a command whose reader has gone (`ftafm info |
+/// head -1`) ends by the signal, quietly, as Unix tools do, instead of panicking in
+/// `println!` on the error Rust's ignored SIGPIPE turns it into. Not for the daemon.
+pub fn restore_sigpipe() {
+    // SAFETY: called at start-up, before any thread is spawned; SIG_DFL is a valid
+    // disposition for SIGPIPE and no handler of ours is replaced.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
 }
 
 /// Exit status for bad arguments or an invalid configuration (README.md, "Exit status").

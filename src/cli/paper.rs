@@ -191,6 +191,15 @@ fn coupled_row(
     })
 }
 
+/// The sample's row alone, from `engine` (what `ftafm info` shows).
+pub fn sample_row(settings: &Settings, engine: Engine) -> Result<MaterialRow, PaperError> {
+    let cantilever = cantilever(settings)?;
+    match engine {
+        Engine::Paper => Ok(material_row("sample", settings.sample, settings, &cantilever)?.0),
+        Engine::Coupled => coupled_row("sample", settings.sample, settings, &cantilever),
+    }
+}
+
 /// Computes the report for `settings` and an inhomogeneity whose Young's modulus is
 /// `inhomogeneity_factor` times the sample's (same Poisson ratio).
 pub fn compute(settings: &Settings, inhomogeneity_factor: f64) -> Result<PaperReport, PaperError> {
@@ -292,11 +301,16 @@ pub fn render_text(report: &PaperReport, paper_case: bool) -> String {
             m.stiffness
         );
     }
+    let title = engine_title(report.engine);
     let _ = writeln!(w);
-    let _ = writeln!(
-        w,
-        "Table 1 (1-DOF Hertz model; paper's printed values in brackets)"
-    );
+    if paper_case {
+        let _ = writeln!(
+            w,
+            "Table 1 ({title}; the paper's printed values in brackets)"
+        );
+    } else {
+        let _ = writeln!(w, "Table 1 ({title})");
+    }
     let _ = writeln!(
         w,
         "  {:<14} {:>8} {:>16} {:>16} {:>14} {:>18} {:>18}",
@@ -346,7 +360,7 @@ pub fn render_text(report: &PaperReport, paper_case: bool) -> String {
     let _ = writeln!(w);
     let _ = writeln!(
         w,
-        "Fig. 3: photodiode spectrum of the tap force (peak amplitudes, nm)"
+        "Fig. 3: photodiode spectrum of the tap force ({title}; peak amplitudes, nm)"
     );
     let _ = writeln!(
         w,
@@ -474,6 +488,107 @@ pub fn is_paper_case(settings: &Settings) -> bool {
         && !settings.adhesion.enable
 }
 
+/// What an engine is, as the reports name it: "coupled engine (all modes, …)".
+pub fn engine_title(engine: &str) -> &'static str {
+    match Engine::from_name(engine) {
+        Some(Engine::Paper) => "paper engine: 1-DOF Hertz impact oscillator, the paper's method",
+        Some(Engine::Coupled) => {
+            "coupled engine: all modes, Hertz force from the instantaneous tip position"
+        }
+        None => "unknown engine",
+    }
+}
+
+/// The other engine of the two.
+fn other_engine(engine: Engine) -> Engine {
+    match engine {
+        Engine::Paper => Engine::Coupled,
+        Engine::Coupled => Engine::Paper,
+    }
+}
+
+/// The text report's first part: the asked-for engine's tables, or why it has none.
+pub fn render_primary(
+    engine: Engine,
+    result: &Result<PaperReport, PaperError>,
+    paper_case: bool,
+) -> String {
+    match result {
+        Ok(report) => format!(
+            "Engine: {}\n{}",
+            report.engine,
+            render_text(report, paper_case)
+        ),
+        Err(e) => format!(
+            "Engine: {}: no result ({}): {e}\n",
+            engine.name(),
+            engine_title(engine.name())
+        ),
+    }
+}
+
+/// The text report's second part, once the other engine has run: the engines side by side
+/// when both computed; otherwise the other engine's own tables where it alone computed, and
+/// what the failing engine could not do.
+pub fn render_rest(
+    engine: Engine,
+    primary: &Result<PaperReport, PaperError>,
+    other: &Result<PaperReport, PaperError>,
+    adhesion: bool,
+    paper_case: bool,
+) -> String {
+    let mut out = String::from("\n");
+    match (primary, other) {
+        (Ok(a), Ok(b)) => {
+            let (p, c) = match engine {
+                Engine::Paper => (a, b),
+                Engine::Coupled => (b, a),
+            };
+            if adhesion {
+                out += "Adhesion (/adhesion/enable): the coupled engine's rows include it, the \
+                        paper engine has none.\n";
+            }
+            out += &render_engines(p, c);
+        }
+        (Ok(_), Err(e)) => {
+            let other = other_engine(engine);
+            out += &format!(
+                "No comparison: the {} engine has no result for this configuration ({}): {e}\n",
+                other.name(),
+                engine_title(other.name())
+            );
+        }
+        (Err(_), Ok(b)) => {
+            out += &format!(
+                "The {} engine alone (the {} engine has no result, above):\n{}",
+                b.engine,
+                engine.name(),
+                render_text(b, paper_case)
+            );
+        }
+        (Err(_), Err(e)) => {
+            out += &format!(
+                "Engine: {}: no result either: {e}\n",
+                other_engine(engine).name()
+            );
+        }
+    }
+    out
+}
+
+/// The exit status of the text report: success when at least one engine computed (the
+/// report says what the other could not do), failure when none did.
+pub fn text_exit(
+    primary: &Result<PaperReport, PaperError>,
+    other: &Result<PaperReport, PaperError>,
+) -> ExitCode {
+    if primary.is_ok() || other.is_ok() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    }
+}
+
 /// The command line.
 pub fn command(
     config: &ConfigArg,
@@ -484,7 +599,7 @@ pub fn command(
     let settings = load(config)?;
     let engine = match engine {
         None => settings.synth.engine,
-        Some(name) => crate::config::Engine::from_name(name).ok_or_else(|| {
+        Some(name) => Engine::from_name(name).ok_or_else(|| {
             eprintln!(
                 "ftafm: --engine = {name:?} is not an engine: allowed \"paper\", \"coupled\""
             );
@@ -501,37 +616,103 @@ pub fn command(
         );
         return Err(ExitCode::from(EXIT_USAGE));
     }
-    let computed = |engine| {
-        compute_with(&settings, factor, engine).map_err(|e| {
-            eprintln!("ftafm: {e}");
-            ExitCode::FAILURE
-        })
-    };
-    let report = computed(engine)?;
+    let primary = compute_with(&settings, factor, engine);
     if json {
+        // One engine's object: without it there is nothing to print.
+        let report = primary.map_err(|e| {
+            eprintln!("ftafm: {} engine: {e}", engine.name());
+            ExitCode::FAILURE
+        })?;
         let text =
             serde_json::to_string(&report).expect("the report has no maps with non-string keys");
         println!("{text}");
-    } else {
-        let paper_case = is_paper_case(&settings) && factor == 0.9;
-        println!("Engine: {}", report.engine);
-        print!("{}", render_text(&report, paper_case));
-        let other = computed(match engine {
-            crate::config::Engine::Paper => crate::config::Engine::Coupled,
-            crate::config::Engine::Coupled => crate::config::Engine::Paper,
-        })?;
-        let (p, c) = match engine {
-            crate::config::Engine::Paper => (&report, &other),
-            crate::config::Engine::Coupled => (&other, &report),
-        };
-        println!();
-        if settings.adhesion.enable {
-            println!(
-                "Adhesion (/adhesion/enable): the coupled engine's rows include it, the paper \
-                 engine has none."
-            );
-        }
-        print!("{}", render_engines(p, c));
+        return Ok(ExitCode::SUCCESS);
     }
-    Ok(ExitCode::SUCCESS)
+    let paper_case = is_paper_case(&settings) && factor == 0.9;
+    // Printed before the other engine runs (it may take seconds), so the first tables show
+    // at once.
+    print!("{}", render_primary(engine, &primary, paper_case));
+    let other = compute_with(&settings, factor, other_engine(engine));
+    print!(
+        "{}",
+        render_rest(
+            engine,
+            &primary,
+            &other,
+            settings.adhesion.enable,
+            paper_case
+        )
+    );
+    Ok(text_exit(&primary, &other))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::physics::CoupledError;
+
+    fn no_orbit() -> Result<PaperReport, PaperError> {
+        Err(PaperError::Coupled {
+            material: "sample",
+            source: CoupledError::NoSettling {
+                decay_times: 24,
+                residual: 2.3,
+            },
+        })
+    }
+
+    #[test]
+    fn one_engine_failing_shows_the_other_and_why_and_exits_0() {
+        let settings = crate::config::default_settings();
+        let paper = compute_with(&settings, 0.9, Engine::Paper);
+        assert!(paper.is_ok());
+        let coupled = no_orbit();
+
+        // The coupled engine asked for: its failure first, then the 1-DOF tables.
+        let text = render_primary(Engine::Coupled, &coupled, false)
+            + &render_rest(Engine::Coupled, &coupled, &paper, false, false);
+        assert!(text.contains("Engine: coupled: no result"), "{text}");
+        assert!(text.contains("did not settle"), "{text}");
+        assert!(
+            text.contains("Table 1 (paper engine: 1-DOF Hertz impact oscillator"),
+            "{text}"
+        );
+        assert!(!text.contains("Table 1 (coupled"), "{text}");
+        assert!(!text.contains("side by side"), "{text}");
+        assert_eq!(text_exit(&coupled, &paper), ExitCode::SUCCESS);
+
+        // The paper engine asked for: its tables, then why there is no comparison.
+        let text = render_primary(Engine::Paper, &paper, false)
+            + &render_rest(Engine::Paper, &paper, &coupled, false, false);
+        assert!(text.starts_with("Engine: paper\n"), "{text}");
+        assert!(
+            text.contains("No comparison: the coupled engine has no result"),
+            "{text}"
+        );
+        assert_eq!(text_exit(&paper, &coupled), ExitCode::SUCCESS);
+    }
+
+    #[test]
+    fn no_engine_computing_exits_1() {
+        let (a, b) = (no_orbit(), no_orbit());
+        let text = render_primary(Engine::Coupled, &a, false)
+            + &render_rest(Engine::Coupled, &a, &b, false, false);
+        assert!(text.contains("no result either"), "{text}");
+        assert_eq!(text_exit(&a, &b), ExitCode::FAILURE);
+    }
+
+    #[test]
+    fn the_tables_name_the_engine_they_come_from() {
+        let settings = crate::config::default_settings();
+        let report = compute_with(&settings, 0.9, Engine::Paper).unwrap();
+        let mut coupled = report.clone();
+        coupled.engine = "coupled";
+        let text = render_text(&coupled, true);
+        assert!(
+            text.contains("Table 1 (coupled engine: all modes"),
+            "{text}"
+        );
+        assert!(!text.contains("1-DOF"), "{text}");
+        assert!(render_text(&report, true).contains("Table 1 (paper engine: 1-DOF"));
+    }
 }

@@ -26,8 +26,11 @@ pub struct RegionContrast {
     pub mean: f64,
     /// Standard deviation over the region (channel unit).
     pub std: f64,
-    /// The paper's relative contrast `1 − mean_base/mean_region` (1).
+    /// The paper's relative contrast `1 − mean_base/mean_region` (1); meaningless where the
+    /// channel's zero is arbitrary (the height): see `step`.
     pub contrast: f64,
+    /// `mean_region − mean_base` (channel unit): the height step for the height.
+    pub step: f64,
     /// `|mean_base − mean_region| / √((std_base² + std_region²)/2)` (1).
     pub cnr: f64,
 }
@@ -79,12 +82,12 @@ pub enum ScanError {
 
 /// Records `frames` frames of the scan `settings` describe (`/scan/enable` is forced on);
 /// free-running unless `settings.synth.realtime`. Writes `<out>/<channel>[-fN].{gsf,npy}`
-/// when `out` is given. `progress(line, lines, frame, wall_s)` is called about once a second.
+/// when `out` is given. `progress` is called about five times a second.
 pub fn run(
     settings: &Settings,
     frames: usize,
     out: Option<&Path>,
-    mut progress: impl FnMut(u32, u32, u64, f64),
+    mut progress: impl FnMut(Progress),
 ) -> Result<ScanReport, ScanError> {
     let mut settings = settings.clone();
     settings.scan.enable = true;
@@ -96,9 +99,11 @@ pub fn run(
     let (pipeline, mut output) = Pipeline::start(&settings)?;
     let mut assembler = Assembler::new(&settings);
     let start = Instant::now();
-    let mut next_progress = 1.0;
+    let mut next_progress = PROGRESS_PERIOD;
     let mut recorded: Vec<ImageFrame> = Vec::new();
     let mut last_line = (0, 0);
+    let mut lines_done: u64 = 0;
+    let lines_total = frames as u64 * u64::from(raster.pixels);
     while recorded.len() < frames {
         let mut idle = true;
         while let Some(t) = output.topography.try_pop() {
@@ -113,6 +118,7 @@ pub fn run(
             idle = false;
             for line in assembler.pixel(&p) {
                 last_line = (line.line, line.frame);
+                lines_done += 1;
                 if let Some(frame) = assembler.take_finished() {
                     recorded.push(frame);
                 }
@@ -124,8 +130,15 @@ pub fn run(
         output.demods.skip(usize::MAX);
         let wall = start.elapsed().as_secs_f64();
         if wall >= next_progress {
-            progress(last_line.0 + 1, raster.pixels, last_line.1, wall);
-            next_progress += 1.0;
+            progress(Progress {
+                line: last_line.0 + 1,
+                lines: raster.pixels,
+                frame: last_line.1,
+                lines_done: lines_done.min(lines_total),
+                lines_total,
+                wall,
+            });
+            next_progress = wall + PROGRESS_PERIOD;
         }
         if idle {
             std::thread::sleep(std::time::Duration::from_millis(2));
@@ -178,6 +191,26 @@ pub fn run(
     })
 }
 
+/// Wall-clock seconds between two calls of `run`'s `progress`.
+const PROGRESS_PERIOD: f64 = 0.2;
+
+/// How far a recording is, as `run` reports it.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    /// Lines finished in the current frame.
+    pub line: u32,
+    /// Lines of a frame.
+    pub lines: u32,
+    /// The current frame's number.
+    pub frame: u64,
+    /// Lines finished over all frames to record.
+    pub lines_done: u64,
+    /// Lines of all frames to record.
+    pub lines_total: u64,
+    /// Wall-clock time since the recording started (s).
+    pub wall: f64,
+}
+
 /// Per channel: base statistics and each region's contrast and CNR, over interior pixels
 /// (whose four corners lie in the same region), so edge pixels do not blur the numbers.
 pub fn contrast(settings: &Settings, raster: &Raster, frame: &ImageFrame) -> Vec<ChannelReport> {
@@ -224,6 +257,7 @@ pub fn contrast(settings: &Settings, raster: &Raster, frame: &ImageFrame) -> Vec
                         mean,
                         std,
                         contrast: 1.0 - base_mean / mean,
+                        step: mean - base_mean,
                         cnr: (base_mean - mean).abs()
                             / ((base_std.powi(2) + std.powi(2)) / 2.0).sqrt(),
                     }
@@ -260,18 +294,18 @@ pub fn render_text(r: &ScanReport) -> String {
         r.counters.topography_pixels_dropped,
         r.inversion_failed
     );
-    s += "channel              unit   base mean     base std      region  mean          contrast    CNR\n";
+    s += "channel              unit   base mean     base std      region  mean          contrast or step   CNR\n";
     for c in &r.channels {
         for reg in &c.regions {
             s += &format!(
-                "{:<20} {:<5} {:>12.5e} {:>12.5e}  {:>6}  {:>12.5e} {:>+9.3} % {:>8.2}\n",
+                "{:<20} {:<5} {:>12.5e} {:>12.5e}  {:>6}  {:>12.5e} {:>17} {:>8.2}\n",
                 c.name,
                 c.unit,
                 c.base_mean,
                 c.base_std,
                 reg.region,
                 reg.mean,
-                reg.contrast * 100.0,
+                contrast_cell(c, reg),
                 reg.cnr
             );
         }
@@ -280,6 +314,87 @@ pub fn render_text(r: &ScanReport) -> String {
         s += &format!("wrote {}\n", f.display());
     }
     s
+}
+
+/// The relative contrast, or for the height (whose zero is arbitrary: a contrast against a
+/// near-zero base reads +99.8 %) the step in metres.
+fn contrast_cell(channel: &ChannelReport, region: &RegionContrast) -> String {
+    if channel.name == "height" {
+        format!(
+            "step {}",
+            crate::config::quantity::quantity_rounded(region.step, "m", 3)
+        )
+    } else {
+        format!("{:+.3} %", region.contrast * 100.0)
+    }
+}
+
+/// Shows `run`'s progress on stderr: a bar with the ETA on a terminal, else a plain line
+/// every [`PLAIN_PERIOD`] seconds (logs and pipes get no control characters).
+struct ProgressView {
+    bar: Option<indicatif::ProgressBar>,
+    next_line: f64,
+}
+
+/// Seconds between two plain progress lines.
+const PLAIN_PERIOD: f64 = 5.0;
+
+impl ProgressView {
+    fn new(lines_total: u64) -> Self {
+        let bar = std::io::IsTerminal::is_terminal(&std::io::stderr()).then(|| {
+            let bar = indicatif::ProgressBar::new(lines_total);
+            bar.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{elapsed_precise} [{bar:40}] {pos}/{len} lines, {msg}, ETA {eta}",
+                )
+                .expect("a valid template")
+                .progress_chars("=> "),
+            );
+            bar
+        });
+        ProgressView {
+            bar,
+            next_line: PLAIN_PERIOD,
+        }
+    }
+
+    fn update(&mut self, p: Progress) {
+        match &self.bar {
+            Some(bar) => {
+                bar.set_position(p.lines_done);
+                bar.set_message(format!("frame {} line {}/{}", p.frame, p.line, p.lines));
+            }
+            None if p.wall >= self.next_line => {
+                eprintln!("{}", plain_line(&p));
+                self.next_line = p.wall + PLAIN_PERIOD;
+            }
+            None => {}
+        }
+    }
+
+    fn finish(self) {
+        if let Some(bar) = self.bar {
+            bar.finish_and_clear();
+        }
+    }
+}
+
+/// A progress line for a log or a pipe: the time, the share done, where, and the time left
+/// at the rate so far.
+fn plain_line(p: &Progress) -> String {
+    let percent = 100.0 * p.lines_done as f64 / p.lines_total.max(1) as f64;
+    let eta = if p.lines_done > 0 {
+        format!(
+            ", about {:.0} s left",
+            p.wall * p.lines_total.saturating_sub(p.lines_done) as f64 / p.lines_done as f64
+        )
+    } else {
+        String::new()
+    };
+    format!(
+        "[{:>5.0} s] {percent:>3.0} %: frame {}, line {}/{}{eta}",
+        p.wall, p.frame, p.line, p.lines
+    )
 }
 
 /// The command line.
@@ -296,18 +411,84 @@ pub fn command(
     }
     let mut settings = load(config)?;
     settings.synth.realtime = realtime;
-    let report = crate::cli::scan::run(
-        &settings,
-        frames as usize,
-        out.as_deref(),
-        |line, lines, frame, wall| {
-            eprintln!("[{wall:>5.0} s] frame {frame}, line {line}/{lines}");
-        },
-    )
-    .map_err(|e| {
+    let lines = u64::try_from(frames).expect("1 ≤ frames") * u64::from(settings.scan.pixels);
+    let mut view = ProgressView::new(lines);
+    let report = crate::cli::scan::run(&settings, frames as usize, out.as_deref(), |p| {
+        view.update(p)
+    });
+    view.finish();
+    let report = report.map_err(|e| {
         eprintln!("ftafm: {e}");
         ExitCode::FAILURE
     })?;
     print_report(json, &report, crate::cli::scan::render_text);
     Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn channel(name: &str, unit: &'static str, base_mean: f64, mean: f64) -> ChannelReport {
+        ChannelReport {
+            name: name.to_owned(),
+            unit,
+            base_mean,
+            base_std: 1e-12,
+            base_pixels: 100,
+            regions: vec![RegionContrast {
+                region: 1,
+                pixels: 20,
+                mean,
+                std: 1e-12,
+                contrast: 1.0 - base_mean / mean,
+                step: mean - base_mean,
+                cnr: 6.8,
+            }],
+        }
+    }
+
+    #[test]
+    fn the_height_reports_a_step_in_metres_the_others_a_relative_contrast() {
+        let report = ScanReport {
+            pixels: 64,
+            size: 1e-6,
+            line_rate: 2.0,
+            frame_time: 32.0,
+            wall_seconds: 3.0,
+            frames: 1,
+            files: Vec::new(),
+            // A base near zero: the relative contrast would read about +96 %.
+            channels: vec![
+                channel("height", "m", -4e-13, -1.05e-11),
+                channel("h17", "m", 2.5e-11, 2.57e-11),
+            ],
+            inversion_failed: 0,
+            counters: CountersSnapshot::default(),
+        };
+        let text = render_text(&report);
+        let height = text.lines().find(|l| l.starts_with("height")).unwrap();
+        assert!(height.contains("step -10.1 pm"), "{height}");
+        assert!(!height.contains('%'), "{height}");
+        let h17 = text.lines().find(|l| l.starts_with("h17")).unwrap();
+        assert!(h17.contains("+2.724 %"), "{h17}");
+    }
+
+    #[test]
+    fn plain_progress_lines_say_the_share_done_and_the_time_left() {
+        let p = Progress {
+            line: 16,
+            lines: 64,
+            frame: 1,
+            lines_done: 81,
+            lines_total: 128,
+            wall: 10.0,
+        };
+        assert_eq!(
+            plain_line(&p),
+            "[   10 s]  63 %: frame 1, line 16/64, about 6 s left"
+        );
+        let start = Progress { lines_done: 0, ..p };
+        assert!(!plain_line(&start).contains("left"));
+    }
 }

@@ -12,9 +12,12 @@ pub struct ServeArgs {
     pub config: ConfigArg,
     /// Address to listen on, IP:PORT or HOST:PORT (e.g. localhost:8799); loopback by
     /// default (other hosts only if you mean it: the instrument has no authentication).
-    #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:8700")]
+    #[arg(long, value_name = "ADDR", default_value = DEFAULT_BIND)]
     pub bind: String,
 }
+
+/// The daemon's address when --bind is not given.
+pub const DEFAULT_BIND: &str = "127.0.0.1:8700";
 
 /// Runs the daemon until SIGTERM or Ctrl-C.
 pub fn command(config: &ConfigArg, bind: &str) -> Result<ExitCode, ExitCode> {

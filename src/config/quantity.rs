@@ -14,6 +14,41 @@ pub(crate) fn number(x: f64) -> String {
 /// A value with its unit and an SI prefix chosen so the mantissa lies in [1, 1000)
 /// (`6e6`, `"Hz"` → `6 MHz`). Dimensionless (`"1"`) and unitless values are plain numbers.
 pub(crate) fn quantity(x: f64, unit: &str) -> String {
+    // Six decimals keep neighbouring values (a value and its limit) distinguishable;
+    // trailing zeros carry no information.
+    with_prefix(x, unit, |mantissa| format!("{mantissa:.6}"))
+}
+
+/// [`quantity`] rounded to `significant` digits (at least 1) for reports of computed values
+/// (`6.5953e-8`, `"N"`, 4 → `65.95 nN`; `2e6`, `"Pa"`, 3 → `2 MPa`).
+pub(crate) fn quantity_rounded(x: f64, unit: &str, significant: usize) -> String {
+    let significant = significant.max(1) as i32;
+    let rounded = if x == 0.0 || !x.is_finite() {
+        x
+    } else {
+        // Rounded before the prefix is chosen, so 999.96 rounds to 1 k…, not 1000 ….
+        // By a power of ten that is exact (10^k, k ≥ 0), so 0.0518 stays 0.0518.
+        let k = significant - 1 - x.abs().log10().floor() as i32;
+        if k >= 0 {
+            let scale = 10f64.powi(k);
+            (x * scale).round() / scale
+        } else {
+            let scale = 10f64.powi(-k);
+            (x / scale).round() * scale
+        }
+    };
+    if unit.is_empty() || unit == "1" {
+        return number(rounded);
+    }
+    with_prefix(rounded, unit, |mantissa| {
+        let integer_digits = mantissa.abs().log10().floor() as i32 + 1;
+        let decimals = (significant - integer_digits).max(0) as usize;
+        format!("{mantissa:.decimals$}")
+    })
+}
+
+/// `x` as `digits(mantissa) prefix unit`, the mantissa in [1, 1000), trailing zeros dropped.
+fn with_prefix(x: f64, unit: &str, digits: impl Fn(f64) -> String) -> String {
     if unit.is_empty() || unit == "1" {
         return number(x);
     }
@@ -38,10 +73,12 @@ pub(crate) fn quantity(x: f64, unit: &str) -> String {
         .find(|(e, _)| *e == exponent)
         .map_or("", |(_, p)| *p);
     let mantissa = x / 10f64.powi(exponent);
-    // Six decimals keep neighbouring values (a value and its limit) distinguishable;
-    // trailing zeros carry no information.
-    let digits = format!("{mantissa:.6}");
-    let digits = digits.trim_end_matches('0').trim_end_matches('.');
+    let digits = digits(mantissa);
+    let digits = if digits.contains('.') {
+        digits.trim_end_matches('0').trim_end_matches('.')
+    } else {
+        &digits
+    };
     format!("{digits} {prefix}{unit}")
 }
 
@@ -71,5 +108,17 @@ mod tests {
         assert_eq!(quantity(129e9, "Pa"), "129 GPa");
         assert_eq!(quantity(3.2e6, "Hz"), "3.2 MHz");
         assert_eq!(quantity(0.28, "1"), "0.28");
+    }
+
+    #[test]
+    fn rounded_quantities_keep_the_significant_digits_asked_for() {
+        assert_eq!(quantity_rounded(2e6, "Pa", 3), "2 MPa");
+        assert_eq!(quantity_rounded(6.5953e-8, "N", 4), "65.95 nN");
+        assert_eq!(quantity_rounded(-4.2e-10, "m", 3), "-420 pm");
+        assert_eq!(quantity_rounded(999.96, "Hz", 4), "1 kHz");
+        assert_eq!(quantity_rounded(100e3, "Hz", 6), "100 kHz");
+        assert_eq!(quantity_rounded(1234.5, "N/m", 2), "1.2 kN/m");
+        assert_eq!(quantity_rounded(0.0, "m", 3), "0 m");
+        assert_eq!(quantity_rounded(0.051834, "1", 3), "0.0518");
     }
 }

@@ -291,8 +291,9 @@ mod table {
     /// the compiler cannot see into ([`constants`]), so that it takes each as a memory
     /// operand of the instruction that uses it. Seen as constants, each was broadcast into
     /// a register of its own before every use, since the loop has more of them than the
-    /// sixteen AVX2 registers: 50 of the 281 instructions of the AVX2 loop's two batches,
-    /// 243 without them (docs/benchmarks.md). The same values, so the same bits.
+    /// sixteen AVX2 registers: a sixth of the AVX2 loop's instructions were such broadcasts
+    /// (the counts, and what they cost: docs/benchmarks.md). The same values, so the same
+    /// bits.
     static CONSTANTS: [Row; 32] = [
         f(0.5),
         f(1.0 / 2_147_483_648.0),
@@ -330,7 +331,7 @@ mod table {
 
     /// The table of the transforms' constants, opaque to the optimiser. Taken once per
     /// transform: taken once for the two batches of a pass, each load had two uses and
-    /// went to a register again (277 instructions).
+    /// went to a register again (docs/benchmarks.md).
     #[inline(always)]
     pub(super) fn constants() -> &'static [Row; 32] {
         std::hint::black_box(&CONSTANTS)

@@ -100,3 +100,31 @@ test("an approach run from the panel can be aborted; a bad range is shown, not r
   assert.equal(await page.evaluate(() => window.ftafm.sweep().running), false);
   assert.deepEqual(pageErrors, []);
 });
+
+test("the sweep's ends and its refusals are in the swept node's units", TEST, async () => {
+  // The approach's suggested ends, as a user reads and types them.
+  await page.selectOption("#sw-parameter", "/drive/frequency");
+  await page.selectOption("#sw-parameter", "/surface/distance");
+  assert.equal(await page.inputValue("#sw-start"), "40 nm");
+  assert.equal(await page.inputValue("#sw-stop"), "8 nm");
+  const refusal = async (start, what) => {
+    await page.fill("#sw-start", start);
+    await page.click("#sw-run");
+    await until(() => document.getElementById("sw-result").textContent.includes("/sweeper/start"), null, what);
+    return page.textContent("#sw-result");
+  };
+  const distance = await refusal("-1 nm", "the distance's refusal");
+  assert.match(distance, /^\/sweeper\/start = -1 nm is outside the range of \/sweeper\/parameter = \/surface\/distance now: allowed 0 … \d+(\.\d+)? [µm]m$/, distance);
+  // A modulus typed with its prefix, refused with prefixes: no raw exponents.
+  await page.selectOption("#sw-parameter", "/sample/youngs_modulus");
+  await page.fill("#sw-stop", "100 GPa");
+  const modulus = await refusal("-5 GPa", "the modulus's refusal");
+  assert.match(modulus, /^\/sweeper\/start = -5 GPa is outside the range of \/sweeper\/parameter = \/sample\/youngs_modulus now: allowed 0 … 10 TPa$/, modulus);
+  assert.doesNotMatch(modulus, /\de[+-]?\d/);
+  // What cannot be read is said before anything is sent.
+  await page.fill("#sw-start", "5 parsecs");
+  await page.click("#sw-run");
+  assert.match(await page.textContent("#sw-result"), /cannot read the unit “parsecs”/);
+  assert.equal(await page.evaluate(() => window.ftafm.sweep().running), false);
+  assert.deepEqual(pageErrors, []);
+});

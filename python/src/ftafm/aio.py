@@ -2,23 +2,36 @@
 
 One WebSocket connection; a reader task hands each reply to the request waiting for it
 (matched by id) and each data message to the streams being read. Every call of the
-synchronous :class:`ftafm.Instrument` is one of these coroutines.
+synchronous :class:`ftafm.Instrument` is one of these coroutines. The node tree is here
+too, its calls awaitable (``await inst.sample.youngs_modulus(116.1e9)``, built from
+``list`` on connect, :mod:`ftafm.tree`), and ``async with inst.set_transaction():``
+batches sets into one ``set_many``.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import itertools
 import json
 import math
 import os
 from dataclasses import dataclass
-from typing import Any, AsyncGenerator, Callable, Iterable, Mapping, Sequence, cast
+from typing import (
+    Any,
+    AsyncGenerator,
+    AsyncIterator,
+    Callable,
+    Iterable,
+    Mapping,
+    Sequence,
+    cast,
+)
 
 import websockets
 from websockets.asyncio.client import ClientConnection
 
-from . import data
+from . import data, tree
 from .errors import ConnectionLost, InstrumentError, NoDaemon
 
 #: The requests that change the settings (their replies carry the change's epoch).
@@ -121,6 +134,10 @@ class Instrument:
         self._closed: str | None = None
         self._epoch = 0
         self.hello: dict[str, Any] = {}
+        self._batch = tree.Batching()
+        self._tree: tree.NodeBranch | None = None
+        #: The ``list`` reply the node tree was built from, on connect.
+        self.node_list: list[Node] = []
 
     @property
     def epoch(self) -> int:
@@ -143,6 +160,10 @@ class Instrument:
         self._closed = None
         self._reader = asyncio.create_task(self._read())
         self.hello = await self.request("hello")
+        # The node tree needs the node list before any attribute is looked up, and an
+        # attribute lookup cannot await: one `list` now.
+        self.node_list = await self.nodes()
+        self._tree = tree.build(self, self.node_list)
         return self
 
     async def close(self) -> None:
@@ -241,23 +262,68 @@ class Instrument:
         return cast(dict[str, Any], reply["values"])
 
     async def set(self, path: str, value: Any) -> float | None:
-        """Sets one node; returns the simulated time (s) at which the change took effect."""
+        """Sets one node; returns the simulated time (s) at which the change took effect.
+        Inside :meth:`set_transaction`, queues it instead and returns ``None``."""
+        if self._batch.queue({path: value}):
+            return None
         value = _plain(value)
         _check_finite(value, path)
         return (await self.request("set", path=path, value=value)).get("t")
 
     async def set_many(self, values: Mapping[str, Any]) -> float | None:
         """Sets several nodes together, at one sample boundary, all or nothing; returns the
-        simulated time (s) at which they took effect."""
+        simulated time (s) at which they took effect. Inside :meth:`set_transaction`,
+        queues them instead and returns ``None``."""
+        if self._batch.queue(values):
+            return None
         plain = {p: _plain(v) for p, v in values.items()}
         for p, v in plain.items():
             _check_finite(v, p)
         return (await self.request("set", values=plain)).get("t")
 
-    async def sample(self, demod: int = 0) -> dict[str, float]:
+    async def read_sample(self, demod: int = 0) -> dict[str, float]:
         """The newest output of demodulator ``demod``: ``t`` (s), ``harmonic``, ``x``,
-        ``y``, ``r`` (m), ``phase`` (rad)."""
+        ``y``, ``r`` (m), ``phase`` (rad); what ``await inst.sample(demod)`` returns."""
         return cast(dict[str, float], await self.get(f"/demods/{demod}/sample"))
+
+    @property
+    def sample(self) -> tree.SampleBranch:
+        """Called, ``await sample(demod=0)`` is the newest output of demodulator ``demod``
+        (:meth:`read_sample`); as a branch, the ``/sample`` nodes
+        (``await inst.sample.youngs_modulus()``)."""
+        return tree.SampleBranch(self.read_sample, lambda: self.root)
+
+    @contextlib.asynccontextmanager
+    async def set_transaction(self) -> AsyncIterator[tree.Transaction]:
+        """Batches every ``set`` and ``set_many`` (and node-tree set) on this Instrument
+        inside the ``async with`` into one ``set_many`` at its end: one change at one sample
+        boundary, all or nothing (as zhinst-toolkit's ``set_transaction``). Nothing is sent
+        if the block raises. The transaction's ``t`` is the simulated time the change took
+        effect."""
+        with self._batch.opened() as transaction:
+            yield transaction
+        if transaction.values:
+            transaction.t = await self.set_many(transaction.values)
+
+    @property
+    def root(self) -> tree.NodeBranch:
+        """The node tree, built from ``list`` on connect: ``inst.root.drive`` is
+        ``inst.drive``; see :mod:`ftafm.tree`."""
+        if self._tree is None:
+            raise ConnectionLost("not connected: the node tree is built on connect()")
+        return self._tree
+
+    def __getattr__(self, name: str) -> Any:
+        # Only names that are not attributes come here: the node tree's top-level branches.
+        if name.startswith("_") or self.__dict__.get("_tree") is None:
+            raise AttributeError(name)
+        return getattr(self._tree, name)
+
+    def __dir__(self) -> list[str]:
+        names = set(super().__dir__())
+        if self.__dict__.get("_tree") is not None:
+            names.update(self.__dict__["_tree"].__dir__())
+        return sorted(names)
 
     async def presets(self) -> list[dict[str, str]]:
         """The presets (real cantilevers and samples): name, kind, summary."""

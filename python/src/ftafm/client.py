@@ -36,7 +36,6 @@ class Instrument:
         self._thread.start()
         self._async = aio.Instrument(url, timeout=timeout)
         self._tree: tree.NodeBranch | None = None
-        self._transaction: Transaction | None = None
         try:
             self._run(self._async.connect())
         except BaseException:
@@ -109,33 +108,23 @@ class Instrument:
     def set(self, path: str, value: Any) -> float | None:
         """Sets one node; returns the simulated time (s) at which it took effect. Inside
         :meth:`set_transaction`, queues it instead and returns ``None``."""
-        if self._transaction is not None:
-            self._transaction.values[path] = value
-            return None
         return self._run(self._async.set(path, value))
 
     def set_many(self, values: Mapping[str, Any]) -> float | None:
         """Sets several nodes together at one sample boundary, all or nothing; returns the
-        simulated time (s) at which they took effect."""
-        if self._transaction is not None:
-            self._transaction.values.update(values)
-            return None
+        simulated time (s) at which they took effect. Inside :meth:`set_transaction`,
+        queues them instead and returns ``None``."""
         return self._run(self._async.set_many(values))
 
     @contextmanager
-    def set_transaction(self) -> Iterator["Transaction"]:
+    def set_transaction(self) -> Iterator[tree.Transaction]:
         """Batches every ``set`` (and node-tree set) inside the ``with`` into one
         ``set_many`` at its end: one change at one sample boundary, all or nothing (as
         zhinst-toolkit's ``set_transaction``). Nothing is sent if the block raises. The
-        transaction's ``t`` is the simulated time the change took effect."""
-        if self._transaction is not None:
-            raise RuntimeError("a set_transaction is already open on this Instrument")
-        transaction = Transaction()
-        self._transaction = transaction
-        try:
+        transaction's ``t`` is the simulated time the change took effect. The asyncio
+        client's transaction, so sets through either queue in it."""
+        with self._async._batch.opened() as transaction:
             yield transaction
-        finally:
-            self._transaction = None
         if transaction.values:
             transaction.t = self._run(self._async.set_many(transaction.values))
 
@@ -144,7 +133,8 @@ class Instrument:
         """The node tree (built from ``list`` on first use): ``inst.root.sample`` is
         ``inst.sample``; see :mod:`ftafm.tree`."""
         if self._tree is None:
-            self._tree = tree.build(self, self.nodes())
+            # The list the asyncio client read on connect: no second request.
+            self._tree = tree.build(self, self._async.node_list)
         return self._tree
 
     def __getattr__(self, name: str) -> Any:
@@ -160,11 +150,13 @@ class Instrument:
         return sorted(names)
 
     @property
-    def sample(self) -> "SampleBranch":
+    def sample(self) -> tree.SampleBranch:
         """Called, ``sample(demod=0)`` is the newest output of demodulator ``demod`` (t,
         harmonic, x, y, r, phase); as a branch, the ``/sample`` nodes
         (``inst.sample.youngs_modulus()``)."""
-        return SampleBranch(self)
+        return tree.SampleBranch(
+            lambda demod: self._run(self._async.read_sample(demod)), lambda: self.root
+        )
 
     def wait_until(self, t: float, *, timeout: float | None = None) -> float:
         """Waits until the signal is processed up to simulated time ``t`` (s)."""
@@ -222,31 +214,3 @@ class Instrument:
     def load_settings(self, file: str | os.PathLike[str]) -> float | None:
         """Lays the config in ``file`` over the running settings as one change."""
         return self._run(self._async.load_settings(file))
-
-
-class Transaction:
-    """The sets queued by :meth:`Instrument.set_transaction` (``values``), and after the
-    ``with`` block, ``t``: the simulated time (s) the change took effect."""
-
-    def __init__(self) -> None:
-        self.values: dict[str, Any] = {}
-        self.t: float | None = None
-
-
-class SampleBranch:
-    """``inst.sample``: called, the newest output of a demodulator (the method it always
-    was); otherwise the ``/sample`` branch of the node tree."""
-
-    def __init__(self, client: Instrument):
-        self._client = client
-
-    def __call__(self, demod: int = 0) -> dict[str, float]:
-        return self._client._run(self._client._async.sample(demod))
-
-    def __getattr__(self, name: str) -> Any:
-        if name.startswith("_"):
-            raise AttributeError(name)
-        return getattr(self._client.root._children["sample"], name)
-
-    def __dir__(self) -> list[str]:
-        return list(self._client.root._children["sample"].__dir__())
