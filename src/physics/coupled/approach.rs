@@ -26,10 +26,11 @@ use super::{Branch, CoupledError, CoupledProblem, Jump, SearchLimits};
 /// Where an approach with adhesion starts, beyond the free orbit's lowest point, as a
 /// fraction of the free amplitude: the DMT pull there is ~1e-4 of the tapping force scale.
 const ADHESION_START_MARGIN: f64 = 0.2;
-/// The first step of the continuation, as a fraction of the distance to cover, and the
-/// largest.
-const FIRST_STEP: f64 = 1.0 / 8.0;
-const LARGEST_STEP: f64 = 1.0 / 4.0;
+/// The first step of the continuation and the largest, as fractions of the free amplitude:
+/// the path of an approach depends on the distances it passes, not on where it ends, so an
+/// approach to a nearer surface passes through the orbits of one to a farther one.
+const FIRST_STEP: f64 = 0.1;
+const LARGEST_STEP: f64 = 0.2;
 /// The smallest step before the branch counts as ended (fraction of the free amplitude).
 const SMALLEST_STEP: f64 = 1e-3;
 /// How far past the end of a branch the surface moves before the jump is followed
@@ -39,7 +40,10 @@ const PAST_THE_END: f64 = 0.02;
 /// Mode-1 decay times a jump is followed for before it counts as never settling.
 const SETTLE_DECAY_TIMES: usize = 24;
 
-/// The Newton solves on the way: loose, the next step corrects what is left.
+/// The Newton solves on the way, the last one's included: loose, the next step corrects
+/// what is left, and the search tightens its end to [`FINAL`] (a Newton to 1e-11 at a step's
+/// end can stall on the integrator's own noise where one to 1e-7 passes: counted as the end
+/// of the branch, that jumped to the other one).
 const STEP: NewtonLimits = NewtonLimits {
     tolerance: 1e-7,
     iterations: 30,
@@ -90,13 +94,13 @@ pub(super) fn approach(
         &PeriodMap::new(&far, periods, limits),
         vec![0.0; n],
         None,
-        if start == target { FINAL } else { STEP },
+        STEP,
     )?;
-    let span = start - target;
-    let smallest = SMALLEST_STEP * problem.free_amplitude;
+    let amplitude = problem.free_amplitude;
+    let smallest = SMALLEST_STEP * amplitude;
     let mut jumps = Vec::new();
     let mut distance = start;
-    let mut step = FIRST_STEP * span;
+    let mut step = FIRST_STEP * amplitude;
     // The orbit before the current one, for the predictor.
     let mut before: Option<(f64, Vec<f64>)> = None;
     while distance > target {
@@ -115,14 +119,20 @@ pub(super) fn approach(
         };
         let there = at(problem, next);
         let map = PeriodMap::new(&there, periods, limits);
-        let tolerance = if next == target { FINAL } else { STEP };
         // An unstable orbit on the way is no harm: the steps are small, and the end is
         // checked with the exact multipliers ([`CoupledProblem::solve_with`]).
-        let found = match newton(&map, predicted, fixed.jacobian.clone(), tolerance) {
+        let found = match newton(&map, predicted, fixed.jacobian.clone(), STEP) {
             Ok(f) => Some(f),
             Err(CoupledError::NoConvergence { .. } | CoupledError::Integration(_)) => None,
             Err(e) => return Err(e),
         };
+        // An orbit on another branch than the step started from is a step too long (Newton
+        // drawn into a coexisting orbit's basin) until the step is the smallest: then the
+        // branch changed within it.
+        let found = found.filter(|f| {
+            let (was, is) = (Branch::of(fixed.mean_force), Branch::of(f.mean_force));
+            was == is || was == Branch::Free || step <= smallest
+        });
         match found {
             Some(f) => {
                 let (was, is) = (Branch::of(fixed.mean_force), Branch::of(f.mean_force));
@@ -136,7 +146,7 @@ pub(super) fn approach(
                 }
                 before = Some((distance, std::mem::replace(&mut fixed, f).h));
                 distance = next;
-                step = (1.5 * step).min(LARGEST_STEP * span);
+                step = (1.5 * step).min(LARGEST_STEP * amplitude);
             }
             None if step > smallest => step *= 0.5,
             None => {
@@ -144,9 +154,8 @@ pub(super) fn approach(
                 let next = (distance - PAST_THE_END * problem.free_amplitude).max(target);
                 let there = at(problem, next);
                 let map = PeriodMap::new(&there, periods, limits);
-                let tolerance = if next == target { FINAL } else { STEP };
                 let from = Branch::of(fixed.mean_force);
-                let (landed, _) = settle(&map, fixed.h.clone(), tolerance)?;
+                let (landed, _) = settle(&map, fixed.h.clone(), STEP)?;
                 jumps.push(Jump {
                     distance: next,
                     from,
@@ -155,7 +164,7 @@ pub(super) fn approach(
                 fixed = landed;
                 before = None;
                 distance = next;
-                step = FIRST_STEP * (distance - target).max(smallest);
+                step = FIRST_STEP * amplitude;
             }
         }
     }
