@@ -89,6 +89,10 @@ pub struct MaterialRow {
     /// Coupled engine only: whether the orbit is a stable period-1 orbit.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub period_one: Option<bool>,
+    /// Coupled engine only: the branch the orbit is on, "attractive", "repulsive" or "free"
+    /// (the sign of its mean force; physics.md §6).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub branch: Option<&'static str>,
 }
 
 /// Relative contrast at one harmonic.
@@ -113,6 +117,10 @@ pub struct PaperReport {
     pub materials: Vec<MaterialRow>,
     /// Contrast per harmonic.
     pub contrast: Vec<ContrastRow>,
+    /// Whether the sample's and the inhomogeneity's orbits are on different branches (one
+    /// attractive, one repulsive): the contrast then compares two different orbits, not the
+    /// moduli alone.
+    pub across_branches: bool,
 }
 
 fn material_row(
@@ -148,6 +156,7 @@ fn material_row(
         spectrum,
         residual: None,
         period_one: None,
+        branch: None,
     };
     Ok((row, solution))
 }
@@ -188,6 +197,7 @@ fn coupled_row(
         spectrum,
         residual: Some(orbit.residual),
         period_one: Some(orbit.period_one),
+        branch: Some(orbit.branch.name()),
     })
 }
 
@@ -244,12 +254,35 @@ pub fn compute_with(
         .enumerate()
         .map(|(harmonic, relative)| ContrastRow { harmonic, relative })
         .collect();
+    let across = across_branches(&sample, &inh);
     Ok(PaperReport {
         engine: engine.name(),
         adhesion: engine == Engine::Coupled && settings.adhesion.enable,
         modes,
         materials: vec![sample, inh],
+        across_branches: across,
         contrast,
+    })
+}
+
+/// Whether two rows' orbits are on different branches.
+fn across_branches(a: &MaterialRow, b: &MaterialRow) -> bool {
+    matches!((a.branch, b.branch), (Some(x), Some(y)) if x != y)
+}
+
+/// The warning under a contrast computed across two branches, or nothing.
+fn branch_note(report: &PaperReport) -> Option<String> {
+    let [a, b] = [&report.materials[0], &report.materials[1]];
+    report.across_branches.then(|| {
+        format!(
+            "  note: the {} is on the {} branch and the {} on the {} one: this contrast \
+             compares two different orbits, not the moduli alone (physics.md §6; an approach \
+             reaches one of them, and which one depends on its path)",
+            a.name,
+            a.branch.unwrap_or("?"),
+            b.name,
+            b.branch.unwrap_or("?")
+        )
     })
 }
 
@@ -384,6 +417,9 @@ pub fn render_text(report: &PaperReport, paper_case: bool) -> String {
             "  paper: H6 = 0.19 nm with |c_rel| = 0.3 %; H17, H18 about 0.025 nm with |c_rel| about 3 %"
         );
     }
+    if let Some(note) = branch_note(report) {
+        let _ = writeln!(w, "{note}");
+    }
     out
 }
 
@@ -472,6 +508,9 @@ pub fn render_engines(paper: &PaperReport, coupled: &PaperReport) -> String {
             cp.relative * 100.0,
             cc.relative * 100.0
         );
+    }
+    if let Some(note) = branch_note(coupled) {
+        let _ = writeln!(w, "{note}");
     }
     out
 }
@@ -714,5 +753,26 @@ mod tests {
         );
         assert!(!text.contains("1-DOF"), "{text}");
         assert!(render_text(&report, true).contains("Table 1 (paper engine: 1-DOF"));
+    }
+
+    #[test]
+    fn a_contrast_across_two_branches_says_so() {
+        let settings = crate::config::default_settings();
+        let mut report = compute_with(&settings, 0.9, Engine::Coupled).unwrap();
+        // The default case: both repulsive, no note.
+        assert_eq!(report.materials[0].branch, Some("repulsive"));
+        assert!(!report.across_branches);
+        assert!(!render_text(&report, true).contains("two different orbits"));
+        // The inhomogeneity on the other branch.
+        report.materials[1].branch = Some("attractive");
+        report.across_branches = across_branches(&report.materials[0], &report.materials[1]);
+        assert!(report.across_branches);
+        let text = render_text(&report, false);
+        assert!(
+            text.contains(
+                "the sample is on the repulsive branch and the inhomogeneity on the attractive one"
+            ),
+            "{text}"
+        );
     }
 }
