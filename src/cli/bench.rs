@@ -244,7 +244,7 @@ pub fn verdict(r: &BenchReport) -> String {
         (dsp, format!("{rate}, {engine}"))
     };
     format!(
-        "{head}. To cut the work {short:.1}×, lower first ({} thread limits) {first}; then {second}",
+        "{head}. To cut the work {short:.2}×, lower first ({} thread limits) {first}; then {second}",
         if synth_first {
             "the synthesiser"
         } else {
