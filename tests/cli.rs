@@ -403,6 +403,32 @@ fn bench_json_reports_throughputs_and_the_realtime_factor() {
     }
     let chain = v["chain_samples_per_s"].as_f64().unwrap();
     assert!((v["realtime_factor"].as_f64().unwrap() - chain / 8e6).abs() < 1e-9);
+    // The chain's CPU time per sample, by thread, and as cycles at the clock it names.
+    let cpu = v["cpu_ns_per_sample"]
+        .as_f64()
+        .expect("thread clocks on Linux");
+    let (s, d) = (
+        v["synth_cpu_ns_per_sample"].as_f64().unwrap(),
+        v["dsp_cpu_ns_per_sample"].as_f64().unwrap(),
+    );
+    assert!(s > 0.0 && d > 0.0 && (cpu - (s + d)).abs() < 1e-9, "{v}");
+    let source = v["clock_source"].as_str().unwrap();
+    match v["clock_ghz"].as_f64() {
+        Some(g) => {
+            assert!(
+                ["dependent adds", "/proc/cpuinfo"].contains(&source),
+                "{source}"
+            );
+            assert!((v["cycles_per_sample"].as_f64().unwrap() - cpu * g).abs() < 1e-6);
+        }
+        None => assert_eq!(source, "none"),
+    }
+    assert!(
+        v["verdict"]
+            .as_str()
+            .is_some_and(|t| t.contains("real time")),
+        "{v}"
+    );
     // Where the pages of noise deviates came from is reported (their accounting against
     // the samples is tested on a stopped pipeline, tests/pipeline.rs).
     let c = &v["counters"];
