@@ -70,19 +70,19 @@ fn info_lists_every_mode_and_the_drive() {
     assert!(out.status.success(), "{}", text(&out.stderr));
     let stdout = text(&out.stdout);
     assert!(!stdout.contains("not built yet"), "{stdout}");
-    // One row per mode: number, frequency (kHz), Q.
+    // One row per mode: number, frequency (with its SI prefix), Q.
     for (n, f, q) in [
-        (1, "100.000", "100.0"),
+        (1, "100 kHz", "100.0"),
         (2, "626.", "417.0"),
-        (5, "5684.", "26.0"),
+        (5, "5.68", "26.0"),
     ] {
         assert!(
             stdout.lines().any(|l| {
                 let cols: Vec<&str> = l.split_whitespace().collect();
-                cols.len() >= 3
+                cols.len() >= 4
                     && cols[0] == n.to_string()
-                    && cols[1].starts_with(f)
-                    && cols[2] == q
+                    && format!("{} {}", cols[1], cols[2]).starts_with(f)
+                    && cols[3] == q
             }),
             "no row for mode {n}: {stdout}"
         );
