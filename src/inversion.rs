@@ -867,8 +867,13 @@ fn noise_floor_warning(quiet: &[u32], pair: (usize, usize), averaging: u32) -> O
         .map(|k| format!("H{k}"))
         .collect();
     (!under.is_empty()).then(|| {
+        let (noun, verb) = if under.len() > 1 {
+            ("harmonics", "are")
+        } else {
+            ("harmonic", "is")
+        };
         format!(
-            "the force estimate is noise-limited: the inversion's harmonic {} is predicted \
+            "the force estimate is noise-limited: the inversion's {noun} {} {verb} predicted \
              under the noise floor at the set modulus (below {MIN_SNR} σ of one frame; {} of \
              the demodulated harmonics ≥ 2 are): raise /inversion/averaging (now {averaging}) \
              or /drive/free_amplitude, or choose /inversion/harmonic_a and _b among stronger \
