@@ -34,13 +34,14 @@ use crate::physics::inversion::{
     TableRange, cut_cosine_from_coefficients, fit_cut_cosine, lockin_sigma, reconstruct_force_with,
     two_harmonic_prior,
 };
-use crate::physics::{Cantilever, Continuation};
+use crate::physics::{Cantilever, Continuation, CoupledOrbit, SearchLimits};
 use crate::pipeline::DemodFrame;
 use crate::timebase::PREDECIMATION;
 use rustfft::num_complex::Complex64;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Range of the modulus table (Pa) and its nodes.
-const TABLE_RANGE: (f64, f64) = (1e9, 1e12);
+const TABLE_RANGE: (f64, f64) = (1e5, 1e12);
 const TABLE_POINTS: usize = 64;
 /// Expected signal-to-noise ratio below which a harmonic of the waveform comes from the cut
 /// cosine rather than from its measurement.
@@ -81,13 +82,17 @@ pub struct ForceEstimate {
     /// True when settings the model depends on changed since it was built: the estimate
     /// belongs to the old settings and is not to be read as current (set by the daemon).
     pub stale: bool,
+    /// Why the estimate may be biased or poor, each with what to change
+    /// ([`ForceEstimator::warnings`]); empty when nothing is known to be wrong.
+    pub warnings: Vec<String>,
 }
 
 /// The periodic orbits of a coupled engine's modulus table, node by node: where the next
 /// table's orbit searches start ([`ForceEstimator::seeded`]).
 #[derive(Clone, Debug)]
 pub struct TableSeed {
-    orbits: Vec<Continuation>,
+    /// (modulus in Pa, orbit) per node.
+    orbits: Vec<(f64, Continuation)>,
 }
 
 /// Why no estimate came out of a frame (counted, not fatal).
@@ -132,6 +137,10 @@ pub struct ForceEstimator {
     /// table holds what the method's fit reads off the coupled orbit's noise-free readings
     /// (`PulseMeasure::CoupledFit`), and the pulse's own F and τ beside them.
     table: ModulusTable,
+    /// Why its estimates may be biased or poor, with what to change: harmonics it relies on
+    /// out of band or not demodulated ([`Settings::force_warnings`]), under the noise floor,
+    /// a modulus table short of its range. Sent with every estimate.
+    warnings: Vec<String>,
     /// Running sums of X + iY per demodulator for averaging.
     sum: Vec<Complex64>,
     summed: usize,
@@ -152,6 +161,20 @@ impl ForceEstimator {
     /// # Errors
     /// As [`Self::new`].
     pub fn seeded(settings: &Settings, seed: Option<&TableSeed>) -> Result<Option<Self>, String> {
+        Self::build(settings, seed, None)
+    }
+
+    /// [`Self::seeded`], stopped with an error as soon as `cancel` is set (between the
+    /// coupled table's nodes, and inside its first orbit search): a builder whose settings
+    /// were superseded does not finish a table nobody will use.
+    ///
+    /// # Errors
+    /// As [`Self::new`], and when cancelled.
+    pub fn build(
+        settings: &Settings,
+        seed: Option<&TableSeed>,
+        cancel: Option<&AtomicBool>,
+    ) -> Result<Option<Self>, String> {
         let inv = &settings.inversion;
         if !inv.enable {
             return Ok(None);
@@ -223,6 +246,7 @@ impl ForceEstimator {
             pair,
         };
         let mut seed_out = None;
+        let mut warnings = settings.force_warnings();
         let table = match settings.synth.engine {
             Engine::Paper => ModulusTable::with_measure(
                 &oscillator,
@@ -239,9 +263,13 @@ impl ForceEstimator {
                     .flatten()
                     .map(|d: &DemodNoise| (d.harmonic, lockin_sigma(d.density, d.bandwidth)))
                     .collect();
-                let (table, orbits) = coupled_table(settings, &cantilever, &fitter, &sigmas, seed)?;
-                seed_out = Some(TableSeed { orbits });
-                table
+                let built = coupled_table(settings, &cantilever, &fitter, &sigmas, seed, cancel)?;
+                seed_out = Some(TableSeed {
+                    orbits: built.orbits,
+                });
+                warnings.extend(built.note);
+                warnings.extend(noise_floor_warning(&built.quiet, pair, inv.averaging));
+                built.table
             }
         };
         Ok(Some(Self {
@@ -252,6 +280,7 @@ impl ForceEstimator {
             noise,
             demods,
             table,
+            warnings,
             sum: vec![Complex64::new(0.0, 0.0); settings.demods.len()],
             summed: 0,
         }))
@@ -430,7 +459,14 @@ impl ForceEstimator {
             waveform: reconstruction.force,
             epoch: 0,
             stale: false,
+            warnings: self.warnings.clone(),
         })
+    }
+
+    /// Why this estimator's estimates may be biased or poor, with what to change (empty
+    /// when nothing is known to be wrong).
+    pub fn warnings(&self) -> &[String] {
+        &self.warnings
     }
 
     /// Drops the running average: the next estimate averages only frames pushed from now on
@@ -580,26 +616,78 @@ impl Fitter {
     }
 }
 
-/// Log-spaced nodes of the coupled engine's table over [`TABLE_RANGE`]: each is a coupled
-/// orbit (~0.05–0.2 s continued from its neighbour, 0.5 s for the first); F and τ are smooth
-/// in ln E, and the monotone cubic through 16 nodes reproduces orbits between them (tests).
-const COUPLED_TABLE_POINTS: usize = 16;
+/// Steps (decades) from each material's modulus to the coupled table's nodes about it:
+/// 0.2 decade near it (the spacing at which the monotone cubic reproduces the orbits
+/// between nodes, tests), growing far from it, where an estimate only has to say how far
+/// off the sample is.
+const COUPLED_TABLE_STEPS: [f64; 8] = [0.0, 0.2, 0.4, 0.6, 1.0, 1.6, 2.5, 4.0];
+/// Nodes closer than this (decades) are merged.
+const COUPLED_TABLE_MIN_STEP: f64 = 0.12;
 
-/// The coupled engine's modulus table: at each node the coupled orbit (physics.md §6) of the
-/// settings with that modulus under the tip, the noise-free readings of every active
-/// demodulator through `fitter`'s lock-in model (aliases included), and what the method's
-/// fit reads off them, beside the pulse's own F and τ. `sigmas` are the demodulators'
-/// (harmonic, σ per quadrature of X and Y): they weight the full method's fit as they weight
-/// it live.
+/// The moduli (Pa, increasing) of the coupled engine's table: both ends of [`TABLE_RANGE`],
+/// and [`COUPLED_TABLE_STEPS`] either side of the base material's modulus and of every
+/// enabled inclusion's (each clamped into the range), merged where closer than
+/// [`COUPLED_TABLE_MIN_STEP`]. 12–16 nodes for the presets, as many as the 16 evenly spread
+/// nodes of a 1 GPa–1 TPa table: the range grew four decades at the same cost.
+pub fn coupled_table_moduli(settings: &Settings) -> Vec<f64> {
+    let (lo, hi) = (TABLE_RANGE.0.log10(), TABLE_RANGE.1.log10());
+    let anchors = std::iter::once(settings.sample.youngs_modulus).chain(
+        settings
+            .inclusions
+            .iter()
+            .filter(|i| i.enable)
+            .map(|i| i.youngs_modulus),
+    );
+    let mut decades = vec![lo, hi];
+    for e in anchors.filter(|e| e.is_finite() && *e > 0.0) {
+        let centre = e.log10().clamp(lo, hi);
+        for step in COUPLED_TABLE_STEPS {
+            for d in [centre - step, centre + step] {
+                if d > lo && d < hi {
+                    decades.push(d);
+                }
+            }
+        }
+    }
+    decades.sort_by(f64::total_cmp);
+    let mut kept: Vec<f64> = Vec::with_capacity(decades.len());
+    for d in decades {
+        match kept.last() {
+            Some(&last) if d - last < COUPLED_TABLE_MIN_STEP => {
+                // The upper end stays; the node just below it goes.
+                if d == hi {
+                    kept.pop();
+                    kept.push(d);
+                }
+            }
+            _ => kept.push(d),
+        }
+    }
+    kept.into_iter().map(|d| 10f64.powf(d)).collect()
+}
+
+/// The coupled engine's modulus table: at each node ([`coupled_table_moduli`]) the coupled
+/// orbit (physics.md §6) of the settings with that modulus under the tip, the noise-free
+/// readings of every active demodulator through `fitter`'s lock-in model (aliases
+/// included), and what the method's fit reads off them, beside the pulse's own F and τ.
+/// `sigmas` are the demodulators' (harmonic, σ per quadrature of X and Y): they weight the
+/// full method's fit as they weight it live.
+///
+/// The node at the set modulus is solved first, by an approach from far (the branch the
+/// live engine reaches) or continued from the seed's orbit at the same modulus; two chains
+/// then continue from it down and up on two threads. A chain that loses the orbit ends
+/// there: the table is narrower (estimates beyond it say `below_table` / `above_table`),
+/// and the returned note says where and why. Setting `cancel` stops the build between
+/// nodes (and inside the first search) with an error.
 fn coupled_table(
     settings: &Settings,
     cantilever: &Cantilever,
     fitter: &Fitter,
     sigmas: &[(u32, f64)],
     seed: Option<&TableSeed>,
-) -> Result<(ModulusTable, Vec<Continuation>), String> {
-    let (lo, hi) = (TABLE_RANGE.0.ln(), TABLE_RANGE.1.ln());
-    let last = COUPLED_TABLE_POINTS - 1;
+    cancel: Option<&AtomicBool>,
+) -> Result<CoupledTable, String> {
+    let moduli = coupled_table_moduli(settings);
     // The aliases reach far above the demodulated harmonics; without sampling, no further
     // than the highest of them.
     let harmonics = if fitter.model.sample_rate().is_some() {
@@ -607,84 +695,203 @@ fn coupled_table(
     } else {
         sigmas.iter().map(|&(k, _)| k as usize).max().unwrap_or(0)
     };
-    let modulus = |i: usize| (lo + (hi - lo) * i as f64 / last as f64).exp();
-    let seeded = |i: usize| seed.and_then(|s| s.orbits.get(i));
-    // One chain of nodes.
-    let chain = |indices: Vec<usize>| -> Result<Vec<(TableNode, Continuation)>, String> {
-        let mut nodes = Vec::with_capacity(indices.len());
-        let mut from: Option<Continuation> = None;
-        for i in indices {
-            let youngs_modulus = modulus(i);
-            let material = Material {
-                youngs_modulus,
-                poisson: settings.sample.poisson,
-            };
-            let problem =
-                model::coupled_problem(settings, cantilever, material, settings.drive.frequency);
-            // From the chain's previous node (the same settings, a nearby modulus), else from
-            // the seed's same node (the same modulus, earlier settings), else afresh: a
-            // failed continuation (too far apart, a branch ending between them) falls back
-            // to the next way.
-            let continued = |c: Option<&Continuation>| {
-                c.ok_or(())
-                    .and_then(|c| problem.solve_continued(harmonics, c).map_err(drop))
-            };
-            let solved = continued(from.as_ref())
-                .or_else(|()| continued(seeded(i)))
-                .or_else(|()| problem.solve_for_continuation(harmonics));
-            let (orbit, next) = solved.map_err(|err| {
-                format!(
-                    "the coupled orbit at E = {youngs_modulus:.4e} Pa for the modulus table: {err}"
-                )
-            })?;
-            from = Some(next.clone());
-            if orbit.max_force <= 0.0 {
-                return Err(format!(
-                    "the tip does not touch the sample at E = {youngs_modulus:.4e} Pa (coupled \
-                     engine)"
-                ));
-            }
-            let c = &orbit.force_coefficients;
-            let mut samples = Vec::with_capacity(sigmas.len());
-            for &(k, sigma) in sigmas {
-                let read = fitter
-                    .model
-                    .read(k as usize, |j| c.get(j).copied().unwrap_or_default())
-                    .unwrap_or_default();
-                // The lock-in's X + iY is twice S_k for k ≥ 1 and S_0 itself for k = 0.
-                let z = if k == 0 { read } else { 2.0 * read };
-                push_sample(&mut samples, k, z, sigma);
-            }
-            let fitted = fitter.fit(&samples, false).map_err(|err| {
-                format!("the fit to the coupled orbit at E = {youngs_modulus:.4e} Pa: {err}")
-            })?;
-            nodes.push((
-                TableNode {
-                    youngs_modulus,
-                    force: fitted.force,
-                    tau: fitted.tau,
-                    pulse_force: orbit.max_force,
-                    pulse_tau: orbit.contact_time_ratio,
-                },
-                next,
+    let cancelled = || cancel.is_some_and(|c| c.load(Ordering::Relaxed));
+    const CANCELLED: &str = "the modulus table's build was cancelled (newer settings wait)";
+    let seeded = |youngs_modulus: f64| {
+        seed.and_then(|s| {
+            s.orbits
+                .iter()
+                .find(|(e, _)| (e / youngs_modulus - 1.0).abs() < 1e-9)
+                .map(|(_, c)| c)
+        })
+    };
+    let problem_at = |youngs_modulus: f64| {
+        let material = Material {
+            youngs_modulus,
+            poisson: settings.sample.poisson,
+        };
+        model::coupled_problem(settings, cantilever, material, settings.drive.frequency)
+    };
+    // The node of an orbit: what the method reads off it.
+    let node_of = |youngs_modulus: f64, orbit: &CoupledOrbit| -> Result<TableNode, String> {
+        if orbit.max_force <= 0.0 {
+            return Err(format!(
+                "the tip does not touch the sample at E = {youngs_modulus:.4e} Pa (coupled \
+                 engine)"
             ));
         }
-        Ok(nodes)
+        let c = &orbit.force_coefficients;
+        let mut samples = Vec::with_capacity(sigmas.len());
+        for &(k, sigma) in sigmas {
+            let read = fitter
+                .model
+                .read(k as usize, |j| c.get(j).copied().unwrap_or_default())
+                .unwrap_or_default();
+            // The lock-in's X + iY is twice S_k for k ≥ 1 and S_0 itself for k = 0.
+            let z = if k == 0 { read } else { 2.0 * read };
+            push_sample(&mut samples, k, z, sigma);
+        }
+        let fitted = fitter.fit(&samples, false).map_err(|err| {
+            format!("the fit to the coupled orbit at E = {youngs_modulus:.4e} Pa: {err}")
+        })?;
+        Ok(TableNode {
+            youngs_modulus,
+            force: fitted.force,
+            tau: fitted.tau,
+            pulse_force: orbit.max_force,
+            pulse_tau: orbit.contact_time_ratio,
+        })
     };
-    // Two chains from the middle outwards, on two threads (they inherit the builder's low
-    // priority): half the wait on two cores.
-    let middle = COUPLED_TABLE_POINTS / 2;
+    // The start: the node nearest the set modulus.
+    let target = settings.sample.youngs_modulus.log10();
+    let start = (0..moduli.len())
+        .min_by(|&a, &b| {
+            (moduli[a].log10() - target)
+                .abs()
+                .total_cmp(&(moduli[b].log10() - target).abs())
+        })
+        .ok_or("the modulus table has no nodes")?;
+    let e0 = moduli[start];
+    let problem = problem_at(e0);
+    let limits = SearchLimits {
+        cancel,
+        ..SearchLimits::default()
+    };
+    let (orbit, first) = seeded(e0)
+        .ok_or(())
+        .and_then(|c| problem.solve_continued(harmonics, c).map_err(drop))
+        .or_else(|()| problem.solve_with(harmonics, limits))
+        .map_err(|err| {
+            if cancelled() {
+                CANCELLED.to_owned()
+            } else {
+                format!("the coupled orbit at the set modulus E = {e0:.4e} Pa for the modulus table: {err}")
+            }
+        })?;
+    let first_node = node_of(e0, &orbit)?;
+    // The harmonics whose predicted reading at the set modulus is under the noise floor.
+    let quiet: Vec<u32> = sigmas
+        .iter()
+        .filter(|&&(k, sigma)| {
+            let c = &orbit.force_coefficients;
+            let read = fitter
+                .model
+                .read(k as usize, |j| c.get(j).copied().unwrap_or_default())
+                .unwrap_or_default();
+            k >= 2 && 2.0 * read.norm() < MIN_SNR * sigma
+        })
+        .map(|&(k, _)| k)
+        .collect();
+    // One chain of nodes from the start outwards; it ends where the orbit is lost.
+    type Chain = (Vec<(TableNode, (f64, Continuation))>, Option<String>);
+    let chain = |indices: Vec<usize>| -> Result<Chain, String> {
+        let mut nodes = Vec::with_capacity(indices.len());
+        let mut from = first.clone();
+        for i in indices {
+            if cancelled() {
+                return Err(CANCELLED.to_owned());
+            }
+            let youngs_modulus = moduli[i];
+            let problem = problem_at(youngs_modulus);
+            // From the chain's previous node (the same settings, a nearby modulus), else
+            // from the seed's same node (the same modulus, earlier settings).
+            let solved = problem
+                .solve_continued(harmonics, &from)
+                .or_else(|err| match seeded(youngs_modulus) {
+                    Some(c) => problem.solve_continued(harmonics, c),
+                    None => Err(err),
+                })
+                // Else afresh (a branch may end between two nodes), as the first node.
+                .or_else(|_| problem.solve_with(harmonics, limits));
+            let ended = match solved {
+                Ok((orbit, next)) => match node_of(youngs_modulus, &orbit) {
+                    Ok(node) => {
+                        from = next.clone();
+                        nodes.push((node, (youngs_modulus, next)));
+                        continue;
+                    }
+                    Err(why) => why,
+                },
+                Err(_) if cancelled() => return Err(CANCELLED.to_owned()),
+                Err(err) => format!("the coupled orbit at E = {youngs_modulus:.4e} Pa: {err}"),
+            };
+            return Ok((nodes, Some(ended)));
+        }
+        Ok((nodes, None))
+    };
     let (lower, upper) = std::thread::scope(|scope| {
-        let upper = scope.spawn(|| chain((middle..=last).collect()));
-        let lower = chain((0..middle).rev().collect());
+        let upper = scope.spawn(|| chain((start + 1..moduli.len()).collect()));
+        let lower = chain((0..start).rev().collect());
         (lower, upper.join())
     });
-    let upper = upper.map_err(|_| "the modulus table's thread panicked".to_owned())??;
-    let mut nodes = lower?;
+    let (upper, upper_end) =
+        upper.map_err(|_| "the modulus table's thread panicked".to_owned())??;
+    let (mut nodes, lower_end) = lower?;
     nodes.reverse();
+    nodes.push((first_node, (e0, first)));
     nodes.extend(upper);
-    let (nodes, orbits): (Vec<TableNode>, Vec<Continuation>) = nodes.into_iter().unzip();
-    let table =
-        ModulusTable::from_nodes(&nodes, PulseMeasure::CoupledFit).map_err(|e| e.to_string())?;
-    Ok((table, orbits))
+    let notes: Vec<String> = [lower_end, upper_end].into_iter().flatten().collect();
+    let (nodes, orbits): (Vec<TableNode>, Vec<(f64, Continuation)>) = nodes.into_iter().unzip();
+    let table = ModulusTable::from_nodes(&nodes, PulseMeasure::CoupledFit).map_err(|e| {
+        format!(
+            "{e} ({} of {} nodes; {})",
+            nodes.len(),
+            moduli.len(),
+            notes.join("; ")
+        )
+    })?;
+    let note = (!notes.is_empty()).then(|| {
+        format!(
+            "the modulus table covers {:.3e}–{:.3e} Pa only (of {:.0e}–{:.0e} Pa): {}",
+            nodes[0].youngs_modulus,
+            nodes[nodes.len() - 1].youngs_modulus,
+            TABLE_RANGE.0,
+            TABLE_RANGE.1,
+            notes.join("; ")
+        )
+    });
+    Ok(CoupledTable {
+        table,
+        orbits,
+        note,
+        quiet,
+    })
+}
+
+/// The warning for the inversion's harmonics `pair` among the `quiet` ones (under the noise
+/// floor at the set modulus), or `None`.
+fn noise_floor_warning(quiet: &[u32], pair: (usize, usize), averaging: u32) -> Option<String> {
+    let under: Vec<String> = [pair.0, pair.1]
+        .iter()
+        .filter(|&&k| quiet.contains(&(k as u32)))
+        .map(|k| format!("H{k}"))
+        .collect();
+    (!under.is_empty()).then(|| {
+        let (noun, verb) = if under.len() > 1 {
+            ("harmonics", "are")
+        } else {
+            ("harmonic", "is")
+        };
+        format!(
+            "the force estimate is noise-limited: the inversion's {noun} {} {verb} predicted \
+             under the noise floor at the set modulus (below {MIN_SNR} σ of one frame; {} of \
+             the demodulated harmonics ≥ 2 are): raise /inversion/averaging (now {averaging}) \
+             or /drive/free_amplitude, or choose /inversion/harmonic_a and _b among stronger \
+             harmonics",
+            under.join(" and "),
+            quiet.len()
+        )
+    })
+}
+
+/// What [`coupled_table`] builds.
+struct CoupledTable {
+    table: ModulusTable,
+    /// (modulus, orbit) of every node, for the next build to start from.
+    orbits: Vec<(f64, Continuation)>,
+    /// Where the table ends short of [`TABLE_RANGE`], and why.
+    note: Option<String>,
+    /// The demodulated harmonics ≥ 2 whose predicted reading at the set modulus is below
+    /// [`MIN_SNR`] × σ of one frame.
+    quiet: Vec<u32>,
 }

@@ -503,9 +503,17 @@ fn a_300_khz_lever_loads_from_its_cantilever_alone() {
     assert_eq!(s.demods_out_of_band(), (16..32).collect::<Vec<_>>());
     assert_eq!(s.inversion_harmonics(), Some((6, 16)));
     let warnings = s.warnings();
-    assert_eq!(warnings.len(), 2, "{warnings:?}");
+    assert_eq!(warnings.len(), 3, "{warnings:?}");
     assert_mentions(&warnings[0], &["16 (H17)", "31 (H32)", "300 kHz", "5 MHz"]);
     assert_mentions(&warnings[1], &["/inversion/harmonic_b", "uses harmonic 16"]);
+    assert_mentions(
+        &warnings[2],
+        &[
+            "force estimate biased",
+            "harmonics 14-32",
+            "raise /synth/sample_rate to 25e6",
+        ],
+    );
     // At runtime too: one set of f1 moves the drive.
     let mut s = default_settings();
     assert_eq!(
@@ -2089,7 +2097,10 @@ fn a_drive_that_pushes_demodulators_out_of_band_is_taken_and_they_are_named() {
     // Back in band when the drive comes down.
     s.set("/drive/frequency", &json!(150e3)).unwrap();
     assert!(s.demods_out_of_band().is_empty());
-    assert!(s.warnings().is_empty());
+    // In band, but H27-H32 (4.05-4.8 MHz) above the anti-alias filter's flat 4 MHz.
+    let warnings = s.warnings();
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert_mentions(&warnings[0], &["harmonics 27-32", "12.5e6"]);
 }
 
 #[test]

@@ -1377,8 +1377,13 @@ fn force_messages_carry_the_estimate_in_both_formats() {
         waveform: vec![0.0, 1e-9, f64::NAN],
         epoch: 12,
         stale: true,
+        warnings: vec!["force estimate biased: harmonics 17-32 …".into()],
     };
     let v: serde_json::Value = serde_json::from_str(&force_json(7, &estimate)).unwrap();
+    assert_eq!(
+        v["warnings"],
+        serde_json::json!(["force estimate biased: harmonics 17-32 …"])
+    );
     assert_eq!(v["stream"], "force");
     assert_eq!(
         (v["epoch"].as_u64(), v["stale"].as_bool()),

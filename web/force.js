@@ -266,12 +266,16 @@ export class ForcePanel {
       row("F", "peak force F", num(m.max_force), num(m.max_force_sigma), this.F, "N", 4) +
       row("E", "Young's modulus E", num(m.youngs_modulus), num(m.youngs_modulus_sigma), this.E, "Pa", 4);
     const range = m.table_range && m.table_range !== "inside"
-      ? ` · <span class="bad">table range: ${m.table_range === "below_table" ? "below the table (E < 1 GPa)" : m.table_range === "above_table" ? "above the table (E > 1 TPa)" : String(m.table_range).replace(/[<>&]/g, "")}</span>`
+      ? ` · <span class="bad">table range: ${m.table_range === "below_table" ? "below the table's lower end" : m.table_range === "above_table" ? "above the table's upper end" : String(m.table_range).replace(/[<>&]/g, "")}</span>`
       : "";
     const method = m.method === "two_harmonic" ? "two-harmonic (cut-cosine pulse)" : "full (Fourier series)";
     const stale = m.stale
       ? ` · <span class="bad" data-stale="true">stale: made with the model of the previous settings (epoch ${Number(m.epoch)}); the new model is being built</span>`
       : "";
-    this.foot.innerHTML = `method <b>${method}</b> · ${forceWaveform(m)?.length ?? 0} points · t = ${num(m.t).toFixed(3)} s${range}${stale}`;
+    // Why the estimate may be biased or poor, each with what to change (a row each).
+    const warnings = Array.isArray(m.warnings) && m.warnings.length
+      ? m.warnings.map((w) => `<div class="bad" data-force-warning="true">⚠ ${String(w).replace(/[<>&]/g, "")}</div>`).join("")
+      : "";
+    this.foot.innerHTML = `method <b>${method}</b> · ${forceWaveform(m)?.length ?? 0} points · t = ${num(m.t).toFixed(3)} s${range}${stale}${warnings}`;
   }
 }

@@ -58,5 +58,6 @@ pub use nodes::NodeInfo;
 pub use presets::{PRESETS, Preset, PresetKind, load_with_presets, preset};
 pub use range::{Bound, Range};
 pub use registry::{node, registry, table_keys};
+pub use relations::PASSBAND_FRACTION;
 pub use settings::*;
 pub use spec::NodeSpec;

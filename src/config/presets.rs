@@ -133,6 +133,59 @@ mod tests {
         }
     }
 
+    /// Every lever preset is a complete FT-AFM set-up, alone and under every sample preset:
+    /// it loads and validates, every demodulated harmonic (the inversion's, the scan's
+    /// images') lies inside the anti-alias filter's flat passband, 0.4 × the sample rate,
+    /// so nothing warns about the force estimate, and the sweeper's default tune spans the
+    /// resonance, f1 ± 2 f1/Q1.
+    #[test]
+    fn every_lever_with_every_sample_is_a_complete_set_up() {
+        let levers = PRESETS.iter().filter(|p| p.kind == PresetKind::Cantilever);
+        for lever in levers {
+            let samples = PRESETS.iter().filter(|p| p.kind == PresetKind::Sample);
+            for sample in std::iter::once(None).chain(samples.map(Some)) {
+                let mut names = vec![lever.name.to_owned()];
+                names.extend(sample.map(|s| s.name.to_owned()));
+                let s =
+                    load_with_presets(&names, None).unwrap_or_else(|e| panic!("{names:?}: {e}"));
+                s.validate().unwrap_or_else(|e| panic!("{names:?}: {e}"));
+                let edge = crate::config::PASSBAND_FRACTION * s.synth.sample_rate;
+                assert_eq!(
+                    s.demods.iter().filter(|d| d.enable).count(),
+                    32,
+                    "{names:?}"
+                );
+                for d in s.demods.iter().filter(|d| d.enable) {
+                    assert!(
+                        f64::from(d.harmonic) * s.drive.frequency < edge,
+                        "{names:?}: H{} above {edge} Hz",
+                        d.harmonic
+                    );
+                }
+                assert!(
+                    s.force_warnings().is_empty(),
+                    "{names:?}: {:?}",
+                    s.force_warnings()
+                );
+                assert!(s.warnings().is_empty(), "{names:?}: {:?}", s.warnings());
+                let (f1, q1) = (s.cantilever.f1, s.cantilever.q[0]);
+                let half = f1 / q1;
+                assert!(
+                    (s.sweeper.start - (f1 - 2.0 * half)).abs() < 0.02 * half
+                        && (s.sweeper.stop - (f1 + 2.0 * half)).abs() < 0.02 * half,
+                    "{names:?}: tune {} … {} Hz around {f1} Hz, Q1 = {q1}",
+                    s.sweeper.start,
+                    s.sweeper.stop
+                );
+                let mut sweeping = s.clone();
+                sweeping.sweeper.enable = true;
+                sweeping
+                    .validate()
+                    .unwrap_or_else(|e| panic!("{names:?}, a tune: {e}"));
+            }
+        }
+    }
+
     #[test]
     fn an_unknown_preset_lists_the_known_ones() {
         let error = preset("tap3000").unwrap_err().to_string();

@@ -213,6 +213,58 @@ impl Settings {
         })
     }
 
+    /// Why the force estimates would be biased or short of what the inversion relies on,
+    /// each with what to change: demodulated harmonics ≥ 2 at or above
+    /// [`PASSBAND_FRACTION`] × `/synth/sample_rate` (outside the anti-alias filter's flat
+    /// passband, or near Nyquist without it: measured attenuated, or not at all), and
+    /// harmonics from 2 to the higher of `/inversion/harmonic_a` and `_b` that no enabled
+    /// demodulator measures. Empty when the inversion is off. For `status`, `info` and every
+    /// `force` message.
+    pub fn force_warnings(&self) -> Vec<String> {
+        if !self.inversion.enable {
+            return Vec::new();
+        }
+        let mut out = Vec::new();
+        let edge = PASSBAND_FRACTION * self.synth.sample_rate;
+        let drive = self.drive.frequency;
+        let enabled = enabled_harmonics(self);
+        let outside: Vec<u32> = enabled
+            .iter()
+            .copied()
+            .filter(|&k| k >= MIN_INVERSION_HARMONIC && f64::from(k) * drive >= edge)
+            .collect();
+        if let Some(&top) = outside.iter().max() {
+            let needed = round_up_nicely(f64::from(top) * drive / PASSBAND_FRACTION);
+            out.push(format!(
+                "force estimate biased: harmonics {} that the inversion relies on are above \
+                 {PASSBAND_FRACTION} × the sample rate ({} at {}), outside the anti-alias \
+                 filter's flat passband: raise /synth/sample_rate to {} (config file), or lower \
+                 /drive/frequency, or disable those demodulators",
+                ranges(&outside),
+                quantity(edge, "Hz"),
+                quantity(self.synth.sample_rate, "S/s"),
+                if needed >= 1e6 {
+                    format!("{}e6", needed / 1e6)
+                } else {
+                    number(needed)
+                }
+            ));
+        }
+        let top = self.inversion.harmonic_a.max(self.inversion.harmonic_b);
+        let missing: Vec<u32> = (MIN_INVERSION_HARMONIC..=top)
+            .filter(|k| !enabled.contains(k))
+            .collect();
+        if !missing.is_empty() && self.inversion.method == super::settings::InversionMethod::Full {
+            out.push(format!(
+                "force estimate from fewer harmonics: harmonics {} up to the inversion's \
+                 harmonic {top} are not demodulated, so the full fit reads less of the pulse: \
+                 enable demodulators at them (/demods/N/harmonic, /demods/N/enable)",
+                ranges(&missing)
+            ));
+        }
+        out
+    }
+
     /// Whether `[adhesion]` is on where the engine ignores it.
     fn adhesion_ignored(&self) -> bool {
         self.adhesion.enable && self.synth.engine == Engine::Paper
@@ -246,11 +298,53 @@ impl Settings {
                 seen.push(w);
             }
         }
+        out.extend(self.force_warnings());
         if let Some(w) = self.node_warning("/adhesion/enable") {
             out.push(format!("/adhesion/enable: {w}"));
         }
         out
     }
+}
+
+/// The fraction of the sample rate up to which the anti-alias filter is flat and the
+/// lock-in measures a harmonic as it is (docs/signal-chain.md): the harmonics the inversion
+/// relies on belong below it.
+pub const PASSBAND_FRACTION: f64 = 0.4;
+
+/// `x` rounded up to the next of 1, 1.25, 1.5, 2, 2.5, 3, 4, 5, 6, 8 × a power of ten: a
+/// sample rate to suggest (24 MS/s → 25 MS/s).
+fn round_up_nicely(x: f64) -> f64 {
+    if !(x.is_finite() && x > 0.0) {
+        return x;
+    }
+    let decade = 10f64.powf(x.log10().floor());
+    [1.0, 1.25, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0]
+        .iter()
+        .map(|m| m * decade)
+        .find(|&v| v >= x * (1.0 - 1e-12))
+        .unwrap_or(10.0 * decade)
+}
+
+/// Harmonics as runs: [2, 3, 4, 7] → "2-4, 7".
+fn ranges(ks: &[u32]) -> String {
+    let mut sorted = ks.to_vec();
+    sorted.sort_unstable();
+    sorted.dedup();
+    let mut runs: Vec<String> = Vec::new();
+    let mut i = 0;
+    while i < sorted.len() {
+        let mut j = i;
+        while j + 1 < sorted.len() && sorted[j + 1] == sorted[j] + 1 {
+            j += 1;
+        }
+        runs.push(if j > i {
+            format!("{}-{}", sorted[i], sorted[j])
+        } else {
+            sorted[i].to_string()
+        });
+        i = j + 1;
+    }
+    runs.join(", ")
 }
 
 /// The drive frequency must stay below the Nyquist frequency, `/synth/sample_rate` / 2 (an
@@ -701,6 +795,49 @@ mod tests {
     use crate::config::{Engine, default_settings};
 
     #[test]
+    fn harmonics_above_the_passband_warn_with_the_sample_rate_that_fits_them() {
+        let mut s = default_settings();
+        assert!(s.force_warnings().is_empty(), "{:?}", s.force_warnings());
+        // tap300 at 10 MS/s: H14 (4.2 MHz) and above are beyond 4 MHz.
+        s.cantilever.f1 = 300e3;
+        s.drive.frequency = 300e3;
+        let w = s.force_warnings();
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].contains("harmonics 14-32") && w[0].contains("4 MHz at 10 MS/s"),
+            "{}",
+            w[0]
+        );
+        assert!(
+            w[0].contains("raise /synth/sample_rate to 25e6"),
+            "{}",
+            w[0]
+        );
+        assert!(s.warnings().contains(&w[0]));
+        s.synth.sample_rate = 25e6;
+        assert!(s.force_warnings().is_empty(), "{:?}", s.force_warnings());
+        // A gap in the bank below the inversion's upper harmonic.
+        s.demods[9].enable = false;
+        s.demods[10].enable = false;
+        let w = s.force_warnings();
+        assert!(
+            w.len() == 1 && w[0].contains("harmonics 10-11") && w[0].contains("not demodulated"),
+            "{w:?}"
+        );
+        s.inversion.enable = false;
+        assert!(s.force_warnings().is_empty());
+    }
+
+    #[test]
+    fn suggested_sample_rates_round_up() {
+        assert_eq!(round_up_nicely(24e6), 25e6);
+        assert_eq!(round_up_nicely(12e6), 12.5e6);
+        assert_eq!(round_up_nicely(10e6), 10e6);
+        assert_eq!(round_up_nicely(8.1e6), 10e6);
+        assert_eq!(ranges(&[2, 3, 4, 7, 9, 10]), "2-4, 7, 9-10");
+    }
+
+    #[test]
     fn highest_harmonic_agrees_with_the_check() {
         let mut s = default_settings();
         // 10 MHz sampling, 100 kHz drive: 50 × 100 kHz is exactly Nyquist, so 49.
@@ -904,7 +1041,12 @@ mod tests {
         assert!(s.node_warning("/demods/4/harmonic").is_none());
         s.demods[3].enable = false;
         assert!(s.node_warning("/demods/3/harmonic").is_none());
-        assert!(s.warnings().is_empty());
+        // Harmonic 4 is now missing below the inversion's 17: the full fit says so.
+        let w = s.warnings();
+        assert!(
+            w.len() == 1 && w[0].contains("harmonics 4 up to the inversion's harmonic 17"),
+            "{w:?}"
+        );
     }
 
     #[test]
@@ -921,7 +1063,8 @@ mod tests {
             "harmonic 17 is out of band (5.1 MHz ≥ the Nyquist frequency 5 MHz): the \
              inversion uses harmonic 16 instead"
         );
-        assert_eq!(s.warnings().len(), 2, "{:?}", s.warnings());
+        // Out of band, replaced, and the force estimate's harmonics 14-32 above 0.4 f_s.
+        assert_eq!(s.warnings().len(), 3, "{:?}", s.warnings());
         // Both out of band: the two highest in band, in order.
         s.inversion.harmonic_a = 20;
         s.inversion.harmonic_b = 18;

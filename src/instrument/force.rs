@@ -61,6 +61,9 @@ pub(crate) struct ForceCounters {
     /// because a sweep waits for its estimates (or the link closed).
     pub rests_taken: AtomicU64,
     pub rests_cut: AtomicU64,
+    /// Builds stopped because newer settings arrived while they ran (their estimator would
+    /// have been replaced at once; the newer settings are built next).
+    pub builds_cancelled: AtomicU64,
     /// Why the estimator or the last estimate failed, if it did (for logs).
     pub last_error: std::sync::Mutex<String>,
 }
@@ -321,7 +324,14 @@ fn build_loop(
             continue;
         };
         let start = Instant::now();
-        let (next, why) = match ForceEstimator::seeded(&settings, seed.as_ref()) {
+        // Newer settings stop the build: its estimator would be replaced at once.
+        let built = ForceEstimator::build(&settings, seed.as_ref(), Some(&pending.superseded));
+        if built.is_err() && pending.superseded.load(Ordering::Relaxed) {
+            counters.builds_cancelled.fetch_add(1, Ordering::Relaxed);
+            budget.spend(start.elapsed(), Instant::now());
+            continue;
+        }
+        let (next, why) = match built {
             Ok(Some(e)) => {
                 if let Some(s) = e.seed() {
                     seed = Some(s.clone());

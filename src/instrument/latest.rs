@@ -2,7 +2,7 @@
 //! request matters (rebuilding an estimator for new settings): a producer never blocks or
 //! queues behind a slow consumer, and a flood of requests costs one build at a time.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Condvar, Mutex};
 use std::time::Duration;
 
@@ -12,6 +12,9 @@ pub(crate) struct Latest<T> {
     ready: Condvar,
     /// Values replaced before anyone took them.
     pub coalesced: AtomicU64,
+    /// Set by every [`put`](Self::put), cleared by [`take`](Self::take): whether the value
+    /// taken last has been superseded, so work on it can stop (a cancel flag).
+    pub superseded: AtomicBool,
 }
 
 impl<T> Latest<T> {
@@ -20,6 +23,7 @@ impl<T> Latest<T> {
             slot: Mutex::new((None, false)),
             ready: Condvar::new(),
             coalesced: AtomicU64::new(0),
+            superseded: AtomicBool::new(false),
         }
     }
 
@@ -34,13 +38,18 @@ impl<T> Latest<T> {
             self.coalesced.fetch_add(1, Ordering::Relaxed);
         }
         slot.0 = Some(value);
+        self.superseded.store(true, Ordering::Relaxed);
         self.ready.notify_one();
         was_empty
     }
 
     /// Takes the newest value, if any, without waiting.
     pub fn take(&self) -> Option<T> {
-        self.slot.lock().ok().and_then(|mut s| s.0.take())
+        self.slot.lock().ok().and_then(|mut s| {
+            // Under the lock, so a put after this take is never missed.
+            self.superseded.store(false, Ordering::Relaxed);
+            s.0.take()
+        })
     }
 
     /// Waits until a value waits to be taken (`true`), without taking it; `false` once the

@@ -245,7 +245,7 @@ pub(crate) fn render(state: &AppState) -> String {
     metric(
         "estimator_rebuilds_total",
         "counter",
-        "FT-AFM estimator rebuilds after settings changes, by worker and outcome (coalesced: a change superseded by a newer one before it was built).",
+        "FT-AFM estimator rebuilds after settings changes, by worker and outcome (coalesced: a change superseded by a newer one before it was built; cancelled: a build stopped because newer settings arrived while it ran).",
         &[
             (
                 "{worker=\"force\",outcome=\"built\"}".into(),
@@ -254,6 +254,10 @@ pub(crate) fn render(state: &AppState) -> String {
             (
                 "{worker=\"force\",outcome=\"coalesced\"}".into(),
                 state.force.pending.coalesced.load(Ordering::Relaxed) as f64,
+            ),
+            (
+                "{worker=\"force\",outcome=\"cancelled\"}".into(),
+                f.builds_cancelled.load(Ordering::Relaxed) as f64,
             ),
             (
                 "{worker=\"image\",outcome=\"built\"}".into(),

@@ -11,7 +11,7 @@ use crate::physics::contact::{Elastic, HertzContact};
 use crate::physics::impact::{ImpactError, ImpactOscillator};
 
 /// Default modulus range of the table (Pa): 1 GPa to 1 TPa.
-pub const DEFAULT_TABLE_RANGE: (f64, f64) = (1e9, 1e12);
+pub const DEFAULT_TABLE_RANGE: (f64, f64) = (1e5, 1e12);
 /// Default number of log-spaced nodes of the table.
 pub const DEFAULT_TABLE_POINTS: usize = 64;
 

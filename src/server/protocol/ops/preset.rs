@@ -29,7 +29,8 @@ impl Preset {
     }
 
     /// `preset`, `kind`, `t`, `epoch` and the new settings' `warnings`; a name no preset
-    /// has is `invalid_value`.
+    /// has is `invalid_value`. The running sample rate is kept (it is fixed while running):
+    /// where a lever's harmonics need a higher one, the warnings say which.
     pub(crate) async fn apply(
         self,
         ctx: &Context<'_>,
@@ -41,7 +42,17 @@ impl Preset {
             .control
             .change(origin.clone(), move |c| {
                 let base = (*c.settings).clone();
-                let next = crate::config::overlay_str(base, preset.toml, &origin)?;
+                let running = base.synth.sample_rate;
+                let mut next = crate::config::overlay_str(base, preset.toml, &origin)?;
+                // The sample rate is fixed while running: a lever preset's stays for the
+                // next start, and the reply's and status's warnings name it if the
+                // harmonics need it.
+                next.synth.sample_rate = running;
+                next.validate()
+                    .map_err(|error| crate::config::ConfigError::Invalid {
+                        origin: origin.clone(),
+                        error,
+                    })?;
                 Ok((next, None, ()))
             })
             .await?;
