@@ -97,8 +97,10 @@ async fn a_set_flood_costs_one_estimator_build_at_a_time() {
     let metrics = loop {
         let (_, metrics) = http_get(d.addr, "/metrics").await;
         let m = |name: &str| metric(&metrics, name);
+        // A build stopped because newer settings arrived was taken up too.
         let force = m("ftafm_estimator_rebuilds_total{worker=\"force\",outcome=\"built\"}")
-            + m("ftafm_estimator_rebuilds_total{worker=\"force\",outcome=\"coalesced\"}");
+            + m("ftafm_estimator_rebuilds_total{worker=\"force\",outcome=\"coalesced\"}")
+            + m("ftafm_estimator_rebuilds_total{worker=\"force\",outcome=\"cancelled\"}");
         let image = m("ftafm_estimator_rebuilds_total{worker=\"image\",outcome=\"built\"}")
             + m("ftafm_estimator_rebuilds_total{worker=\"image\",outcome=\"coalesced\"}");
         // The force stream's start-up build is the +1.
@@ -115,18 +117,21 @@ async fn a_set_flood_costs_one_estimator_build_at_a_time() {
     let m = |name: &str| metric(&metrics, name);
     let built = m("ftafm_estimator_rebuilds_total{worker=\"force\",outcome=\"built\"}");
     let coalesced = m("ftafm_estimator_rebuilds_total{worker=\"force\",outcome=\"coalesced\"}");
+    let cancelled = m("ftafm_estimator_rebuilds_total{worker=\"force\",outcome=\"cancelled\"}");
     let build_s = m("ftafm_estimator_rebuild_seconds_total");
     let image_built = m("ftafm_estimator_rebuilds_total{worker=\"image\",outcome=\"built\"}");
     let image_coalesced =
         m("ftafm_estimator_rebuilds_total{worker=\"image\",outcome=\"coalesced\"}");
     eprintln!(
         "{sent} sets in {elapsed:?}; threads {before} -> max {max_threads}; force estimator: \
-         {built} built ({build_s:.2} s), {coalesced} coalesced; image: {image_built} built, \
+         {built} built ({build_s:.2} s), {coalesced} coalesced, {cancelled} cancelled; image: \
+         {image_built} built, \
          {image_coalesced} coalesced; late blocks {}, overruns {}",
         m("ftafm_late_blocks_total"),
         m("ftafm_overrun_samples_total"),
     );
-    // Every change was either built or superseded by a newer one, and the builder never
+    // Every change was either built or superseded by a newer one (before or while it was
+    // built), and the builder never
     // spent more than its quarter of the wall time since the start, beyond its 4 s burst
     // (src/instrument/build_budget.rs; the last build may end the interval), whatever the
     // machine's speed.

@@ -91,14 +91,17 @@ const WAVEFORM = ',"waveform":';
 /**
  * A force message (1 kHz by default) with its waveform left unparsed: the waveform (most of
  * the payload) is only needed for the message that gets drawn, so it stays text in
- * `waveformText` until `forceWaveform(m)` parses it. Falls back to a full parse.
+ * `waveformText` until `forceWaveform(m)` parses it. The fields around it (before and after)
+ * are parsed; an array of numbers holds no `]` of its own. Falls back to a full parse.
  */
 export function parseForce(text) {
   const i = text.lastIndexOf(WAVEFORM);
-  if (i > 0 && text.endsWith("]}")) {
+  const start = i + WAVEFORM.length;
+  const end = i > 0 && text[start] === "[" ? text.indexOf("]", start) : -1;
+  if (end > 0) {
     try {
-      const m = JSON.parse(text.slice(0, i) + "}");
-      m.waveformText = text.slice(i + WAVEFORM.length, -1);
+      const m = JSON.parse(text.slice(0, i) + text.slice(end + 1));
+      m.waveformText = text.slice(start, end + 1);
       return m;
     } catch {
       // not the expected layout: parse it all

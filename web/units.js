@@ -122,8 +122,9 @@ const NUM = String.raw`[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:e[+-]?\d+)?`;
 /**
  * A daemon's refusal in the node's units: the plain numbers it writes for the value and its
  * range ("/sample/youngs_modulus = -5e9 is out of range: allowed 0 < value ≤ 1e13 Pa", a
- * sweep's "/sweeper/start = -5e9 is outside the range of … now: allowed 0 … 1e13 Pa") with
- * SI prefixes ("= -5 GPa …: allowed 0 < value ≤ 10 TPa", "allowed 0 … 10 TPa"). Other text
+ * sweep's "/sweeper/start = -5e9 is outside the range of … now: allowed 0 < value ≤ 1e13 Pa")
+ * with SI prefixes ("= -5 GPa …: allowed 0 < value ≤ 10 TPa"; the older "allowed 0 … 1e13"
+ * form too). Other text
  * is kept as is.
  */
 export function inUserUnits(message, unit) {

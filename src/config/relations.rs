@@ -6,11 +6,13 @@
 //! Every message about a relation names every node it involves.
 
 use super::error::NodeError;
+use super::kind::Kind;
 use super::limits::{
     MAX_HARMONIC, MAX_MODES, MAX_PIXEL_RATE, MAX_SCAN_PIXELS, MAX_SCOPE_DECIMATION,
     MAX_SCOPE_LENGTH, MIN_INVERSION_HARMONIC, MIN_PIXEL_PERIODS,
 };
 use super::quantity::{number, quantity};
+use super::range::{Bound, Range};
 use super::registry::registry;
 use super::settings::{DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, Settings};
 
@@ -702,6 +704,35 @@ fn check_sweeper(s: &Settings) -> Result<(), NodeError> {
         low.as_f64().unwrap_or(f64::NEG_INFINITY),
         high.as_f64().unwrap_or(f64::INFINITY),
     );
+    // The node's own interval narrowed by the bounds the settings put on it now, with each
+    // end open or closed as it is enforced.
+    let allowed = match spec.kind {
+        Kind::Float(r) => {
+            let min = if low > r.min.value {
+                Bound {
+                    value: low,
+                    inclusive: true,
+                }
+            } else {
+                r.min
+            };
+            let max = if high < r.max.value {
+                Bound {
+                    value: high,
+                    inclusive: true,
+                }
+            } else {
+                r.max
+            };
+            format!("{}{}", Range { min, max }, spec.unit_suffix())
+        }
+        _ => format!(
+            "{} ≤ value ≤ {}{}",
+            number(low),
+            number(high),
+            spec.unit_suffix()
+        ),
+    };
     for (key, value) in [("start", w.start), ("stop", w.stop)] {
         let bad = spec.check(&super::kind::Typed::Float(value)).err();
         if bad.is_some() || value < low || value > high {
@@ -709,11 +740,8 @@ fn check_sweeper(s: &Settings) -> Result<(), NodeError> {
                 format!("/sweeper/{key}"),
                 format!(
                     "/sweeper/{key} = {} is outside the range of /sweeper/parameter = {path} now: \
-                     allowed {} … {} {}",
+                     allowed {allowed}",
                     number(value),
-                    number(low),
-                    number(high),
-                    spec.unit
                 ),
             ));
         }

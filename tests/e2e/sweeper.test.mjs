@@ -114,12 +114,12 @@ test("the sweep's ends and its refusals are in the swept node's units", TEST, as
     return page.textContent("#sw-result");
   };
   const distance = await refusal("-1 nm", "the distance's refusal");
-  assert.match(distance, /^\/sweeper\/start = -1 nm is outside the range of \/sweeper\/parameter = \/surface\/distance now: allowed 0 … \d+(\.\d+)? [µm]m$/, distance);
+  assert.match(distance, /^\/sweeper\/start = -1 nm is outside the range of \/sweeper\/parameter = \/surface\/distance now: allowed 0 < value ≤ \d+(\.\d+)? [µm]m$/, distance);
   // A modulus typed with its prefix, refused with prefixes: no raw exponents.
   await page.selectOption("#sw-parameter", "/sample/youngs_modulus");
   await page.fill("#sw-stop", "100 GPa");
   const modulus = await refusal("-5 GPa", "the modulus's refusal");
-  assert.match(modulus, /^\/sweeper\/start = -5 GPa is outside the range of \/sweeper\/parameter = \/sample\/youngs_modulus now: allowed 0 … 10 TPa$/, modulus);
+  assert.match(modulus, /^\/sweeper\/start = -5 GPa is outside the range of \/sweeper\/parameter = \/sample\/youngs_modulus now: allowed 0 < value ≤ 10 TPa$/, modulus);
   assert.doesNotMatch(modulus, /\de[+-]?\d/);
   // What cannot be read is said before anything is sent.
   await page.fill("#sw-start", "5 parsecs");
