@@ -64,14 +64,7 @@ fn point(lever: &str, sample: &str, seed: u64) -> Outcome {
     };
     let c = &orbit.force_coefficients;
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-    let mut frame = DemodFrame {
-        sample_index: 0,
-        t: 0.0,
-        t_synth_ns: 0,
-        t_dsp_ns: 0,
-        len: 0,
-        values: [DemodValue::default(); 32],
-    };
+    let mut frame = DemodFrame::empty();
     let mut bandwidth = 0.0;
     for (i, d) in settings.demods.iter().enumerate() {
         if !settings.demod_active(i) {

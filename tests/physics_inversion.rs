@@ -709,14 +709,7 @@ fn chain_frames(settings: &Settings, settle: f64, seconds: f64) -> Vec<DemodFram
     // The drive phase at which the first sample was taken, as the synthesiser stamps it.
     bank.align_drive(plan.output_phase(0), plan.frequency_word);
     let mut frames = Vec::new();
-    let mut frame = DemodFrame {
-        sample_index: 0,
-        t: 0.0,
-        t_synth_ns: 0,
-        t_dsp_ns: 0,
-        len: 0,
-        values: [DemodValue::default(); 32],
-    };
+    let mut frame = DemodFrame::empty();
     let mut buffer = vec![0.0; 8192];
     let total = ((settle + seconds) * fs) as u64;
     let first = (settle * fs) as u64;

@@ -53,7 +53,9 @@ impl DemodFrame {
         &self.values[..self.len]
     }
 
-    pub(crate) fn empty() -> Self {
+    /// A frame with no values yet, at sample 0: what a caller fills demodulator by
+    /// demodulator.
+    pub fn empty() -> Self {
         Self {
             sample_index: 0,
             t: 0.0,

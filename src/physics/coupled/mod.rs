@@ -580,16 +580,20 @@ mod tests {
     use super::record::{DENSE_HARMONICS, fft_coefficients};
     use super::*;
 
-    #[test]
-    fn the_ffts_harmonics_are_the_sums_on_the_integrators_points() {
-        // The paper's silicon case: f1 = 100 kHz, k = 20 N/m, five Q, R = 10 nm, A = 30 nm,
-        // A_set = 20 nm.
+    /// The paper's silicon case: f1 = 100 kHz, k = 20 N/m, five Q, R = 10 nm, A = 30 nm,
+    /// A_set = 20 nm.
+    fn silicon_case() -> CoupledProblem {
         let beam = Cantilever::new(100e3, 20.0, &[100.0, 417.0, 340.0, 200.0, 26.0], 0).unwrap();
         let si = Elastic {
             youngs_modulus: 129e9,
             poisson: 0.28,
         };
-        let p = CoupledProblem::new(&beam, 100e3, 30e-9, 20e-9, HertzContact::new(si, si, 10e-9));
+        CoupledProblem::new(&beam, 100e3, 30e-9, 20e-9, HertzContact::new(si, si, 10e-9))
+    }
+
+    #[test]
+    fn the_ffts_harmonics_are_the_sums_on_the_integrators_points() {
+        let p = silicon_case();
         let orbit = p.solve(4).unwrap();
         let periods = Cell::new(0);
         let map = PeriodMap::new(&p, &periods, SearchLimits::default());
@@ -615,16 +619,10 @@ mod tests {
     /// to ~1e-9 of each (a trapezoid on the steps' ends differs by 4.6e-6 already at H1).
     #[test]
     fn adhesions_coefficients_do_not_depend_on_the_step_out_of_contact() {
-        let beam = Cantilever::new(100e3, 20.0, &[100.0, 417.0, 340.0, 200.0, 26.0], 0).unwrap();
-        let si = Elastic {
-            youngs_modulus: 129e9,
-            poisson: 0.28,
-        };
-        let p = CoupledProblem::new(&beam, 100e3, 30e-9, 20e-9, HertzContact::new(si, si, 10e-9))
-            .with_adhesion(Some(Adhesion {
-                hamaker: 6.4e-20,
-                distance: 0.165e-9,
-            }));
+        let p = silicon_case().with_adhesion(Some(Adhesion {
+            hamaker: 6.4e-20,
+            distance: 0.165e-9,
+        }));
         let orbit = p.solve(4).unwrap();
         let periods = Cell::new(0);
         let coarse = PeriodMap::new(&p, &periods, SearchLimits::default());
