@@ -433,11 +433,10 @@ pub(crate) async fn run(
             {
                 warnings.push(w);
             }
-            let regime = state
-                .latest_demods
-                .lock()
-                .ok()
-                .and_then(|f| f.as_ref().and_then(|f| live_regime(f, &current)));
+            // The frame copied out: the regime's model is not computed under the lock `get`
+            // reads it through.
+            let newest = state.latest_demods.lock().ok().and_then(|f| *f);
+            let regime = newest.and_then(|f| live_regime(&f, &current));
             let report = StatusReport {
                 sample_rate: state.sample_rate,
                 realtime_factor: processed as f64 / elapsed.as_secs_f64() / state.sample_rate,
