@@ -228,6 +228,29 @@ fn every_synthesis_node_reaches_the_running_chain() {
     pipeline.stop();
 }
 
+/// A change applied at once after the start, before the synthesiser's thread may have run
+/// at all, still takes effect and says where: the thread stamps it on its first block
+/// rather than taking it for the epoch it started with.
+#[test]
+fn a_change_applied_before_the_threads_run_takes_effect() {
+    let settings = free_running_quiet();
+    for round in 0..20 {
+        let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
+        let mut next = settings.clone();
+        // A lock-in-only change: no plan to build, so it is published within microseconds.
+        next.demods[3].harmonic = 7 + round;
+        let epoch = pipeline.apply(&next).unwrap();
+        assert!(
+            pipeline
+                .effective_index(epoch, Duration::from_secs(60))
+                .is_some(),
+            "round {round}: the change never took effect"
+        );
+        output.drain();
+        pipeline.stop();
+    }
+}
+
 /// Every change lands on one sample boundary for the whole chain: the synthesiser reports
 /// the first sample it made under the new settings, and the DSP thread takes up its plan of
 /// the same change with the block that starts at that very sample — for synthesis-only,

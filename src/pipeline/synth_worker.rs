@@ -53,7 +53,9 @@ impl SynthWorker {
         // A scan configured from the start begins at the first sample.
         self.scan
             .retarget(&self.plan, &self.plan, self.state.sample_index());
-        let mut stamped = self.epochs.requested.load(Ordering::Acquire);
+        // The epoch the starting plan reflects, not the newest published: a change applied
+        // before this thread got here is then stamped with its first block like any other.
+        let mut stamped = self.plan.epoch;
         while !self.stop.load(Ordering::Relaxed) {
             // Read before the plans: every plan of this epoch was queued before it was
             // published, so all of them are taken up with this block.
