@@ -67,9 +67,15 @@ pub struct ForceEstimate {
     /// Peak force F (N) and its standard deviation.
     pub max_force: f64,
     pub max_force_sigma: f64,
-    /// Young's modulus of the sample (Pa) and its standard deviation.
+    /// Young's modulus of the sample (Pa) and its standard deviation: half the width of
+    /// `youngs_modulus_interval`, which is the first-order σ where E is linear in (F, τ)
+    /// over it.
     pub youngs_modulus: f64,
     pub youngs_modulus_sigma: f64,
+    /// The 68 % profile interval of E (Pa, low and high), asymmetric where the table's
+    /// (F, τ) flattens with E (a soft lever on a stiff sample reads a low E with a narrow
+    /// first-order σ while the interval reaches the true one).
+    pub youngs_modulus_interval: [f64; 2],
     /// "inside", "below_table" or "above_table".
     pub table_range: TableRange,
     /// Drive phase (rad) of the force peak.
@@ -258,10 +264,16 @@ impl ForceEstimator {
             )
             .map_err(|e| e.to_string())?,
             Engine::Coupled => {
+                // The σ of a live estimate (the mean of `averaging` frames): the nodes are
+                // fitted with the weights and noise floor the live fit uses, so that where
+                // the cut cosine is only an approximation of the orbit's pulse (a long
+                // pulse on a soft sample) both make the same approximation.
                 let sigmas: Vec<(u32, f64)> = demods
                     .iter()
                     .flatten()
-                    .map(|d: &DemodNoise| (d.harmonic, lockin_sigma(d.density, d.bandwidth)))
+                    .map(|d: &DemodNoise| {
+                        (d.harmonic, lockin_sigma(d.density, d.averaged_bandwidth))
+                    })
                     .collect();
                 let built = coupled_table(settings, &cantilever, &fitter, &sigmas, seed, cancel)?;
                 seed_out = Some(TableSeed {
@@ -269,6 +281,14 @@ impl ForceEstimator {
                 });
                 warnings.extend(built.note);
                 warnings.extend(noise_floor_warning(&built.quiet, pair, inv.averaging));
+                let readings = expected_samples(&fitter, &built.set_coefficients, &sigmas);
+                warnings.extend(resolution_warning(
+                    &fitter,
+                    &built.table,
+                    &readings,
+                    settings.sample.youngs_modulus,
+                    inv.averaging,
+                ));
                 built.table
             }
         };
@@ -312,6 +332,22 @@ impl ForceEstimator {
             && a.adhesion == b.adhesion
     }
 
+    /// Whether the estimator built for `built_for` serves `now`: the same model
+    /// ([`Self::same_model`]) and, on the coupled engine, every material modulus of `now`
+    /// (the sample's and each enabled inclusion's) within [`DENSE_REACH`] of one of
+    /// `built_for`'s, where its table's nodes are 0.2 decade apart. Farther, the table is
+    /// sparse there, and its warnings at the set modulus are of another sample.
+    pub fn covers(built_for: &Settings, now: &Settings) -> bool {
+        if !Self::same_model(built_for, now) {
+            return false;
+        }
+        if built_for.synth.engine != Engine::Coupled {
+            return true;
+        }
+        let built: Vec<f64> = material_moduli(built_for).map(f64::log10).collect();
+        material_moduli(now).all(|e| built.iter().any(|b| (e.log10() - b).abs() <= DENSE_REACH))
+    }
+
     /// The noise model the estimator assumes.
     pub fn noise_model(&self) -> &NoiseModel {
         &self.noise
@@ -345,6 +381,17 @@ impl ForceEstimator {
             .copied()
             .flatten()
             .map(|d| d.bandwidth)
+    }
+
+    /// One-sided equivalent noise bandwidth (Hz) of a live estimate's reading of
+    /// demodulator `index`, the mean of `/inversion/averaging` outputs (`None` if it is
+    /// disabled or absent): [`Self::frame_bandwidth`] for one.
+    pub fn estimate_bandwidth(&self, index: usize) -> Option<f64> {
+        self.demods
+            .get(index)
+            .copied()
+            .flatten()
+            .map(|d| d.averaged_bandwidth)
     }
 
     /// Takes one demodulator frame; every `averaging` frames returns an estimate.
@@ -453,7 +500,8 @@ impl ForceEstimator {
             max_force: force * to_force,
             max_force_sigma: sigma_force * to_force,
             youngs_modulus: modulus.youngs_modulus,
-            youngs_modulus_sigma: modulus.uncertainty,
+            youngs_modulus_sigma: modulus.interval_sigma(),
+            youngs_modulus_interval: [modulus.interval.0, modulus.interval.1],
             table_range: modulus.range,
             pulse_phase: reconstruction.pulse_phase,
             waveform: reconstruction.force,
@@ -530,8 +578,25 @@ impl Fitter {
             }
         }
         let maths = |e: &dyn std::fmt::Display| EstimateError::Maths(e.to_string());
-        let paired = two_harmonic_prior(&self.model, samples, Some(self.pair), MIN_SNR, false)
-            .map_err(|e| maths(&e))?;
+        let paired = match two_harmonic_prior(&self.model, samples, Some(self.pair), MIN_SNR, false)
+        {
+            Ok(paired) => paired,
+            // The full method only needs a start: where the configured pair fits no cut
+            // cosine (a long pulse puts H17 past the cut cosine's first spectral zero, so
+            // |c6|/|c17| < 1 has no root), the pair the prior chooses among the harmonics
+            // above the noise, before that zero.
+            Err(first) if matches!(self.method, InversionMethod::Full) => {
+                two_harmonic_prior(&self.model, samples, None, MIN_SNR, false).map_err(
+                    |chosen| {
+                        maths(&format!(
+                            "{first}; from the pair chosen among the harmonics above the \
+                             noise: {chosen}"
+                        ))
+                    },
+                )?
+            }
+            Err(e) => return Err(maths(&e)),
+        };
         Ok(match self.method {
             InversionMethod::TwoHarmonic => {
                 let fit = paired.fit.as_ref().ok_or(EstimateError::Maths(
@@ -553,16 +618,32 @@ impl Fitter {
                 }
             }
             InversionMethod::Full => {
-                let lsq = fit_cut_cosine(
-                    &self.model,
-                    samples,
-                    CutCosineStart {
-                        tau: paired.tau,
-                        max_force: paired.max_force,
-                        pulse_phase: paired.pulse_phase,
-                    },
-                )
-                .map_err(|e| maths(&e))?;
+                let from = |p: &CutCosinePrior| {
+                    fit_cut_cosine(
+                        &self.model,
+                        samples,
+                        CutCosineStart {
+                            tau: p.tau,
+                            max_force: p.max_force,
+                            pulse_phase: p.pulse_phase,
+                        },
+                    )
+                };
+                let mut lsq = from(&paired).map_err(|e| maths(&e))?;
+                // The pair's root assumes both harmonics before the pulse's first spectral
+                // zero (τ < 1.5/b). A fit that ends past it started from a root that may be
+                // the wrong one (a long pulse on a soft sample: the fit from (6, 17) ends
+                // at τ ≈ 0.56 with χ² twice the other's, where the pulse has τ ≈ 0.24):
+                // the fit from the pair the prior chooses among the harmonics above the
+                // noise, before that zero, is tried too, and the better kept.
+                if lsq.tau >= 1.5 / self.pair.1.max(self.pair.0) as f64
+                    && let Ok(chosen) =
+                        two_harmonic_prior(&self.model, samples, None, MIN_SNR, false)
+                    && let Ok(other) = from(&chosen)
+                    && other.chi_squared < lsq.chi_squared
+                {
+                    lsq = other;
+                }
                 // Second-order bias removed (Box): tiny against σ, but E is steep in (F, τ).
                 let (tau, force) = if debias {
                     (lsq.tau - lsq.bias[0], lsq.max_force - lsq.bias[1])
@@ -616,6 +697,82 @@ impl Fitter {
     }
 }
 
+/// The error of a [`ForceEstimator::build`] stopped by its cancel flag (and of nothing else).
+pub const BUILD_CANCELLED: &str = "the modulus table's build was cancelled (newer settings wait)";
+
+/// The ratio of the 68 % interval's ends above which the estimator warns that E is poorly
+/// resolved (the default lever on silicon at one 1 kHz frame: 1.4).
+const POOR_RESOLUTION: f64 = 2.0;
+
+/// The lock-in's readings of an orbit's force coefficients `c` at the harmonics of
+/// `sigmas` ((harmonic, σ per quadrature)), noise-free, as the fit takes them.
+fn expected_samples(
+    fitter: &Fitter,
+    c: &[Complex64],
+    sigmas: &[(u32, f64)],
+) -> Vec<HarmonicSample> {
+    let mut samples = Vec::with_capacity(sigmas.len());
+    for &(k, sigma) in sigmas {
+        let read = fitter
+            .model
+            .read(k as usize, |j| c.get(j).copied().unwrap_or_default())
+            .unwrap_or_default();
+        // The lock-in's X + iY is twice S_k for k ≥ 1 and S_0 itself for k = 0.
+        let z = if k == 0 { read } else { 2.0 * read };
+        push_sample(&mut samples, k, z, sigma);
+    }
+    samples
+}
+
+/// A warning when an estimate at the set modulus, from the noise-free `readings` with the
+/// σ of a live estimate, has a 68 % interval spanning more than [`POOR_RESOLUTION`]: the
+/// single number then says little, and estimates scatter far (a soft lever on a stiff
+/// sample: F and τ barely change with E).
+fn resolution_warning(
+    fitter: &Fitter,
+    table: &ModulusTable,
+    readings: &[HarmonicSample],
+    set: f64,
+    averaging: u32,
+) -> Option<String> {
+    let fitted = fitter.fit(readings, false).ok()?;
+    let modulus = table
+        .estimate_with_covariance(fitted.force, fitted.tau, fitted.covariance)
+        .ok()?;
+    let (lo, hi) = modulus.interval;
+    (hi > POOR_RESOLUTION * lo).then(|| {
+        let q = |v| crate::config::quantity::quantity_rounded(v, "Pa", 3);
+        format!(
+            "E is poorly resolved with these settings: at the set modulus {} an estimate's \
+             68 % interval is predicted to span {} to {} (F and τ change little with E \
+             here), so single estimates scatter widely; raise /inversion/averaging (now \
+             {averaging}) or, for a stiff sample, use a stiffer lever",
+            q(set),
+            q(lo),
+            q(hi),
+        )
+    })
+}
+
+/// The moduli (Pa) of the sample and of every enabled inclusion: the coupled table's
+/// anchors.
+fn material_moduli(settings: &Settings) -> impl Iterator<Item = f64> + '_ {
+    std::iter::once(settings.sample.youngs_modulus)
+        .chain(
+            settings
+                .inclusions
+                .iter()
+                .filter(|i| i.enable)
+                .map(|i| i.youngs_modulus),
+        )
+        .filter(|e| e.is_finite() && *e > 0.0)
+}
+
+/// How far (decades) a material's modulus may move from the one a coupled table was built
+/// about before the table is rebuilt ([`ForceEstimator::covers`]): inside the 0.6 decade
+/// of 0.2-decade nodes about it, with a margin.
+const DENSE_REACH: f64 = 0.4;
+
 /// Steps (decades) from each material's modulus to the coupled table's nodes about it:
 /// 0.2 decade near it (the spacing at which the monotone cubic reproduces the orbits
 /// between nodes, tests), growing far from it, where an estimate only has to say how far
@@ -631,15 +788,8 @@ const COUPLED_TABLE_MIN_STEP: f64 = 0.12;
 /// nodes of a 1 GPa–1 TPa table: the range grew four decades at the same cost.
 pub fn coupled_table_moduli(settings: &Settings) -> Vec<f64> {
     let (lo, hi) = (TABLE_RANGE.0.log10(), TABLE_RANGE.1.log10());
-    let anchors = std::iter::once(settings.sample.youngs_modulus).chain(
-        settings
-            .inclusions
-            .iter()
-            .filter(|i| i.enable)
-            .map(|i| i.youngs_modulus),
-    );
     let mut decades = vec![lo, hi];
-    for e in anchors.filter(|e| e.is_finite() && *e > 0.0) {
+    for e in material_moduli(settings) {
         let centre = e.log10().clamp(lo, hi);
         for step in COUPLED_TABLE_STEPS {
             for d in [centre - step, centre + step] {
@@ -696,7 +846,6 @@ fn coupled_table(
         sigmas.iter().map(|&(k, _)| k as usize).max().unwrap_or(0)
     };
     let cancelled = || cancel.is_some_and(|c| c.load(Ordering::Relaxed));
-    const CANCELLED: &str = "the modulus table's build was cancelled (newer settings wait)";
     let seeded = |youngs_modulus: f64| {
         seed.and_then(|s| {
             s.orbits
@@ -720,17 +869,7 @@ fn coupled_table(
                  engine)"
             ));
         }
-        let c = &orbit.force_coefficients;
-        let mut samples = Vec::with_capacity(sigmas.len());
-        for &(k, sigma) in sigmas {
-            let read = fitter
-                .model
-                .read(k as usize, |j| c.get(j).copied().unwrap_or_default())
-                .unwrap_or_default();
-            // The lock-in's X + iY is twice S_k for k ≥ 1 and S_0 itself for k = 0.
-            let z = if k == 0 { read } else { 2.0 * read };
-            push_sample(&mut samples, k, z, sigma);
-        }
+        let samples = expected_samples(fitter, &orbit.force_coefficients, sigmas);
         let fitted = fitter.fit(&samples, false).map_err(|err| {
             format!("the fit to the coupled orbit at E = {youngs_modulus:.4e} Pa: {err}")
         })?;
@@ -763,7 +902,7 @@ fn coupled_table(
         .or_else(|()| problem.solve_with(harmonics, limits))
         .map_err(|err| {
             if cancelled() {
-                CANCELLED.to_owned()
+                BUILD_CANCELLED.to_owned()
             } else {
                 format!("the coupled orbit at the set modulus E = {e0:.4e} Pa for the modulus table: {err}")
             }
@@ -789,7 +928,7 @@ fn coupled_table(
         let mut from = first.clone();
         for i in indices {
             if cancelled() {
-                return Err(CANCELLED.to_owned());
+                return Err(BUILD_CANCELLED.to_owned());
             }
             let youngs_modulus = moduli[i];
             let problem = problem_at(youngs_modulus);
@@ -812,7 +951,7 @@ fn coupled_table(
                     }
                     Err(why) => why,
                 },
-                Err(_) if cancelled() => return Err(CANCELLED.to_owned()),
+                Err(_) if cancelled() => return Err(BUILD_CANCELLED.to_owned()),
                 Err(err) => format!("the coupled orbit at E = {youngs_modulus:.4e} Pa: {err}"),
             };
             return Ok((nodes, Some(ended)));
@@ -855,6 +994,7 @@ fn coupled_table(
         orbits,
         note,
         quiet,
+        set_coefficients: orbit.force_coefficients.clone(),
     })
 }
 
@@ -874,10 +1014,10 @@ fn noise_floor_warning(quiet: &[u32], pair: (usize, usize), averaging: u32) -> O
         };
         format!(
             "the force estimate is noise-limited: the inversion's {noun} {} {verb} predicted \
-             under the noise floor at the set modulus (below {MIN_SNR} σ of one frame; {} of \
-             the demodulated harmonics ≥ 2 are): raise /inversion/averaging (now {averaging}) \
-             or /drive/free_amplitude, or choose /inversion/harmonic_a and _b among stronger \
-             harmonics",
+             under the noise floor at the set modulus (below {MIN_SNR} σ of a live \
+             estimate; {} of the demodulated harmonics ≥ 2 are): raise /inversion/averaging \
+             (now {averaging}) or /drive/free_amplitude, or choose /inversion/harmonic_a and \
+             _b among stronger harmonics",
             under.join(" and "),
             quiet.len()
         )
@@ -892,6 +1032,8 @@ struct CoupledTable {
     /// Where the table ends short of [`TABLE_RANGE`], and why.
     note: Option<String>,
     /// The demodulated harmonics ≥ 2 whose predicted reading at the set modulus is below
-    /// [`MIN_SNR`] × σ of one frame.
+    /// [`MIN_SNR`] × σ of a live estimate.
     quiet: Vec<u32>,
+    /// The force's Fourier coefficients of the orbit at the node nearest the set modulus.
+    set_coefficients: Vec<Complex64>,
 }

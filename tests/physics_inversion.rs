@@ -1552,6 +1552,21 @@ fn the_estimator_models_only_its_settings_and_a_seed_does_not_change_its_table()
     same.sample.youngs_modulus = 60e9;
     same.scan.pixels = 2 * a.scan.pixels;
     assert!(ForceEstimator::same_model(&a, &same));
+    // The coupled table is dense about the moduli it was built for: a nearby one is
+    // covered, one decades away (or a new inclusion's) is not; the paper engine's table is
+    // even everywhere.
+    assert!(ForceEstimator::covers(&a, &same));
+    let mut far = a.clone();
+    far.sample.youngs_modulus = 2e9;
+    assert!(!ForceEstimator::covers(&a, &far));
+    let mut inclusion = a.clone();
+    inclusion.inclusions[0].enable = true;
+    inclusion.inclusions[0].youngs_modulus = 1e6;
+    assert!(!ForceEstimator::covers(&a, &inclusion));
+    let (mut paper, mut paper_far) = (a.clone(), far.clone());
+    paper.synth.engine = Engine::Paper;
+    paper_far.synth.engine = Engine::Paper;
+    assert!(ForceEstimator::covers(&paper, &paper_far));
     let changes: [fn(&mut Settings); 5] = [
         |s| s.synth.engine = Engine::Paper,
         |s| s.synth.anti_alias = false,

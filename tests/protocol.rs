@@ -1372,6 +1372,7 @@ fn force_messages_carry_the_estimate_in_both_formats() {
         max_force_sigma: 1e-9,
         youngs_modulus: 129e9,
         youngs_modulus_sigma: 3e9,
+        youngs_modulus_interval: [126e9, 132e9],
         table_range: TableRange::Inside,
         pulse_phase: 5.46,
         waveform: vec![0.0, 1e-9, f64::NAN],
@@ -1394,6 +1395,10 @@ fn force_messages_carry_the_estimate_in_both_formats() {
     assert_eq!(v["t_synth_ns"], 1_700_000_000_000_000_000u64);
     assert_eq!(v["method"], "full");
     assert_eq!(v["youngs_modulus"], 129e9);
+    assert_eq!(
+        v["youngs_modulus_interval"],
+        serde_json::json!([126e9, 132e9])
+    );
     assert_eq!(v["table_range"], "inside");
     assert_eq!(
         v["waveform"],

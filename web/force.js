@@ -276,6 +276,11 @@ export class ForcePanel {
     const warnings = Array.isArray(m.warnings) && m.warnings.length
       ? m.warnings.map((w) => `<div class="bad" data-force-warning="true">⚠ ${String(w).replace(/[<>&]/g, "")}</div>`).join("")
       : "";
-    this.foot.innerHTML = `method <b>${method}</b> · ${forceWaveform(m)?.length ?? 0} points · t = ${num(m.t).toFixed(3)} s${range}${stale}${warnings}`;
+    // The modulus's 68 % interval: asymmetric where E is poorly resolved, which ± σ hides.
+    const iv = Array.isArray(m.youngs_modulus_interval) ? m.youngs_modulus_interval.map(num) : [];
+    const interval = iv.length === 2 && iv.every(isFinite)
+      ? ` · <span data-key="E-interval">E 68 % interval ${si(iv[0], "Pa", 3)} – ${si(iv[1], "Pa", 3)}</span>`
+      : "";
+    this.foot.innerHTML = `method <b>${method}</b> · ${forceWaveform(m)?.length ?? 0} points · t = ${num(m.t).toFixed(3)} s${interval}${range}${stale}${warnings}`;
   }
 }

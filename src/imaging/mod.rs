@@ -136,11 +136,11 @@ impl Assembler {
             return;
         }
         // A change of the scan or the sample keeps the estimator (a coupled engine's table
-        // takes seconds to build).
+        // takes seconds to build) unless a modulus moved out of its table's dense nodes.
         if self
             .estimator_settings
             .as_ref()
-            .is_none_or(|built| !ForceEstimator::same_model(built, &s))
+            .is_none_or(|built| !ForceEstimator::covers(built, &s))
         {
             let seed = self.estimator.as_ref().and_then(ForceEstimator::seed);
             self.estimator = ForceEstimator::seeded(&s, seed).ok().flatten();

@@ -87,6 +87,9 @@ pub(crate) struct ForceLink {
     next_seq: Arc<AtomicU64>,
     /// A sweep waits for each point's estimate: the builder does not rest between builds.
     awaited: Arc<AtomicBool>,
+    /// The settings of the newest estimator asked for (control side only): whether a
+    /// change of the sample's moduli outgrew its table ([`ForceEstimator::covers`]).
+    built_for: std::sync::Mutex<Option<Settings>>,
 }
 
 impl Drop for ForceLink {
@@ -229,6 +232,7 @@ impl ForceLink {
                 stride,
                 next_seq,
                 awaited,
+                built_for: std::sync::Mutex::new(None),
             },
             estimates,
         )
@@ -257,6 +261,9 @@ impl ForceLink {
     /// are marked stale.
     pub fn follow(&self, epoch: u64, settle_from: Option<f64>, rebuild: Option<Settings>) {
         if let Some(settings) = rebuild {
+            if let Ok(mut built_for) = self.built_for.lock() {
+                *built_for = Some(settings.clone());
+            }
             self.generation.store(epoch, Ordering::SeqCst);
             self.pending.put((settings, epoch));
         }
@@ -267,6 +274,17 @@ impl ForceLink {
             self.follow.resets.fetch_add(1, Ordering::Release);
         }
         self.follow.epoch.store(epoch, Ordering::Release);
+    }
+
+    /// Whether the estimator asked for last no longer serves `settings` though no setting
+    /// it models changed: a material's modulus moved out of its table's dense nodes
+    /// ([`ForceEstimator::covers`]). True when none was asked for.
+    pub fn outgrown(&self, settings: &Settings) -> bool {
+        self.built_for.lock().map_or(true, |built| {
+            built
+                .as_ref()
+                .is_none_or(|b| !ForceEstimator::covers(b, settings))
+        })
     }
 
     /// Whether a sweep waits for each point's estimate (the builder then does not rest
@@ -326,7 +344,8 @@ fn build_loop(
         let start = Instant::now();
         // Newer settings stop the build: its estimator would be replaced at once.
         let built = ForceEstimator::build(&settings, seed.as_ref(), Some(&pending.superseded));
-        if built.is_err() && pending.superseded.load(Ordering::Relaxed) {
+        // Only a build its flag stopped: one that failed on its own says why like any other.
+        if matches!(&built, Err(e) if e == crate::inversion::BUILD_CANCELLED) {
             counters.builds_cancelled.fetch_add(1, Ordering::Relaxed);
             budget.spend(start.elapsed(), Instant::now());
             continue;
@@ -374,6 +393,12 @@ pub(crate) fn lower_priority(nice: i32) {
     }
     #[cfg(not(target_os = "linux"))]
     let _ = nice;
+}
+
+/// Whether a change of `path` moves a material's modulus: the coupled engine's table is
+/// dense about each, and is rebuilt where one moved far ([`ForceLink::outgrown`]).
+pub(crate) fn moves_a_modulus(path: &str) -> bool {
+    path.starts_with("/sample/youngs_modulus") || path.starts_with("/inclusions")
 }
 
 /// Whether a change of `path` changes the estimator (its cantilever, drive, setpoint, tip,

@@ -20,7 +20,9 @@ pub(crate) fn followers(state: Weak<AppState>) -> impl Fn(&Committed<'_>) + Send
             c.settings.server.client_queue_bytes as usize,
             Ordering::Relaxed,
         );
-        let rebuild = c.touched(crate::instrument::force::affects_estimator);
+        let rebuild = c.touched(crate::instrument::force::affects_estimator)
+            || (c.touched(crate::instrument::force::moves_a_modulus)
+                && state.force.outgrown(c.settings));
         // The estimator's frames must come from the new settings: after a change of the
         // physics, or of what the estimator models (e.g. the demodulators, whose frames in
         // flight have the old layout), those before the change has settled are left out.

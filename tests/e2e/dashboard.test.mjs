@@ -226,6 +226,11 @@ test("the FT-AFM force panel receives estimates and draws them", { ...TEST }, as
   assert.match(text, /\d nN ± \d/, "peak force in nN with its σ");
   assert.match(text, /\d GPa ± \d/, "modulus in GPa with its σ");
   assert.match(await page.textContent("#force-foot"), /method full/);
+  // the modulus's 68 % interval, from the message, in user units about the estimate
+  const interval = await page.textContent('#force-foot [data-key="E-interval"]');
+  const [lo, hi] = [...interval.matchAll(/([\d.]+) GPa/g)].map((m) => Number(m[1]));
+  const e = await page.evaluate(() => window.ftafm.panels.force.latest.youngs_modulus / 1e9);
+  assert.ok(lo < e && e < hi, `E ${e} GPa inside its interval "${interval}"`);
   // the inversion controls, built from list
   assert.equal(await page.inputValue('input[data-path="/inversion/harmonic_a"]'), "6");
   assert.equal(await page.inputValue('input[data-path="/inversion/harmonic_b"]'), "17");

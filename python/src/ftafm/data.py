@@ -30,6 +30,7 @@ UNITS: dict[str, dict[str, str]] = {
         "max_force_sigma": "N",
         "youngs_modulus": "Pa",
         "youngs_modulus_sigma": "Pa",
+        "youngs_modulus_interval": "Pa",
         "pulse_phase": "rad",
         "waveform": "N",
     },
@@ -202,6 +203,9 @@ class ForceData(StreamData):
     max_force_sigma: np.ndarray = field(default_factory=lambda: np.empty(0))
     youngs_modulus: np.ndarray = field(default_factory=lambda: np.empty(0))
     youngs_modulus_sigma: np.ndarray = field(default_factory=lambda: np.empty(0))
+    #: The 68 % profile interval of the modulus (Pa): one (low, high) row per estimate,
+    #: asymmetric where the modulus is poorly resolved.
+    youngs_modulus_interval: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
     pulse_phase: np.ndarray = field(default_factory=lambda: np.empty(0))
     waveform: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
     method: list[str] = field(default_factory=list)
@@ -224,6 +228,9 @@ class ForceData(StreamData):
             max_force_sigma=col("max_force_sigma"),
             youngs_modulus=col("youngs_modulus"),
             youngs_modulus_sigma=col("youngs_modulus_sigma"),
+            youngs_modulus_interval=_rows(
+                [m.get("youngs_modulus_interval") or [None, None] for m in messages]
+            ).reshape(len(messages), 2),
             pulse_phase=col("pulse_phase"),
             waveform=_rows([m.get("waveform") for m in messages]),
             method=[m.get("method", "") for m in messages],

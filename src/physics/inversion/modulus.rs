@@ -99,6 +99,20 @@ pub struct ModulusEstimate {
     /// Second-order bias (Pa) of the plain estimate that [`ModulusTable::estimate_unbiased`]
     /// subtracted from `youngs_modulus`; 0 for the other estimates.
     pub bias_correction: f64,
+    /// The 68 % profile interval of E (Pa, low and high): the moduli whose predicted (F, τ)
+    /// lie within Δχ² = 1 of the best, an end of the table where the misfit stays below
+    /// that up to it. Where E is nearly linear in (F, τ) over it, E ± `uncertainty`; where
+    /// the table's (F, τ) flattens (a soft lever on a stiff sample), it reaches far above
+    /// the estimate, which the first-order σ taken at the estimate does not show.
+    pub interval: (f64, f64),
+}
+
+impl ModulusEstimate {
+    /// Half the width of [`interval`](Self::interval) (Pa): the first-order σ where E is
+    /// linear in (F, τ) over the interval, and an honest spread where it is not.
+    pub fn interval_sigma(&self) -> f64 {
+        0.5 * (self.interval.1 - self.interval.0)
+    }
 }
 
 /// F(E) and τ(E) of the 1-DOF model on log-spaced moduli, for one tip, cantilever, drive
@@ -477,6 +491,7 @@ impl ModulusTable {
         let var =
             g[0] * (c[0][0] * g[0] + c[0][1] * g[1]) + g[1] * (c[1][0] * g[0] + c[1][1] * g[1]);
         let log_uncertainty = var.max(0.0).sqrt();
+        let interval = profile_interval(&misfit, x, first, last, log_uncertainty);
         let e = x.exp();
         let span = last - first;
         let range = if x - first <= 1e-9 * span {
@@ -502,6 +517,7 @@ impl ModulusTable {
             force_in_range: within(force, &self.forces),
             tau_in_range: within(tau, &self.taus),
             bias_correction: 0.0,
+            interval: (interval.0.exp(), interval.1.exp()),
         })
     }
 
@@ -567,9 +583,66 @@ impl ModulusTable {
             youngs_modulus: corrected,
             uncertainty: corrected * plain.log_uncertainty,
             bias_correction: bias,
+            // The profile is of the plain misfit; the correction is well inside it, and the
+            // interval is widened to hold it where it is not.
+            interval: (
+                plain.interval.0.min(corrected),
+                plain.interval.1.max(corrected),
+            ),
             ..plain
         })
     }
+}
+
+/// The ln E interval about the best fit `best` (ln Pa) where `misfit` stays within 1 of its
+/// value there, clamped to the table's `[first, last]`: from `best` outwards in steps of a
+/// quarter of the first-order σ (`log_sigma`; at least 0.005, at most 0.05) to the first
+/// point above the level, then by bisection to 1e-6 in ln E.
+fn profile_interval(
+    misfit: &dyn Fn(f64) -> f64,
+    best: f64,
+    first: f64,
+    last: f64,
+    log_sigma: f64,
+) -> (f64, f64) {
+    let level = misfit(best) + 1.0;
+    let step = if log_sigma.is_finite() {
+        (0.25 * log_sigma).clamp(0.005, 0.05)
+    } else {
+        0.05
+    };
+    let edge = |direction: f64, end: f64| {
+        let mut inside = best;
+        loop {
+            let probe = inside + direction * step;
+            if (probe - end) * direction >= 0.0 {
+                // The end of the table: the interval reaches it unless the misfit there
+                // is above the level.
+                if misfit(end) <= level {
+                    return end;
+                }
+                return bisect(misfit, level, inside, end);
+            }
+            if misfit(probe) > level {
+                return bisect(misfit, level, inside, probe);
+            }
+            inside = probe;
+        }
+    };
+    (edge(-1.0, first), edge(1.0, last))
+}
+
+/// The crossing of `level` by `misfit` between `inside` (below it) and `outside` (above).
+fn bisect(misfit: &dyn Fn(f64) -> f64, level: f64, mut inside: f64, mut outside: f64) -> f64 {
+    while (outside - inside).abs() > 1e-6 {
+        let mid = 0.5 * (inside + outside);
+        if misfit(mid) > level {
+            outside = mid;
+        } else {
+            inside = mid;
+        }
+    }
+    0.5 * (inside + outside)
 }
 
 /// Fritsch–Butland slopes of the monotone piecewise-cubic Hermite interpolant (as SciPy's
@@ -635,6 +708,58 @@ fn golden(f: impl Fn(f64) -> f64, a: f64, b: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A table of power laws F ∝ E^p, τ ∝ E^−p/2 with the exponent `p(E)`.
+    fn power_table(p: impl Fn(f64) -> f64) -> ModulusTable {
+        let nodes: Vec<TableNode> = (0..=25)
+            .map(|i| {
+                let e = 1e9 * 10f64.powf(0.2 * i as f64);
+                let r = (e / 1e11).ln();
+                let (force, tau) = (1e-8 * (p(e) * r).exp(), 0.05 * (-0.5 * p(e) * r).exp());
+                TableNode {
+                    youngs_modulus: e,
+                    force,
+                    tau,
+                    pulse_force: force,
+                    pulse_tau: tau,
+                }
+            })
+            .collect();
+        ModulusTable::from_nodes(&nodes, PulseMeasure::CoupledFit).unwrap()
+    }
+
+    /// Where (F, τ) is linear in ln E over the interval, the 68 % profile interval is
+    /// E·exp(±σ_lnE); where the table flattens above the estimate, it reaches far above it
+    /// while the first-order σ, taken at the estimate, stays small.
+    #[test]
+    fn the_profile_interval_is_first_order_where_linear_and_follows_a_flat_table() {
+        let cov = [[(0.01e-8f64).powi(2), 0.0], [0.0, (0.01 * 0.05f64).powi(2)]];
+        let linear = power_table(|_| 0.3)
+            .estimate_with_covariance(1e-8, 0.05, cov)
+            .unwrap();
+        let (lo, hi) = linear.interval;
+        let e = linear.youngs_modulus;
+        assert!((e / 1e11 - 1.0).abs() < 1e-6, "{e}");
+        for (end, expected) in [(lo, -linear.log_uncertainty), (hi, linear.log_uncertainty)] {
+            let got = (end / e).ln();
+            assert!((got / expected - 1.0).abs() < 0.02, "{got} vs {expected}");
+        }
+        // Flat above 100 GPa: F and τ barely change with E there. Measured a third of σ
+        // below it, so that the whole plateau is within Δχ² = 1.
+        let r = -linear.log_uncertainty / 3.0;
+        let flat = power_table(|e| if e > 1e11 { 0.01 } else { 0.3 })
+            .estimate_with_covariance(1e-8 * (0.3 * r).exp(), 0.05 * (-0.15 * r).exp(), cov)
+            .unwrap();
+        let (lo, hi) = flat.interval;
+        let e = flat.youngs_modulus;
+        assert!(lo < e && e < hi);
+        assert!((hi / e).ln() > 5.0 * (e / lo).ln(), "{lo} {e} {hi}");
+        assert!(
+            (hi / e).ln() > 3.0 * flat.log_uncertainty,
+            "{hi} {}",
+            flat.log_uncertainty
+        );
+    }
 
     #[test]
     fn pchip_reproduces_a_cubic_free_of_overshoot_and_monotone_data() {
