@@ -353,3 +353,94 @@ fn bad_files_are_refused_naming_the_file_and_what_is_wrong() {
     assert_eq!(analyse::analyse(&s, &opts).unwrap().samples, 20_000);
     std::fs::remove_dir_all(&d).ok();
 }
+
+#[test]
+fn the_commands_record_and_analyse_through_files_and_standard_input() {
+    use std::io::Write;
+    use std::process::{Command, Stdio};
+    let d = dir("cli");
+    let config = d.join("paper.toml");
+    std::fs::write(&config, "[synth]\nengine = \"paper\"\n").unwrap();
+    let file = d.join("sig.npy");
+    let bin = env!("CARGO_BIN_EXE_ftafm");
+    let cfg = config.to_str().unwrap();
+    let out = Command::new(bin)
+        .args([
+            "--config",
+            cfg,
+            "record-signal",
+            "--seconds",
+            "0.02",
+            "--out",
+        ])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = Command::new(bin)
+        .args(["--config", cfg, "analyse", "--json"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["samples"], 200_000);
+    assert_eq!(json["reference"]["source"], "sidecar");
+    assert_eq!(json["demod_frames"], 20);
+    // The same samples as raw float32 on standard input, the fundamental as the reference.
+    let bytes = std::fs::read(&file).unwrap();
+    let h = analyse::npy::read_header(&mut &bytes[..]).unwrap();
+    let raw: Vec<u8> = bytes[h.data_offset as usize..]
+        .chunks_exact(8)
+        .flat_map(|b| (f64::from_le_bytes(b.try_into().unwrap()) as f32).to_le_bytes())
+        .collect();
+    let mut child = Command::new(bin)
+        .args(["--config", cfg, "analyse", "-", "--format", "raw-f32"])
+        .args([
+            "--sample-rate",
+            "1e7",
+            "--drive-frequency",
+            "1e5",
+            "--units",
+            "m",
+        ])
+        .args(["--json"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child.stdin.take().unwrap().write_all(&raw).unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["samples"], 200_000);
+    assert_eq!(json["reference"]["source"], "signal");
+    // Bad flags exit 2, bad files 1, each with its message.
+    let out = Command::new(bin)
+        .args(["analyse", "--units", "V"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("allowed value is \"m\""));
+    let out = Command::new(bin)
+        .args(["analyse", "-", "--units", "m"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--format raw-i16 or raw-f32"));
+    std::fs::remove_dir_all(&d).ok();
+}
