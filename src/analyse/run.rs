@@ -172,9 +172,11 @@ struct Collector<'a> {
     demods: usize,
     demod_out: Option<NpyWriter>,
     spectrum_out: Option<NpyWriter>,
-    force_out: Option<NpyWriter>,
-    estimator: Option<ForceEstimator>,
-    force: ForceSummary,
+    /// The inversion's thread: frames to it, estimates back (for the observer only).
+    inversion: Option<Inversion>,
+    /// Demodulator frames left out of the inversion while the filters settled.
+    unsettled: u64,
+    settle_from: f64,
     frames: u64,
     spectra: u64,
     bin_width: f64,
@@ -192,10 +194,10 @@ pub enum Output<'a> {
 
 impl Collector<'_> {
     fn write(&mut self, which: u8) {
-        let w = match which {
-            0 => &mut self.demod_out,
-            1 => &mut self.spectrum_out,
-            _ => &mut self.force_out,
+        let w = if which == 0 {
+            &mut self.demod_out
+        } else {
+            &mut self.spectrum_out
         };
         if let Some(w) = w
             && let Err(e) = w.row(&self.row)
@@ -238,51 +240,107 @@ impl Collector<'_> {
         if let Some(obs) = &mut self.observer {
             obs(Output::Demods(&self.frame));
         }
-        if let Some(e) = &mut self.estimator {
-            if self.frame.t < self.force.settle_from {
-                self.force.unsettled_frames += 1;
+        if let Some(inv) = &self.inversion {
+            if self.frame.t < self.settle_from {
+                self.unsettled += 1;
             } else {
-                match e.push(&self.frame) {
-                    Some(Ok(est)) => {
-                        self.force.estimates += 1;
-                        self.force.max_force.add(est.max_force, est.max_force_sigma);
-                        self.force
-                            .youngs_modulus
-                            .add(est.youngs_modulus, est.youngs_modulus_sigma);
-                        self.force
-                            .contact_time_ratio
-                            .add(est.contact_time_ratio, est.contact_time_ratio_sigma);
-                        self.row.clear();
-                        self.row.extend(est.sample_index.to_le_bytes());
-                        self.row.extend(est.t.to_le_bytes());
-                        for v in [
-                            est.contact_time_ratio,
-                            est.contact_time_ratio_sigma,
-                            est.max_force,
-                            est.max_force_sigma,
-                            est.youngs_modulus,
-                            est.youngs_modulus_sigma,
-                            est.pulse_phase,
-                        ] {
-                            self.row.extend(v.to_le_bytes());
-                        }
-                        for v in &est.waveform {
-                            self.row.extend(v.to_le_bytes());
-                        }
-                        self.write(2);
-                        if let Some(obs) = &mut self.observer {
-                            obs(Output::Force(&est));
-                        }
-                    }
-                    Some(Err(err)) => {
-                        self.force.failed += 1;
-                        self.force.last_error = Some(err.to_string());
-                    }
-                    None => {}
-                }
+                // Blocks while the inversion's queue is full: memory stays bounded and no
+                // frame is dropped.
+                let _ = inv.frames.send(self.frame);
             }
         }
+        self.observe_estimates();
         self.frame.len = 0;
+    }
+}
+
+impl Collector<'_> {
+    /// Hands the estimates made so far to the observer, if there is one.
+    fn observe_estimates(&mut self) {
+        if let (Some(obs), Some(inv)) = (&mut self.observer, &self.inversion) {
+            while let Ok(est) = inv.estimates.try_recv() {
+                obs(Output::Force(&est));
+            }
+        }
+    }
+}
+
+/// Frames in flight to the inversion's thread.
+const INVERSION_QUEUE: usize = 256;
+
+/// The force inversion on a thread of its own, so that its fits run beside the lock-in.
+struct Inversion {
+    frames: std::sync::mpsc::SyncSender<DemodFrame>,
+    estimates: std::sync::mpsc::Receiver<ForceEstimate>,
+    thread: std::thread::JoinHandle<Result<ForceSummary, String>>,
+}
+
+impl Inversion {
+    fn start(
+        mut estimator: ForceEstimator,
+        mut out: Option<NpyWriter>,
+        mut summary: ForceSummary,
+        observe: bool,
+    ) -> Result<Self, String> {
+        let (frames, rx) = std::sync::mpsc::sync_channel::<DemodFrame>(INVERSION_QUEUE);
+        let (tx, estimates) = std::sync::mpsc::channel();
+        let thread = std::thread::Builder::new()
+            .name("ftafm-inversion".into())
+            .spawn(move || {
+                let mut row = Vec::new();
+                for frame in rx {
+                    match estimator.push(&frame) {
+                        Some(Ok(est)) => {
+                            summary.estimates += 1;
+                            summary.max_force.add(est.max_force, est.max_force_sigma);
+                            summary
+                                .youngs_modulus
+                                .add(est.youngs_modulus, est.youngs_modulus_sigma);
+                            summary
+                                .contact_time_ratio
+                                .add(est.contact_time_ratio, est.contact_time_ratio_sigma);
+                            if let Some(w) = &mut out {
+                                row.clear();
+                                row.extend(est.sample_index.to_le_bytes());
+                                row.extend(est.t.to_le_bytes());
+                                for v in [
+                                    est.contact_time_ratio,
+                                    est.contact_time_ratio_sigma,
+                                    est.max_force,
+                                    est.max_force_sigma,
+                                    est.youngs_modulus,
+                                    est.youngs_modulus_sigma,
+                                    est.pulse_phase,
+                                ] {
+                                    row.extend(v.to_le_bytes());
+                                }
+                                for v in &est.waveform {
+                                    row.extend(v.to_le_bytes());
+                                }
+                                w.row(&row).map_err(|e| format!("writing force.npy: {e}"))?;
+                            }
+                            if observe {
+                                let _ = tx.send(est);
+                            }
+                        }
+                        Some(Err(err)) => {
+                            summary.failed += 1;
+                            summary.last_error = Some(err.to_string());
+                        }
+                        None => {}
+                    }
+                }
+                if let Some(w) = out {
+                    w.finish().map_err(|e| format!("writing force.npy: {e}"))?;
+                }
+                Ok(summary)
+            })
+            .map_err(|e| format!("the inversion's thread: {e}"))?;
+        Ok(Self {
+            frames,
+            estimates,
+            thread,
+        })
     }
 }
 
@@ -546,23 +604,27 @@ pub fn analyse_with(
             );
         }
     }
-    let warnings = estimator
-        .as_ref()
-        .map(|e| e.warnings().to_vec())
-        .unwrap_or_default();
+    let settle_from = crate::instrument::sweeper::automatic_settling(&settings);
+    let inversion = match estimator {
+        Some(e) => {
+            let summary = ForceSummary {
+                settle_from,
+                warnings: e.warnings().to_vec(),
+                ..ForceSummary::default()
+            };
+            Some(Inversion::start(e, writers.2, summary, observer.is_some())?)
+        }
+        None => None,
+    };
     let mut sink = Collector {
         frame: DemodFrame::empty(),
         fs,
         demods,
         demod_out: writers.0,
         spectrum_out: writers.1,
-        force_out: writers.2,
-        estimator,
-        force: ForceSummary {
-            settle_from: crate::instrument::sweeper::automatic_settling(&settings),
-            warnings,
-            ..ForceSummary::default()
-        },
+        inversion,
+        unsettled: 0,
+        settle_from,
         frames: 0,
         spectra: 0,
         bin_width: 0.0,
@@ -620,6 +682,28 @@ pub fn analyse_with(
         run(&piece, &mut index)?;
     }
     sink.flush();
+    // The inversion's queue closed: its thread finishes the frames it holds.
+    let force = match sink.inversion.take() {
+        Some(inv) => {
+            let Inversion {
+                frames,
+                estimates,
+                thread,
+            } = inv;
+            drop(frames);
+            let mut summary = thread
+                .join()
+                .map_err(|_| "the inversion's thread panicked".to_owned())??;
+            summary.unsettled_frames = sink.unsettled;
+            if let Some(obs) = &mut sink.observer {
+                for est in estimates.try_iter() {
+                    obs(Output::Force(&est));
+                }
+            }
+            Some(summary)
+        }
+        None => None,
+    };
     if let Some(bar) = &bar {
         bar.finish_and_clear();
     }
@@ -627,13 +711,9 @@ pub fn analyse_with(
     if let Some(e) = sink.error.take() {
         return Err(format!("writing the outputs: {e}"));
     }
-    for w in [
-        sink.demod_out.take(),
-        sink.spectrum_out.take(),
-        sink.force_out.take(),
-    ]
-    .into_iter()
-    .flatten()
+    for w in [sink.demod_out.take(), sink.spectrum_out.take()]
+        .into_iter()
+        .flatten()
     {
         w.finish()
             .map_err(|e| format!("writing the outputs: {e}"))?;
@@ -653,7 +733,7 @@ pub fn analyse_with(
         demod_frames: sink.frames,
         spectra: sink.spectra,
         bin_width: sink.bin_width,
-        force: sink.estimator.is_some().then(|| sink.force.clone()),
+        force,
         why_no_force,
         threads,
         elapsed,
