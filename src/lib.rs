@@ -6,6 +6,7 @@
 //! [`dsp`] and [`synth`] (real-time blocks, meeting only through the ring), [`pipeline`],
 //! the daemon ([`server`]), and the commands ([`cli`]).
 
+pub mod analyse;
 pub mod cli;
 pub mod config;
 pub mod cpu;

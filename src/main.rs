@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+use ftafm::cli::analyse::{AnalyseArgs, RecordSignalArgs};
 use ftafm::cli::{self, ConfigArg, serve::ServeArgs};
 
 #[derive(Parser)]
@@ -155,6 +156,12 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Analyse a recorded photodiode signal offline: the lock-in bank, spectrum and force
+    /// inversion of the configuration, streamed from the file (docs/analyse.md).
+    Analyse(AnalyseArgs),
+    /// Write the synthesiser's own signal (through the ADC) to a .npy file in metres, with
+    /// the drive's phase in a sidecar, for `ftafm analyse`.
+    RecordSignal(RecordSignalArgs),
     /// Print the configured instrument: its modes and the 1-DOF tapping solution.
     Info {
         #[command(flatten)]
@@ -234,6 +241,8 @@ fn main() -> ExitCode {
             report,
         } => cli::soak::command(url, clients, seconds, &streams, json, fail_on_loss, report),
         Command::Stalls { seconds, json } => cli::stalls::command(seconds, json),
+        Command::Analyse(args) => cli::analyse::command(args),
+        Command::RecordSignal(args) => cli::analyse::record_signal(args),
     };
     result.unwrap_or_else(|code| code)
 }
@@ -246,7 +255,9 @@ fn with_leading_config(mut command: Command, leading: ConfigArg) -> Result<Comma
         | Command::Paper { config, .. }
         | Command::Scan { config, .. }
         | Command::Bench { config, .. }
-        | Command::Info { config } => config,
+        | Command::Info { config }
+        | Command::Analyse(AnalyseArgs { config, .. })
+        | Command::RecordSignal(RecordSignalArgs { config, .. }) => config,
         Command::Presets { .. } | Command::Soak { .. } | Command::Stalls { .. } => {
             return if leading.is_empty() {
                 Ok(command)

@@ -1,6 +1,7 @@
-//! The commands (`serve`, `paper`, `info`, `presets`, `bench`, `scan`, `soak`, `stalls`), one
+//! The commands (`serve`, `analyse`, `record-signal`, `paper`, `info`, `presets`, `bench`, `scan`, `soak`, `stalls`), one
 //! file each, and what they share; `main.rs` only parses the command line and dispatches.
 
+pub mod analyse;
 pub mod bench;
 pub mod info;
 pub mod paper;

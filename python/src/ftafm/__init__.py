@@ -16,6 +16,7 @@
 """
 
 from .aio import DEFAULT_URL, Node
+from .analyse import Analysis, AnalysisError, analyse
 from .client import Instrument
 from .data import (
     DemodData,
@@ -32,6 +33,9 @@ from .errors import ConnectionLost, InstrumentError, NoDaemon
 __version__ = "0.1.0"
 
 __all__ = [
+    "Analysis",
+    "AnalysisError",
+    "analyse",
     "DEFAULT_URL",
     "ConnectionLost",
     "DemodData",
