@@ -20,6 +20,7 @@ export class ForcePanel {
   constructor(app) {
     this.app = app;
     this.latest = null;
+    this.shown = null;
     this.t = new Float64Array(CAP);
     this.E = new Float64Array(CAP);
     this.F = new Float64Array(CAP);
@@ -247,6 +248,8 @@ export class ForcePanel {
 
   updateReadout() {
     const m = this.latest;
+    // The message the readout and the footer show: `latest` moves on between readouts.
+    this.shown = m;
     const row = (key, label, value, sigma, arr, unit, digits) => {
       const st = this.stats(arr);
       const mean = st ? st.mean : NaN;
