@@ -277,6 +277,24 @@ pub enum Regime {
 }
 
 impl Regime {
+    /// The regime as a number, as a scan's `regime` channel holds it per pixel: −1
+    /// attractive, 0 free, +1 repulsive (the sign of the mean force against the free lever's).
+    pub fn code(self) -> f64 {
+        match self {
+            Regime::Attractive => -1.0,
+            Regime::Free => 0.0,
+            Regime::Repulsive => 1.0,
+        }
+    }
+
+    /// The regime a `regime` channel's value names (the inverse of [`code`](Self::code)),
+    /// `None` for NaN or anything else.
+    pub fn from_code(code: f64) -> Option<Regime> {
+        [Regime::Attractive, Regime::Free, Regime::Repulsive]
+            .into_iter()
+            .find(|r| r.code() == code)
+    }
+
     /// `"free"`, `"attractive"` or `"repulsive"`, as the approach summary names it.
     pub fn name(self) -> &'static str {
         match self {

@@ -138,6 +138,15 @@ fn a_300_khz_lever_runs_every_offline_command() {
         !channels.contains(&"h17"),
         "an out-of-band harmonic imaged: {channels:?}"
     );
+    // Without adhesion the tip–sample force only pushes: every region on the repulsive
+    // branch, none flagged as imaged across branches.
+    let branches = report["branches"].as_array().unwrap();
+    assert_eq!(branches[0]["regime"], "repulsive", "the base: {report}");
+    // At 8 pixels a small inclusion has no interior pixel, hence no regime.
+    for b in branches.iter().filter(|b| !b["regime"].is_null()) {
+        assert_eq!(b["regime"], "repulsive", "{b}");
+        assert_eq!(b["across_branches"], false, "{b}");
+    }
 }
 
 #[test]

@@ -137,6 +137,25 @@ function boxStats(values, P, box, inside) {
   return { n, mean, std: n > 1 ? Math.sqrt(s2 / (n - 1)) : 0 };
 }
 
+const REGIMES = { "-1": "attractive", "0": "free", "1": "repulsive" };
+
+/**
+ * The regime most pixels of the box (inside or outside it) were imaged in, from the
+ * daemon's `regime` channel (−1 attractive, 0 free, +1 repulsive), or null.
+ */
+function boxRegime(values, P, box, inside) {
+  const [c0, r0, c1, r1] = box;
+  const counts = { "-1": 0, "0": 0, "1": 0 };
+  for (let r = 0; r < P; r++) {
+    for (let c = 0; c < P; c++) {
+      const v = values[r * P + c];
+      if (v === v && (r >= r0 && r <= r1 && c >= c0 && c <= c1) === inside && String(v) in counts) counts[String(v)]++;
+    }
+  }
+  const [code, n] = Object.entries(counts).sort((a, b) => b[1] - a[1])[0];
+  return n ? REGIMES[code] : null;
+}
+
 // ---- data ----
 
 /** One image: every kept channel as pixels² values (NaN: not yet scanned or missing). */
@@ -671,6 +690,11 @@ export class ImagePanel {
     // The paper's sign (1 − S_Si/S_Inh): the rest of the image is the reference.
     const contrast = 1 - b.mean / a.mean;
     const cnr = Math.abs(a.mean - b.mean) / b.std;
+    // Where attractive and repulsive orbits coexist, the region can be on the other branch:
+    // its contrast then compares two orbits, not two materials.
+    const regimes = f.data.get("regime");
+    const branchIn = regimes ? boxRegime(regimes, P, px, true) : null;
+    const branchOut = regimes ? boxRegime(regimes, P, px, false) : null;
     return {
       channel: this.channel,
       unit: f.units[this.channel] ?? unitOf(this.channel),
@@ -683,6 +707,8 @@ export class ImagePanel {
       meanOut: b.mean, stdOut: b.std, nOut: b.n,
       difference: a.mean - b.mean,
       contrast, cnr,
+      branchIn, branchOut,
+      acrossBranches: !!(branchIn && branchOut && branchIn !== branchOut),
     };
   }
 
@@ -714,6 +740,9 @@ export class ImagePanel {
         ? `<tr data-key="difference" title="mean(region) − mean(rest)"><th>height difference ⟨in⟩ − ⟨out⟩</th><td colspan="3" data-value="${isFinite(s.difference) ? s.difference : ""}"><b>${si(s.difference, u)}</b></td></tr>`
         : `<tr data-key="contrast" title="c = 1 − mean(rest) / mean(region), the paper's 1 − S_Si/S_Inh: negative when the region is weaker"><th>contrast c = 1 − ⟨out⟩/⟨in⟩</th><td colspan="3" data-value="${isFinite(s.contrast) ? s.contrast : ""}"><b>${pct(s.contrast)}</b></td></tr>`) +
       `<tr data-key="cnr" title="contrast-to-noise ratio |mean(region) − mean(rest)| / std(rest)"><th>CNR |Δ⟨⟩| / σ<sub>out</sub></th><td colspan="3" data-value="${isFinite(s.cnr) ? s.cnr : ""}">${isFinite(s.cnr) ? s.cnr.toPrecision(3) : s.cnr === Infinity ? "∞" : "–"}</td></tr>` +
+      (s.acrossBranches
+        ? `<tr data-key="branches" class="warn"><td colspan="4">the region was imaged on the <b>${esc(s.branchIn)}</b> branch and the rest on the <b>${esc(s.branchOut)}</b>: this contrast compares two orbits, not two materials</td></tr>`
+        : "") +
       `<tr><td colspan="4" class="muted">${esc(s.channel)}, columns ${c0}–${c1}, lines ${r0}–${r1}; ${esc(src)}</td></tr>`;
   }
 

@@ -13,6 +13,7 @@ use super::{ConfigArg, EXIT_USAGE, load, print_report};
 use crate::config::Settings;
 use crate::imaging::{Assembler, ImageFrame, export};
 use crate::pipeline::{CountersSnapshot, Pipeline, PipelineError};
+use crate::sweep::Regime;
 use crate::synth::{Raster, sample_map};
 
 /// How a region of the image compares with the base material in one channel.
@@ -33,6 +34,23 @@ pub struct RegionContrast {
     pub step: f64,
     /// `|mean_base − mean_region| / √((std_base² + std_region²)/2)` (1).
     pub cnr: f64,
+}
+
+/// The branch the tip was on over one region's interior pixels (the frame's `regime`
+/// channel, `crate::sweep::regime`): where an attractive and a repulsive orbit coexist, a
+/// region can be imaged on the other branch from the base, and its contrast then compares
+/// two orbits, not two materials.
+#[derive(Clone, Debug, Serialize)]
+pub struct RegionBranch {
+    /// Region index: 0 the base material, 1 + the index among enabled inclusions.
+    pub region: usize,
+    /// The regime of most of its pixels (`"free"`, `"attractive"`, `"repulsive"`), `None`
+    /// where no pixel has one.
+    pub regime: Option<&'static str>,
+    /// The share of its pixels with a regime that are in `regime` (1).
+    pub share: f64,
+    /// `regime` differs from the base's: this region's contrasts compare two branches.
+    pub across_branches: bool,
 }
 
 /// One channel of a recorded frame.
@@ -65,6 +83,8 @@ pub struct ScanReport {
     pub files: Vec<PathBuf>,
     /// Per channel, of the last frame.
     pub channels: Vec<ChannelReport>,
+    /// Per region (the base first), the branch its pixels were imaged on, of the last frame.
+    pub branches: Vec<RegionBranch>,
     /// Pixels whose inversion failed.
     pub inversion_failed: u64,
     /// The pipeline's counters at the end (overruns, pixels dropped, ...).
@@ -186,6 +206,7 @@ pub fn run(
         frames: recorded.len(),
         files,
         channels: contrast(&settings, &raster, last),
+        branches: branches(&settings, &raster, last),
         inversion_failed: assembler.inversion_failed,
         counters,
     })
@@ -215,19 +236,7 @@ pub struct Progress {
 /// (whose four corners lie in the same region), so edge pixels do not blur the numbers.
 pub fn contrast(settings: &Settings, raster: &Raster, frame: &ImageFrame) -> Vec<ChannelReport> {
     let map = sample_map(settings);
-    let n = frame.pixels;
-    let half = 0.5 * raster.pixel_size();
-    let mut region_of = vec![None; (n * n) as usize];
-    for line in 0..n {
-        for column in 0..n {
-            let (x, y) = raster.pixel_centre(column, line);
-            let corners = [(-half, -half), (-half, half), (half, -half), (half, half)]
-                .map(|(dx, dy)| map.region_at(x + dx, y + dy));
-            if corners.iter().all(|&r| r == corners[0]) {
-                region_of[(line * n + column) as usize] = Some(corners[0]);
-            }
-        }
-    }
+    let region_of = interior_regions(settings, raster, frame.pixels);
     let stats = |data: &[f64], region: usize| -> (f64, f64, usize) {
         let v: Vec<f64> = data
             .iter()
@@ -275,6 +284,71 @@ pub fn contrast(settings: &Settings, raster: &Raster, frame: &ImageFrame) -> Vec
         .collect()
 }
 
+/// Each pixel's region (row-major, `pixels²`) where its four corners lie in the same one,
+/// else `None`: the pixels a region's statistics are taken over.
+fn interior_regions(settings: &Settings, raster: &Raster, pixels: u32) -> Vec<Option<usize>> {
+    let map = sample_map(settings);
+    let n = pixels;
+    let half = 0.5 * raster.pixel_size();
+    let mut region_of = vec![None; (n * n) as usize];
+    for line in 0..n {
+        for column in 0..n {
+            let (x, y) = raster.pixel_centre(column, line);
+            let corners = [(-half, -half), (-half, half), (half, -half), (half, half)]
+                .map(|(dx, dy)| map.region_at(x + dx, y + dy));
+            if corners.iter().all(|&r| r == corners[0]) {
+                region_of[(line * n + column) as usize] = Some(corners[0]);
+            }
+        }
+    }
+    region_of
+}
+
+/// Per region (the base first), the regime most of its interior pixels were imaged in, from
+/// the frame's `regime` channel; empty if the frame has none.
+pub fn branches(settings: &Settings, raster: &Raster, frame: &ImageFrame) -> Vec<RegionBranch> {
+    let Some(channel) = frame.channels.iter().find(|c| c.name == "regime") else {
+        return Vec::new();
+    };
+    let region_of = interior_regions(settings, raster, frame.pixels);
+    let regions = sample_map(settings).regions().len();
+    let majority = |region: usize| -> (Option<Regime>, f64) {
+        let mut counts = [0usize; 3];
+        for (v, r) in channel.data.iter().zip(&region_of) {
+            if *r == Some(region)
+                && let Some(regime) = Regime::from_code(*v)
+            {
+                counts[(regime.code() + 1.0) as usize] += 1;
+            }
+        }
+        let total: usize = counts.iter().sum();
+        let (i, most) = counts
+            .iter()
+            .enumerate()
+            .max_by_key(|(_, c)| **c)
+            .expect("three counts");
+        if total == 0 {
+            return (None, f64::NAN);
+        }
+        (
+            Regime::from_code(i as f64 - 1.0),
+            *most as f64 / total as f64,
+        )
+    };
+    let base = majority(0).0;
+    (0..regions)
+        .map(|region| {
+            let (regime, share) = majority(region);
+            RegionBranch {
+                region,
+                regime: regime.map(Regime::name),
+                share,
+                across_branches: region > 0 && regime.is_some() && base.is_some() && regime != base,
+            }
+        })
+        .collect()
+}
+
 /// The report as text: the scan, then a table of channels.
 pub fn render_text(r: &ScanReport) -> String {
     let mut s = format!(
@@ -310,8 +384,42 @@ pub fn render_text(r: &ScanReport) -> String {
             );
         }
     }
+    s += &branches_text(&r.branches);
     for f in &r.files {
         s += &format!("wrote {}\n", f.display());
+    }
+    s
+}
+
+/// The branch of each region, and a warning for each region imaged on another branch than
+/// the base: its contrasts compare two orbits.
+fn branches_text(branches: &[RegionBranch]) -> String {
+    if branches.is_empty() {
+        return String::new();
+    }
+    let named = |b: &RegionBranch| match b.regime {
+        Some(r) => format!("{r} ({:.0} % of its pixels)", b.share * 100.0),
+        None => "unknown".to_owned(),
+    };
+    let list: Vec<String> = branches
+        .iter()
+        .map(|b| {
+            let what = if b.region == 0 {
+                "base".to_owned()
+            } else {
+                format!("region {}", b.region)
+            };
+            format!("{what} {}", named(b))
+        })
+        .collect();
+    let mut s = format!("\nbranch: {}\n", list.join(", "));
+    for b in branches.iter().filter(|b| b.across_branches) {
+        s += &format!(
+            "warning: region {} was imaged on the {} branch and the base on the {}: its contrasts compare two orbits, not two materials (an approach from farther, or another set-point, reaches one branch for both)\n",
+            b.region,
+            b.regime.unwrap_or("?"),
+            branches[0].regime.unwrap_or("?"),
+        );
     }
     s
 }
@@ -463,6 +571,7 @@ mod tests {
                 channel("height", "m", -4e-13, -1.05e-11),
                 channel("h17", "m", 2.5e-11, 2.57e-11),
             ],
+            branches: Vec::new(),
             inversion_failed: 0,
             counters: CountersSnapshot::default(),
         };
@@ -472,6 +581,71 @@ mod tests {
         assert!(!height.contains('%'), "{height}");
         let h17 = text.lines().find(|l| l.starts_with("h17")).unwrap();
         assert!(h17.contains("+2.724 %"), "{h17}");
+    }
+
+    /// A frame of the default scan whose `regime` channel holds `base` on the base material's
+    /// pixels and `inclusion` elsewhere.
+    fn regime_frame(base: f64, inclusion: f64) -> (Settings, Raster, ImageFrame) {
+        let settings = crate::config::default_settings();
+        let raster = Raster::new(
+            &settings.scan,
+            settings.synth.sample_rate,
+            settings.drive.frequency,
+            0,
+            0,
+        );
+        let n = settings.scan.pixels;
+        let data = interior_regions(&settings, &raster, n)
+            .iter()
+            .enumerate()
+            // Every 7th pixel undecided (NaN), as where harmonic 1 was lost.
+            .map(|(i, r)| match r {
+                _ if i % 7 == 0 => f64::NAN,
+                Some(0) => base,
+                _ => inclusion,
+            })
+            .collect();
+        let frame = ImageFrame {
+            generation: 0,
+            frame: 0,
+            pixels: n,
+            size: settings.scan.size,
+            origin: (0.0, 0.0),
+            channels: vec![crate::imaging::export::ImageChannel {
+                name: "regime".to_owned(),
+                unit: "1",
+                data,
+            }],
+            settings: std::sync::Arc::new(settings.clone()),
+        };
+        (settings, raster, frame)
+    }
+
+    #[test]
+    fn a_region_imaged_on_another_branch_than_the_base_is_named_and_warned() {
+        let (settings, raster, frame) = regime_frame(1.0, -1.0);
+        let b = branches(&settings, &raster, &frame);
+        assert!(b.len() >= 2, "the default sample has inclusions: {b:?}");
+        assert_eq!(b[0].regime, Some("repulsive"));
+        assert_eq!(b[0].share, 1.0);
+        assert!(!b[0].across_branches);
+        for r in &b[1..] {
+            assert_eq!(r.regime, Some("attractive"), "{r:?}");
+            assert!(r.across_branches, "{r:?}");
+        }
+        let text = branches_text(&b);
+        assert!(
+            text.contains("warning: region 1 was imaged on the attractive branch and the base on the repulsive"),
+            "{text}"
+        );
+
+        let (settings, raster, frame) = regime_frame(1.0, 1.0);
+        let b = branches(&settings, &raster, &frame);
+        assert!(
+            b.iter()
+                .all(|r| r.regime == Some("repulsive") && !r.across_branches)
+        );
+        assert!(!branches_text(&b).contains("warning"));
     }
 
     #[test]

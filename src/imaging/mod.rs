@@ -91,6 +91,9 @@ pub struct Assembler {
     pending: VecDeque<PixelHarmonics>,
     /// The settings in force, for the finished frames' metadata.
     settings: std::sync::Arc<Settings>,
+    /// The free lever's reading at the settings in force: the reference of each pixel's
+    /// regime (`crate::sweep::regime`).
+    free: Option<crate::sweep::ApproachPoint>,
     current: Option<Frame>,
     finished: Option<ImageFrame>,
     /// Pixels whose inversion failed (their FT-AFM channels are NaN).
@@ -111,6 +114,7 @@ impl Assembler {
             latest_topography: None,
             pending: VecDeque::new(),
             settings: std::sync::Arc::new(settings.clone()),
+            free: None,
             current: None,
             finished: None,
             inversion_failed: 0,
@@ -125,6 +129,7 @@ impl Assembler {
         self.pixels = settings.scan.pixels;
         self.sample_rate = settings.synth.sample_rate;
         self.settings = std::sync::Arc::new(settings.clone());
+        self.free = crate::sweep::free_point(settings);
         // One estimate per pixel, whatever the live stream averages.
         let mut s = settings.clone();
         s.inversion.averaging = 1;
@@ -228,6 +233,30 @@ impl Assembler {
             "rad",
             fundamental.map_or(f64::NAN, |v| v.phase()),
         ));
+        // The branch the tip is on at this pixel, as an approach names it: where an
+        // attractive and a repulsive orbit coexist, the feedback can hold the set-point on
+        // either, and a contrast between pixels on two branches compares two orbits.
+        let regime = fundamental.zip(self.free).map_or(f64::NAN, |(h1, free)| {
+            let point = crate::sweep::ApproachPoint {
+                r: h1.r(),
+                phase: crate::sweep::phase_to_drive(h1.phase()),
+                mean: p
+                    .frame
+                    .values()
+                    .iter()
+                    .find(|v| v.harmonic == 0)
+                    .map(|v| v.x),
+            };
+            crate::sweep::regime(
+                point,
+                free,
+                crate::sweep::FREE_DROP,
+                crate::sweep::FREE_TWIST,
+                crate::sweep::MEAN_FLOOR,
+            )
+            .code()
+        });
+        values.push(("regime".into(), "1", regime));
         let mut harmonics: Vec<_> = p
             .frame
             .values()
