@@ -180,6 +180,22 @@ fn an_approach_past_the_end_of_the_attractive_branch_reports_its_jump() {
     assert!(jump.distance > s.surface.distance && jump.distance < s.drive.free_amplitude);
 }
 
+/// Where the attractive branch has an unstable orbit beside its stable one (tap300 with
+/// adhesion, 4 nm free, set-point ratios 0.78–0.79: a saddle whose largest multiplier is
+/// 1.05), the approach's steps stay on the stable orbit, as a quasi-static approach does (a
+/// walk in steps of 0.0025 of the ratio from 0.9 to 0.7 never leaves it), instead of
+/// landing on the saddle and following the motion off it to the repulsive branch.
+#[test]
+fn an_approach_steps_past_an_unstable_orbit_of_its_branch() {
+    let tap300: (f64, f64, &[f64], f64) =
+        (300e3, 40.0, &[500.0, 2085.0, 1700.0, 1000.0, 130.0], 8e-9);
+    let s = settings(tap300, 129e9, 4e-9, 0.785, true);
+    let o = problem(&s).solve(8).unwrap();
+    check(&s, &o, "tap300, adhesion, 3.14 nm of 4");
+    assert_eq!(o.branch, Branch::Attractive, "jumps: {:?}", o.jumps);
+    assert!(o.jumps.is_empty(), "{:?}", o.jumps);
+}
+
 /// A search stops within its budget of periods, and on a cancel flag, with the reason.
 #[test]
 fn a_search_keeps_its_budget_and_stops_when_cancelled() {

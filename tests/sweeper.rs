@@ -522,7 +522,8 @@ async fn an_approach_names_the_branch_of_every_point() {
             + photodiode_transfer(&cantilever, omega) * o.force_coefficients[1] * 2.0)
     };
     // The offline orbits at each distance: the approach's from far, and the repulsive
-    // branch traced upwards from the nearest distance by continuation, as a retract does.
+    // branch traced upwards by continuation from the orbit a tip meeting the surface at the
+    // nearest distance settles on, as a retract does.
     let problem_at = |dist: f64| {
         let mut s = settings.clone();
         s.surface.distance = dist;
@@ -540,7 +541,9 @@ async fn an_approach_names_the_branch_of_every_point() {
         let problem = problem_at(dist);
         orbits.push((dist, problem.solve(1).unwrap()));
         let traced = match from.take() {
-            None => problem.solve_for_continuation(1).ok(),
+            None => problem
+                .solve_from_contact_for_continuation(1, ftafm::physics::SearchLimits::default())
+                .ok(),
             // In steps of 0.05 nm: Newton's basin on this branch is narrow.
             Some((last, mut c)) => {
                 let steps = ((dist - last) / 0.05e-9).ceil() as usize;

@@ -423,15 +423,32 @@ impl CoupledProblem {
         harmonics: usize,
         limits: SearchLimits<'_>,
     ) -> Result<CoupledOrbit, CoupledError> {
+        self.solve_from_contact_for_continuation(harmonics, limits)
+            .map(|(orbit, _)| orbit)
+    }
+
+    /// [`Self::solve_from_contact`], with what a nearby problem can continue from
+    /// ([`Self::solve_continued`]): the contact branch traced to other distances.
+    ///
+    /// # Errors
+    /// As [`Self::solve_with`].
+    pub fn solve_from_contact_for_continuation(
+        &self,
+        harmonics: usize,
+        limits: SearchLimits<'_>,
+    ) -> Result<(CoupledOrbit, Continuation), CoupledError> {
         let periods = Cell::new(0);
         let map = PeriodMap::new(self, &periods, limits);
         let (fixed, monodromy) =
             approach::settle(&map, vec![0.0; 2 * self.modes.len()], approach::FINAL)?;
-        let (orbit, _) = self.finish(&map, fixed, monodromy, harmonics)?;
-        Ok(CoupledOrbit {
-            periods: periods.get(),
-            ..orbit
-        })
+        let (orbit, continuation) = self.finish(&map, fixed, monodromy, harmonics)?;
+        Ok((
+            CoupledOrbit {
+                periods: periods.get(),
+                ..orbit
+            },
+            continuation,
+        ))
     }
 
     /// The orbit of a converged fixed point with its monodromy matrix: measured.
