@@ -213,3 +213,87 @@ fn a_running_scan_allocates_nothing_on_the_realtime_threads() {
         "allocations or frees on the real-time threads while scanning"
     );
 }
+
+/// A streamed source (`/source/kind = "stream"`): the synthesiser thread passing a client's
+/// samples on, across gaps, a start, a full feed and a change back to the synthesiser with
+/// samples still in the feed, allocates and frees nothing on the real-time threads.
+#[test]
+fn a_streamed_source_allocates_nothing_on_the_realtime_threads() {
+    use ftafm::pipeline::{FrameHeader, SampleType};
+    let _serial = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let mut settings = default_settings();
+    settings.synth.realtime = false;
+    let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    while pipeline.counters().demod_frames < 20 {
+        output.drain();
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let before = REALTIME_ALLOCATIONS.load(Ordering::SeqCst);
+    let inlet = output.inlet.clone();
+    let frame = |first: u64, n: usize| {
+        let data: Vec<u8> = (0..n)
+            .flat_map(|i| ((i as f64 * 0.37).sin()).to_le_bytes())
+            .collect();
+        FrameHeader {
+            id: first,
+            sample_type: SampleType::F64,
+            sample_rate: settings.synth.sample_rate,
+            scale: 1e-8,
+            first_index: first,
+        }
+        .frame(&data)
+    };
+    let mut stream = settings.clone();
+    stream.source.kind = ftafm::config::SourceKind::Stream;
+    let wait = |pipeline: &Pipeline,
+                output: &mut ftafm::pipeline::PipelineOutput,
+                what: &str,
+                done: &dyn Fn(&ftafm::pipeline::CountersSnapshot) -> bool| {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        loop {
+            let c = pipeline.counters();
+            if done(&c) {
+                return;
+            }
+            assert!(Instant::now() < deadline, "{what}: {c:?}");
+            output.drain();
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    };
+    for round in 0..2u64 {
+        pipeline.apply(&stream).unwrap();
+        let processed = pipeline.counters().samples_processed;
+        // Frames with a gap every fourth, as fast as the test can make them: where the feed
+        // fills, frames drop whole (counted) and become gaps.
+        let mut first = 17;
+        let mut sent = 0;
+        for i in 0..400u64 {
+            let r = inlet.push_frame(1, &frame(first, 65_536));
+            let (_, receipt) = r.unwrap();
+            sent += receipt.accepted;
+            first += 65_536 + if i % 4 == 3 { 1000 } else { 0 };
+        }
+        wait(
+            &pipeline,
+            &mut output,
+            "the streamed samples went through",
+            &|c| c.samples_processed >= processed + sent,
+        );
+        // Samples left in the feed when the source changes back: discarded, counted.
+        inlet.push_frame(1, &frame(first, 65_536)).unwrap();
+        pipeline.apply(&settings).unwrap();
+        wait(&pipeline, &mut output, "back to the synthesiser", &|c| {
+            c.synth_plans_applied >= 2 * round + 2
+        });
+        inlet.release(1);
+    }
+    let after = REALTIME_ALLOCATIONS.load(Ordering::SeqCst);
+    let c = pipeline.counters();
+    assert!(c.stream_gap_samples > 0, "{c:?}");
+    assert!(c.discontinuities > 0, "{c:?}");
+    assert_eq!(
+        after - before,
+        0,
+        "allocations or frees on the real-time threads with a streamed source: {c:?}"
+    );
+}

@@ -8,7 +8,7 @@ use super::kind::{Kind, NodeValue, TextEntry, Typed};
 use super::limits::*;
 use super::settings::{
     DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, InclusionShape, InversionMethod, Settings,
-    SpectrumWindow, SweepDirection, SweepParameter, SweepScale,
+    SourceKind, SpectrumWindow, SweepDirection, SweepParameter, SweepScale,
 };
 
 /// Declares [`Field`] and its table from rows of
@@ -147,6 +147,7 @@ macro_rules! named_value {
 }
 named_value!(
     Engine,
+    SourceKind,
     SpectrumWindow,
     InversionMethod,
     SweepParameter,
@@ -227,6 +228,8 @@ node_table! {
             "Scope decimation, in samples: each trace keeps every Nth photodiode sample (1 keeps all).";
         ScopeRate "/scope/rate", "Hz", Kind::Float(SCOPE_RATE), scope.rate,
             "Scope traces per second, in Hz; traces must not overlap, so length × decimation / sample rate ≤ 1 / rate.";
+        SourceKind "/source/kind", "", Kind::Text(SourceKind::NAMES), source.kind,
+            "Where the chain's samples come from: \"synth\" (the synthesiser, the modelled cantilever and sample) or \"stream\" (samples a client pushes over the WebSocket in binary frames at /synth/sample_rate, scaled to m by the frame; docs/protocol.md, \"Streaming samples in\"). With a stream the lock-in's reference is /drive/frequency from sample 0 of the stream, and the synthesiser's nodes shape nothing.";
         #[fixed] DspThreads "/dsp/threads", "threads", Kind::Integer { min: 0, max: MAX_DSP_THREADS.into() }, dsp.threads,
             "Threads of the DSP stage, in threads: the lock-in bank is split between them (each runs a share of the demodulators on every block; the outputs are bit for bit those of one thread); 0 (auto) adds threads only on a machine with more than 2 cores, one per core beyond two, at most 4 in all; fixed at start (config file only).";
         ServerAllowedOrigins "/server/allowed_origins", "", Kind::TextList { max_len: MAX_ALLOWED_ORIGINS, max_bytes: MAX_ORIGIN_BYTES, entry: TextEntry::Origin }, server.allowed_origins,

@@ -14,7 +14,7 @@ use super::limits::{
 use super::quantity::{number, quantity};
 use super::range::{Bound, Range};
 use super::registry::registry;
-use super::settings::{DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, Settings};
+use super::settings::{DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, Settings, SourceKind};
 
 impl Settings {
     /// Checks everything `set` and the config loader guarantee: exactly
@@ -159,6 +159,9 @@ impl Settings {
     /// an in-band one (or no two in band), adhesion that the paper engine does not model.
     /// `None` when there is nothing to say.
     pub fn node_warning(&self, path: &str) -> Option<String> {
+        if self.source.kind == SourceKind::Stream && shapes_only_the_synthesis(path) {
+            return Some(STREAM_SOURCE_WARNING.to_owned());
+        }
         if path.starts_with("/adhesion/") || path == "/synth/engine" {
             return self.adhesion_ignored().then(|| {
                 "adhesion is on but /synth/engine is \"paper\", whose 1-DOF orbit has no \
@@ -301,11 +304,42 @@ impl Settings {
             }
         }
         out.extend(self.force_warnings());
-        if let Some(w) = self.node_warning("/adhesion/enable") {
+        if self.source.kind == SourceKind::Stream {
+            out.push(format!("/source/kind: {STREAM_SOURCE_WARNING}"));
+        } else if let Some(w) = self.node_warning("/adhesion/enable") {
             out.push(format!("/adhesion/enable: {w}"));
         }
         out
     }
+}
+
+/// What a node that only shapes the synthesis says while the samples come from a stream.
+const STREAM_SOURCE_WARNING: &str = "the source is a stream (/source/kind): the synthesiser's \
+     nodes (/sample, /surface, /adhesion, /noise, /scan, /feedback, \
+     /inclusions, /synth/engine and its sub-steps) shape nothing; /drive/frequency is the \
+     lock-in's reference, and the force inversion takes /cantilever and /tip as its model \
+     of the lever that recorded the stream";
+
+/// Whether the node at `path` only shapes the synthesised signal (no part of the DSP, the
+/// reference or the inversion's model of the lever reads it).
+fn shapes_only_the_synthesis(path: &str) -> bool {
+    [
+        "/source/kind",
+        "/sample/",
+        "/surface/",
+        "/adhesion/",
+        "/noise/",
+        "/scan/",
+        "/feedback/",
+        "/inclusions/",
+        "/synth/engine",
+        "/synth/contact_substeps",
+        "/synth/anti_alias",
+        "/synth/seed",
+        "/drive/free_amplitude",
+    ]
+    .iter()
+    .any(|p| path == *p || (p.ends_with('/') && path.starts_with(p)))
 }
 
 /// The fraction of the sample rate up to which the anti-alias filter is flat and the

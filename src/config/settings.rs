@@ -32,6 +32,10 @@ pub struct Settings {
     /// `[dsp]`: threads of the DSP stage (absent from older files: the default, auto).
     #[serde(default)]
     pub dsp: DspSettings,
+    /// `[source]`: where the chain's samples come from (absent from older files: the
+    /// synthesiser).
+    #[serde(default)]
+    pub source: SourceSettings,
     pub server: ServerSettings,
     pub inversion: InversionSettings,
     pub scan: ScanSettings,
@@ -303,6 +307,46 @@ pub struct DspSettings {
     /// machine with 2 cores or fewer, else one more per core beyond two, at most 4. Fixed
     /// while the pipeline runs.
     pub threads: u32,
+}
+
+/// Where the DSP chain's samples come from (`/source/kind`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SourceKind {
+    /// The synthesiser: the modelled cantilever, tapping the modelled sample.
+    #[default]
+    Synth,
+    /// Samples a client pushes over the WebSocket in binary frames (docs/protocol.md,
+    /// "Streaming samples in"): a digitiser's, or a recording replayed.
+    Stream,
+}
+
+impl SourceKind {
+    /// Every source, in the order of [`SourceKind::NAMES`].
+    pub const ALL: [SourceKind; 2] = [SourceKind::Synth, SourceKind::Stream];
+    /// The names used in config files and the protocol (`/source/kind`).
+    pub const NAMES: &'static [&'static str] = &["synth", "stream"];
+
+    /// The config/protocol name of this source (`"synth"`, `"stream"`).
+    pub fn name(self) -> &'static str {
+        match self {
+            SourceKind::Synth => "synth",
+            SourceKind::Stream => "stream",
+        }
+    }
+
+    /// The source called `name`, if there is one.
+    pub fn from_name(name: &str) -> Option<SourceKind> {
+        SourceKind::ALL.into_iter().find(|k| k.name() == name)
+    }
+}
+
+/// `[source]`: where the chain's samples come from.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SourceSettings {
+    /// The synthesiser, or samples streamed in by a client.
+    pub kind: SourceKind,
 }
 
 /// `[scope]`: time-domain traces of the raw photodiode signal (the `scope` stream).

@@ -47,6 +47,11 @@ pub struct Counters {
     pub(crate) noise_pages_discarded: AtomicU64,
     pub(crate) synth_beat_ns: AtomicU64,
     pub(crate) dsp_beat_ns: AtomicU64,
+    pub(crate) stream_frames: AtomicU64,
+    pub(crate) stream_samples: AtomicU64,
+    pub(crate) stream_gap_samples: AtomicU64,
+    pub(crate) stream_dropped_samples: AtomicU64,
+    pub(crate) stream_discarded_samples: AtomicU64,
 }
 
 impl Counters {
@@ -91,6 +96,11 @@ impl Counters {
             noise_pages_taken: r(&self.noise_pages_taken),
             noise_pages_drawn_inline: r(&self.noise_pages_drawn_inline),
             noise_pages_discarded: r(&self.noise_pages_discarded),
+            stream_frames: r(&self.stream_frames),
+            stream_samples: r(&self.stream_samples),
+            stream_gap_samples: r(&self.stream_gap_samples),
+            stream_dropped_samples: r(&self.stream_dropped_samples),
+            stream_discarded_samples: r(&self.stream_discarded_samples),
             synth_idle_ns: idle(&self.synth_beat_ns),
             dsp_idle_ns: idle(&self.dsp_beat_ns),
         }
@@ -157,6 +167,18 @@ pub struct CountersSnapshot {
     /// Pages drawn ahead and thrown away: drawn for samples already past (the DSP thread
     /// fell behind) or for a seed or number of modes that changed.
     pub noise_pages_discarded: u64,
+    /// Sample frames a client streamed in and the inlet took (`/source/kind = "stream"`).
+    pub stream_frames: u64,
+    /// Streamed samples that entered the feed.
+    pub stream_samples: u64,
+    /// Samples the writer's frames skipped (a frame's first index beyond the next one
+    /// expected: lost before they reached the daemon); the chain jumps them.
+    pub stream_gap_samples: u64,
+    /// Streamed samples dropped because the feed was full (the chain behind the writer);
+    /// the chain jumps them.
+    pub stream_dropped_samples: u64,
+    /// Streamed samples still in the feed when the source changed away from the stream.
+    pub stream_discarded_samples: u64,
     /// Time since the synthesiser last finished a block (ns; 0 before its first).
     pub synth_idle_ns: u64,
     /// Time since the DSP thread last finished a block (ns; 0 before its first): grows

@@ -6,6 +6,10 @@
 //!        ◄──────────────────────────────────────────old plans────────────────────────────────┘
 //! ```
 //!
+//! With `/source/kind = "stream"` the synthesiser thread passes a client's samples on from
+//! the [`SampleInlet`] (`feed`) instead of synthesising: the same ring, headers and DSP,
+//! on a reference tied to the writer's sample count.
+//!
 //! New settings become plans off the real-time threads ([`Pipeline::apply`]); the threads
 //! swap them in between blocks and send the old ones back, so nothing is allocated or freed
 //! on a real-time thread. The synthesiser never waits in real time: a full ring drops the
@@ -24,6 +28,7 @@ mod dsp_plan;
 mod dsp_team;
 mod dsp_worker;
 mod epochs;
+mod feed;
 mod frame_signal;
 mod frames;
 pub mod realtime;
@@ -43,6 +48,9 @@ pub use counters::{Counters, CountersSnapshot};
 pub use dsp_plan::{DspPlan, DspSink, MAX_DSP_THREADS, demodulators, dsp_threads};
 pub use dsp_team::DspTeam;
 pub use epochs::Epochs;
+pub use feed::{
+    FRAME_HEADER_BYTES, FRAME_MAGIC, FrameError, FrameHeader, FrameReceipt, SampleInlet, SampleType,
+};
 pub use frame_signal::FrameSignal;
 pub use frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
 pub use scope::MAX_SCOPE_SAMPLES;
@@ -168,6 +176,8 @@ pub struct PipelineOutput {
     /// Signalled by the DSP thread after each block that produced demodulator frames
     /// (`None` where the system has no such signal: poll instead).
     pub signal: Option<Arc<FrameSignal>>,
+    /// Where a client's streamed samples go in (`/source/kind = "stream"`).
+    pub inlet: Arc<SampleInlet>,
 }
 
 impl PipelineOutput {
@@ -276,6 +286,8 @@ pub struct Pipeline {
     epochs: Arc<Epochs>,
     /// The last epoch published.
     epoch: u64,
+    /// Where streamed samples go in: open while `/source/kind` is `stream`.
+    inlet: Arc<SampleInlet>,
 }
 
 /// Plans the real-time threads have given back, to be freed by whoever holds them. A large
@@ -344,6 +356,10 @@ impl Pipeline {
         let (dsp_link, dsp_plans_in, dsp_plans_out) = plan_link();
 
         let counters = Arc::new(Counters::default());
+        // The feed holds as long of a stream as the sample ring does.
+        let (inlet, feed) = feed::feed(ring, settings.synth.sample_rate, counters.clone());
+        let inlet = Arc::new(inlet);
+        inlet.accept(settings.source.kind == crate::config::SourceKind::Stream);
         let signal = FrameSignal::new().map(Arc::new);
         let stop_synth = Arc::new(AtomicBool::new(false));
         let stop_dsp = Arc::new(AtomicBool::new(false));
@@ -368,6 +384,7 @@ impl Pipeline {
             consumer: None,
             epochs: epochs.clone(),
             pending: None,
+            feed,
         };
         let dsp = DspWorker {
             plan: dsp_plan,
@@ -412,6 +429,7 @@ impl Pipeline {
             tap_tables,
             epochs,
             epoch: 0,
+            inlet: inlet.clone(),
         };
         let spawn = |name: &'static str, f: Box<dyn FnOnce() + Send>| {
             let paced = settings.synth.realtime;
@@ -436,6 +454,7 @@ impl Pipeline {
             pixels: pixels_out,
             topography: topography_out,
             signal,
+            inlet,
         };
         Ok((pipeline, output))
     }
@@ -506,7 +525,8 @@ impl Pipeline {
             || unpaced(settings) != unpaced(old)
             || settings.scan != old.scan
             || settings.feedback != old.feedback
-            || settings.inclusions != old.inclusions;
+            || settings.inclusions != old.inclusions
+            || settings.source != old.source;
         // A drive change can move demodulators in or out of band, which the bank must follow.
         let dsp_changed = settings.demods != old.demods
             || settings.demods_out_of_band() != old.demods_out_of_band()
@@ -536,6 +556,12 @@ impl Pipeline {
             }
             std::thread::sleep(std::time::Duration::from_micros(200));
         }
+        let stream = settings.source.kind == crate::config::SourceKind::Stream;
+        // Closed before the plan goes (nothing enters after the synthesiser empties the
+        // feed), opened after it (what comes waits in the feed for the plan).
+        if !stream {
+            self.inlet.accept(false);
+        }
         if let Some(mut plan) = synth {
             plan.epoch = epoch;
             if let Some(tables) = plan.scan.as_ref().and_then(|s| s.tables.clone()) {
@@ -545,6 +571,9 @@ impl Pipeline {
         }
         if let Some(plan) = dsp {
             self.dsp_link.send(Box::new(plan));
+        }
+        if stream {
+            self.inlet.accept(true);
         }
         // Published after the plans are queued: the synthesiser takes them all up with the
         // first block it stamps with this epoch.

@@ -12,10 +12,15 @@ use ringbuf::{HeapCons, HeapProd};
 use super::block::{BlockHeader, unix_ns};
 use super::counters::Counters;
 use super::epochs::Epochs;
+use super::feed::{FeedReader, Piece};
+use crate::config::SourceKind;
 use crate::synth::{PixelTopography, ScanRuntime, SynthPlan, SynthState, WindowSample};
 
 /// Samples per block: 0.41 ms at 10 MS/s, short against the 1 ms output period.
 pub const BLOCK_SAMPLES: usize = 4096;
+/// How long the thread sleeps when a streamed source has nothing for it (a writer's frames
+/// come every few milliseconds; the feed holds half a second).
+const STREAM_WAIT: Duration = Duration::from_micros(500);
 
 pub(crate) struct SynthWorker {
     pub plan: Box<SynthPlan>,
@@ -39,6 +44,8 @@ pub(crate) struct SynthWorker {
     pub epochs: Arc<Epochs>,
     /// A plan taken from the queue whose epoch is not published yet.
     pub pending: Option<Box<SynthPlan>>,
+    /// Samples streamed in (`/source/kind = "stream"`).
+    pub feed: FeedReader,
 }
 
 impl SynthWorker {
@@ -73,6 +80,11 @@ impl SynthWorker {
                         break;
                     }
                 };
+                if self.plan.source == SourceKind::Stream && next.source != SourceKind::Stream {
+                    // What the writer sent and the chain never took is not the new
+                    // source's: gone, and counted.
+                    Counters::add(&self.counters.stream_discarded_samples, self.feed.discard());
+                }
                 self.state.retarget(&self.plan, &next);
                 self.scan
                     .retarget(&self.plan, &next, self.state.sample_index());
@@ -89,6 +101,20 @@ impl SynthWorker {
             }
             was_realtime = realtime;
 
+            if self.plan.source == SourceKind::Stream {
+                if !self.pass_stream(&mut block, &mut finished, epoch, &mut stamped) {
+                    // Nothing has come: the next sample is where this epoch takes effect.
+                    if epoch != stamped {
+                        self.epochs.took_effect(epoch, self.state.sample_index());
+                        stamped = epoch;
+                    }
+                    self.counters
+                        .synth_beat_ns
+                        .store(super::counters::monotonic_ns(), Ordering::Relaxed);
+                    std::thread::park_timeout(STREAM_WAIT);
+                }
+                continue;
+            }
             let header_index = self.state.sample_index();
             if epoch != stamped {
                 self.epochs.took_effect(epoch, header_index);
@@ -161,6 +187,62 @@ impl SynthWorker {
                 self.pace(&mut paced_from, &mut paced_index);
             }
         }
+    }
+
+    /// Passes the next piece of a streamed source on: a gap moves the stream on (the DSP
+    /// restarts at the jump), samples go to the DSP as a finished block at the drive phase
+    /// of their index. Whether there was anything to pass.
+    fn pass_stream(
+        &mut self,
+        block: &mut [WindowSample],
+        finished: &mut [f64],
+        epoch: u64,
+        stamped: &mut u64,
+    ) -> bool {
+        let n = match self.feed.next(BLOCK_SAMPLES) {
+            None => return false,
+            Some(Piece::Skip(n)) => {
+                self.state.skip(&self.plan, n);
+                return true;
+            }
+            Some(Piece::Start(index)) => {
+                self.state.start_stream(&self.plan, index);
+                return true;
+            }
+            Some(Piece::Samples(n)) => n,
+        };
+        let header_index = self.state.sample_index();
+        if epoch != *stamped {
+            self.epochs.took_effect(epoch, header_index);
+            *stamped = epoch;
+        }
+        // A streamed sample is taken when it is: no ADC filter delays it.
+        let phase = self.state.phase();
+        self.feed.take(&mut finished[..n]);
+        for (w, &x) in block.iter_mut().zip(&finished[..n]) {
+            w.grid = x;
+        }
+        self.state.skip(&self.plan, n as u64);
+        Counters::add(&self.counters.samples_synthesized, n as u64);
+        self.counters
+            .synth_beat_ns
+            .store(super::counters::monotonic_ns(), Ordering::Relaxed);
+        let header = BlockHeader {
+            index: header_index,
+            len: n as u32,
+            phase,
+            frequency_word: self.plan.frequency_word,
+            t_synth_ns: unix_ns(),
+            raster: None,
+            epoch,
+            digitise: None,
+        };
+        let realtime = self.realtime.load(Ordering::Relaxed);
+        if !self.push(&block[..n], header, realtime) {
+            Counters::add(&self.counters.overrun_samples, n as u64);
+            Counters::add(&self.counters.overrun_blocks, 1);
+        }
+        true
     }
 
     /// Hands a block to the DSP. In real time a full ring drops the block (the caller counts

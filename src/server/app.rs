@@ -16,7 +16,7 @@ use tokio::net::TcpListener;
 use tokio::sync::watch;
 
 use super::listen::{ConnectionCounters, ConnectionLimits};
-use super::protocol::MAX_MESSAGE_BYTES;
+use super::protocol::MAX_SAMPLE_FRAME_BYTES;
 use super::state::AppState;
 use super::{assets, hub, metrics, session};
 use crate::config::Settings;
@@ -63,6 +63,7 @@ pub async fn run_with(
         .ok();
     // Last, so that no frame waits for the rest of the start-up before the hub takes it.
     let (pipeline, output) = Pipeline::start(&settings)?;
+    let inlet = output.inlet.clone();
     let queue_bytes = settings.server.client_queue_bytes as usize;
     let sample_rate = settings.synth.sample_rate;
     let control = Arc::new(Control::new(settings, Some(pipeline)));
@@ -90,6 +91,7 @@ pub async fn run_with(
         latest_demods: Mutex::new(None),
         sweep_frames: Arc::new(crate::instrument::tap::FrameTap::new()),
         sweep_force: Arc::new(crate::instrument::tap::Tap::new()),
+        inlet,
     });
     state
         .control
@@ -333,8 +335,10 @@ async fn websocket(
     }
     let failed = state.clone();
     upgrade
-        .max_message_size(MAX_MESSAGE_BYTES)
-        .max_frame_size(MAX_MESSAGE_BYTES)
+        // Text frames are held to MAX_MESSAGE_BYTES by the session; binary ones carry
+        // streamed samples.
+        .max_message_size(MAX_SAMPLE_FRAME_BYTES)
+        .max_frame_size(MAX_SAMPLE_FRAME_BYTES)
         .on_failed_upgrade(move |_| {
             failed.connections.fetch_sub(1, Ordering::SeqCst);
         })

@@ -63,6 +63,35 @@ pub(crate) fn render(state: &AppState) -> String {
         &one(counters.discontinuities),
     );
     metric(
+        "stream_samples_total",
+        "counter",
+        "Samples streamed in by a client (/source/kind = \"stream\"), by what became of them: taken into the feed, skipped by the writer (a gap in its frames' indices), dropped for want of room in the feed (the chain behind the writer), or discarded when the source changed.",
+        &[
+            (
+                "{outcome=\"accepted\"}".to_owned(),
+                counters.stream_samples as f64,
+            ),
+            (
+                "{outcome=\"gap\"}".to_owned(),
+                counters.stream_gap_samples as f64,
+            ),
+            (
+                "{outcome=\"dropped\"}".to_owned(),
+                counters.stream_dropped_samples as f64,
+            ),
+            (
+                "{outcome=\"discarded\"}".to_owned(),
+                counters.stream_discarded_samples as f64,
+            ),
+        ],
+    );
+    metric(
+        "stream_frames_total",
+        "counter",
+        "Frames of streamed samples the daemon took.",
+        &one(counters.stream_frames),
+    );
+    metric(
         "clipped_samples_total",
         "counter",
         "Samples clipped by the ADC's full scale.",

@@ -161,6 +161,12 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
         heard = Instant::now();
         pinged = None;
         let reply = match incoming {
+            Ok(Message::Text(text)) if text.len() > protocol::MAX_MESSAGE_BYTES => {
+                let _ = reply_tx
+                    .send((close(TOO_BIG, "message too big (limit 64 KiB)"), None))
+                    .await;
+                break;
+            }
             Ok(Message::Text(text)) => {
                 if limit.allow() {
                     handle(text.as_str(), &state, &client).await
@@ -176,13 +182,9 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
                     Message::Text(protocol::error_reply(&id, &err).into())
                 }
             }
-            Ok(Message::Binary(_)) => {
-                let err = ProtocolError {
-                    code: ErrorCode::BadRequest,
-                    message: "requests are JSON text frames; binary frames are not accepted".into(),
-                };
-                Message::Text(protocol::error_reply(&Value::Null, &err).into())
-            }
+            // Frames of samples for a streamed source: no rate limit (their pace is the
+            // stream's; a full feed drops them, counted), one reply each.
+            Ok(Message::Binary(bytes)) => Message::Text(stream_frame(&bytes, &state, id).into()),
             Ok(Message::Close(_)) => {
                 // The library has queued the answer, echoing the peer's code; the writer
                 // sends it ahead of the data and replies still queued, then the session ends.
@@ -208,6 +210,7 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
         }
     }
     drop(reply_tx);
+    state.inlet.release(id);
     if let Ok(mut clients) = state.clients.lock() {
         clients.retain(|c| c.id != id);
     }
@@ -223,6 +226,35 @@ pub(crate) async fn run(socket: WebSocket, state: Arc<AppState>, queue: usize) {
         dropped = client.dropped.load(Ordering::Relaxed),
         "disconnected"
     );
+}
+
+/// Takes a binary frame of samples from client `client` into the streamed source; the
+/// reply names the frame by the id in its header (null if the header is unreadable) and
+/// says what became of its samples (docs/protocol.md, "Streaming samples in").
+fn stream_frame(bytes: &[u8], state: &AppState, client: u64) -> String {
+    use crate::pipeline::FrameError;
+    match state.inlet.push_frame(client, bytes) {
+        Ok((header, receipt)) => {
+            let mut fields = serde_json::Map::new();
+            if let Ok(Value::Object(r)) = serde_json::to_value(receipt) {
+                fields.extend(r);
+            }
+            protocol::ok_reply(&Value::from(header.id), fields)
+        }
+        Err(e) => {
+            // The id, where the header got that far.
+            let id = bytes
+                .get(8..16)
+                .filter(|_| bytes.starts_with(&crate::pipeline::FRAME_MAGIC))
+                .and_then(|b| b.try_into().ok())
+                .map_or(Value::Null, |b| Value::from(u64::from_le_bytes(b)));
+            let code = match e {
+                FrameError::Malformed(_) => ErrorCode::BadRequest,
+                FrameError::Refused(_) => ErrorCode::InvalidValue,
+            };
+            protocol::error_reply(&id, &ProtocolError::new(code, e.to_string()))
+        }
+    }
 }
 
 /// Hands `reply` to the writer once the client's replies fit under

@@ -509,6 +509,8 @@ pub(crate) struct AppState {
     /// The machine's stalls, measured beside the server (None if its thread would not
     /// start; the daemon runs without it).
     pub stall: Option<crate::pipeline::StallMeter>,
+    /// Where a client's binary frames of samples go (`/source/kind = "stream"`).
+    pub inlet: Arc<crate::pipeline::SampleInlet>,
 }
 
 impl AppState {

@@ -123,6 +123,12 @@ pub struct StatusReport {
     pub ring_fill: u64,
     /// Ring capacity (samples).
     pub ring_capacity: u64,
+    /// Where the chain's samples come from (`/source/kind`): `"synth"` or `"stream"`.
+    pub source: &'static str,
+    /// Streamed samples waiting in the feed for the chain, and its capacity (samples); the
+    /// stream's frames, gaps and drops are in `counters` (`stream_…`).
+    pub stream_fill: u64,
+    pub stream_capacity: u64,
     /// WebSocket clients connected.
     pub clients: u64,
     /// Messages dropped for slow clients, all clients and streams, since start.

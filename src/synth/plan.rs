@@ -12,7 +12,7 @@ use super::modal::ModalKernel;
 use super::pulse::{PulseKernel, PulseTrain};
 use super::scan_plan::{ScanBase, ScanPlan, TapTables};
 use super::window::{ModeWindow, Moments};
-use crate::config::{Engine, Settings};
+use crate::config::{Engine, Settings, SourceKind};
 use crate::model;
 use crate::physics::beam::{BeamError, MAX_MODES};
 use crate::physics::impact::ImpactError;
@@ -112,6 +112,10 @@ pub struct SynthPlan {
     /// The scan, when `/scan/enable` is on: the tip moves over the sample map under the
     /// amplitude feedback ([`process_scan`](Self::process_scan)).
     pub scan: Option<ScanPlan>,
+    /// Where the chain's samples come from (`/source/kind`): with a stream the synthesiser
+    /// thread passes the streamed samples on instead of synthesising, and keeps the sample
+    /// index and the drive phase running ([`SynthState::skip`](super::SynthState::skip)).
+    pub source: SourceKind,
     /// The settings epoch this plan belongs to (set by the pipeline when it queues the
     /// plan): the synthesiser takes it up once that epoch is published, with the block it
     /// stamps with it.
@@ -353,6 +357,7 @@ impl SynthPlan {
                 * super::window::gain(drive_frequency / sample_rate)
                 * Complex64::from_polar(1.0, 0.5 * word as f64 / TWO_POW_64 * 2.0 * PI),
             force_window,
+            source: settings.source.kind,
             epoch: 0,
         })
     }

@@ -202,6 +202,31 @@ impl SynthState {
         self.phase
     }
 
+    /// Moves the stream on by `samples` without synthesising them: the sample index and the
+    /// drive phase advance as if they had been (the modes keep their state, and the ADC
+    /// window's next sample starts afresh), so a streamed source's blocks take the place of
+    /// synthesised ones in the same count and on the same reference. Allocation-free.
+    pub fn skip(&mut self, plan: &SynthPlan, samples: u64) {
+        self.counters.samples += samples;
+        self.phase = self
+            .phase
+            .wrapping_add(plan.frequency_word.wrapping_mul(samples));
+        self.rho = Complex64::from_polar(1.0, phase_to_radians(self.phase));
+        self.window.valid = false;
+    }
+
+    /// Starts a streamed source whose next sample has index `writer_index` in the writer's
+    /// own count: the chain's index moves on by one (so the DSP restarts its filters with
+    /// the stream, a discontinuity), and the drive phase becomes the drive's at that index
+    /// from the writer's sample 0 (phase 0, the cosine's peak), so a stream's reference
+    /// does not depend on when it started. Allocation-free.
+    pub fn start_stream(&mut self, plan: &SynthPlan, writer_index: u64) {
+        self.counters.samples += 1;
+        self.phase = plan.frequency_word.wrapping_mul(writer_index);
+        self.rho = Complex64::from_polar(1.0, phase_to_radians(self.phase));
+        self.window.valid = false;
+    }
+
     /// Moves from `old` to `new` without a jump: the modal displacements and velocities
     /// stay continuous, so a change of drive, sample or cantilever shows as a physical
     /// transient. Modes that `new` adds start at rest; modes it drops are gone. A new seed

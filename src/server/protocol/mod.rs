@@ -43,6 +43,10 @@ pub const PROTOCOL_VERSION: u32 = 1;
 /// Largest text frame the server accepts (bytes); larger → close with 1009.
 pub const MAX_MESSAGE_BYTES: usize = 64 * 1024;
 
+/// Largest binary frame (a frame of streamed samples) the server accepts (bytes): 4 MiB of
+/// samples after the header (2 Mi int16 samples, 0.2 s at 10 MS/s); larger → close with 1009.
+pub const MAX_SAMPLE_FRAME_BYTES: usize = 4 * 1024 * 1024 + crate::pipeline::FRAME_HEADER_BYTES;
+
 /// A data stream a client can subscribe to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum StreamKind {
