@@ -273,3 +273,45 @@ def test_a_set_transaction_is_one_change_all_or_nothing(
             inst.surface.distance(12e-9)
             raise KeyError("a script's own error")
     assert inst.get("/surface/distance") == 15e-9
+
+
+def test_streamed_samples_are_measured_by_the_lock_in(ftafm_instrument: ftafm.Instrument) -> None:
+    """A signal made here (int16 codes of two tones, as a digitiser gives them) streamed
+    into the chain: each tone's amplitude and phase from the lock-in bank, on the reference
+    at the writer's sample count, across a second call that goes on after a gap."""
+    inst = ftafm_instrument
+    rate = inst.hello["sample_rate"]
+    f = inst.get("/drive/frequency")
+    inst.set("/source/kind", "stream")
+    scale = 1e-12  # m per code
+    tones = [(1, 9000.0, 0.4), (2, 2500.0, -1.9)]  # harmonic, amplitude (codes), phase
+
+    def codes(first: int, n: int) -> np.ndarray:
+        theta = 2 * np.pi * f / rate * np.arange(first, first + n, dtype=np.float64)
+        x = sum(a * np.cos(k * theta + phi) for k, a, phi in tones)
+        return np.round(x).astype(np.int16)
+
+    first = 123_457
+    got = inst.stream_samples(codes(first, 500_000), scale=scale, first_index=first)
+    assert (got.accepted, got.dropped, got.gap) == (500_000, 0, 0)
+    after = got.next_index + 77_777
+    got = inst.stream_samples(codes(after, 1_000_000), scale=scale, first_index=after)
+    assert (got.accepted, got.gap) == (1_000_000, 77_777)
+    # Until the chain has taken every sample streamed (an event: the status says so).
+    for _ in range(40):
+        status = inst.next("status")
+        c = status["counters"]
+        if status["stream_fill"] == 0 and c["samples_processed"] == c["samples_synthesized"]:
+            break
+    else:
+        pytest.fail(f"the chain never caught up with the stream: {status}")
+    for demod, (k, a, phi) in enumerate(tones):
+        s = inst.sample(demod)
+        assert s["harmonic"] == k
+        assert abs(s["r"] / (a * scale) - 1) < 1e-3, s
+        assert abs((s["phase"] - phi + np.pi) % (2 * np.pi) - np.pi) < 1e-3, s
+    with pytest.raises(ftafm.InstrumentError, match="frames go forward"):
+        inst.stream_samples(codes(0, 10), scale=scale, first_index=0)
+    with pytest.raises(ftafm.InstrumentError, match="sample rate"):
+        inst.stream_samples(codes(after + 2_000_000, 10), rate / 2, scale=scale)
+

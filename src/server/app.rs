@@ -233,17 +233,30 @@ const STALL_LIMIT_NS: u64 = 2_000_000_000;
 /// (nothing processed yet) or when a real-time thread has finished no block for
 /// [`STALL_LIMIT_NS`] (wedged, or starved of samples by a wedged synthesiser).
 async fn healthz(State(state): State<Arc<AppState>>) -> Response {
-    match health(state.control.counters().as_ref()) {
+    let streaming = state.inlet.accepting();
+    match health(state.control.counters().as_ref(), streaming) {
+        Ok(()) if streaming => (StatusCode::OK, "ok (source: stream)\n").into_response(),
         Ok(()) => (StatusCode::OK, "ok\n").into_response(),
         Err(reason) => (StatusCode::SERVICE_UNAVAILABLE, reason + "\n").into_response(),
     }
 }
 
 /// The pipeline's health from its counters (`None`: no pipeline): why it is not healthy.
-fn health(counters: Option<&crate::pipeline::CountersSnapshot>) -> Result<(), String> {
+/// With a streamed source (`streaming`) a DSP thread with nothing to do while the
+/// synthesiser thread waits on the feed is waiting for the writer, not stalled.
+fn health(
+    counters: Option<&crate::pipeline::CountersSnapshot>,
+    streaming: bool,
+) -> Result<(), String> {
     let Some(c) = counters else {
         return Err("unhealthy: no pipeline is running".into());
     };
+    let waiting = streaming
+        && c.synth_idle_ns <= STALL_LIMIT_NS
+        && c.samples_processed + c.overrun_samples >= c.samples_synthesized;
+    if waiting {
+        return Ok(());
+    }
     if c.samples_processed == 0 {
         return Err("starting".into());
     }
@@ -355,17 +368,26 @@ mod tests {
 
     #[test]
     fn health_follows_the_heartbeats() {
-        assert!(health(None).unwrap_err().contains("no pipeline"));
+        assert!(health(None, false).unwrap_err().contains("no pipeline"));
         let mut c = CountersSnapshot::default();
-        assert_eq!(health(Some(&c)).unwrap_err(), "starting");
+        assert_eq!(health(Some(&c), false).unwrap_err(), "starting");
         c.samples_processed = 4096;
-        assert_eq!(health(Some(&c)), Ok(()));
+        c.samples_synthesized = 4096;
+        assert_eq!(health(Some(&c), false), Ok(()));
         c.dsp_idle_ns = STALL_LIMIT_NS + 1;
-        let reason = health(Some(&c)).unwrap_err();
+        let reason = health(Some(&c), false).unwrap_err();
+        assert!(reason.contains("DSP thread"), "{reason}");
+        // A streamed source with nothing streamed in: waiting, not stalled; with samples
+        // waiting in the ring that the DSP does not take, stalled.
+        assert_eq!(health(Some(&c), true), Ok(()));
+        c.samples_synthesized += 4096;
+        let reason = health(Some(&c), true).unwrap_err();
         assert!(reason.contains("DSP thread"), "{reason}");
         c.dsp_idle_ns = 0;
         c.synth_idle_ns = STALL_LIMIT_NS + 1;
-        let reason = health(Some(&c)).unwrap_err();
+        let reason = health(Some(&c), false).unwrap_err();
+        assert!(reason.contains("synthesiser"), "{reason}");
+        let reason = health(Some(&c), true).unwrap_err();
         assert!(reason.contains("synthesiser"), "{reason}");
     }
 

@@ -8,14 +8,14 @@
 
 - :class:`Instrument` (synchronous) and :mod:`ftafm.aio` (asyncio): get, get_many, set,
   set_many, sample, poll, sweep, wait_until, record (HDF5), save_settings, load_settings,
-  presets; the synchronous one also the node tree as attributes
+  presets, stream_samples (a real signal into the chain); the synchronous one also the node tree as attributes
   (``inst.sample.youngs_modulus(116.1e9)``, :mod:`ftafm.tree`) and ``set_transaction``.
 - :mod:`ftafm.data`: stream messages as numpy arrays.
 - :mod:`ftafm.qcodes`: the QCoDeS driver (``pip install ftafm[qcodes]``).
 - :mod:`ftafm.testing`: a daemon on port 0 for test suites, and pytest fixtures.
 """
 
-from .aio import DEFAULT_URL, Node
+from .aio import DEFAULT_URL, Node, StreamReceipt
 from .analyse import Analysis, AnalysisError, analyse
 from .client import Instrument
 from .data import (
@@ -47,6 +47,7 @@ __all__ = [
     "Node",
     "ScopeData",
     "SpectrumData",
+    "StreamReceipt",
     "StatusData",
     "StreamData",
     "SweepResult",

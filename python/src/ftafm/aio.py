@@ -16,6 +16,7 @@ import itertools
 import json
 import math
 import os
+import struct
 from dataclasses import dataclass
 from typing import (
     Any,
@@ -59,6 +60,28 @@ SWEEP_DEFAULTS: dict[str, Any] = {
 
 #: A sweep's progress callback: ``progress(done, total)``, points measured and to measure.
 Progress = Callable[[int, int], None]
+
+
+#: A frame of streamed samples' header (docs/protocol.md, "Streaming samples in"): magic,
+#: sample type (1 int16, 2 float32, 3 float64), reserved, id, sample rate (Hz), scale (m per
+#: unit), index of the frame's first sample in the writer's count; little-endian.
+_FRAME_HEADER = struct.Struct("<4sHHQddQ")
+
+
+@dataclass
+class StreamReceipt:
+    """What became of streamed samples (:meth:`Instrument.stream_samples`)."""
+
+    #: Frames the daemon took.
+    frames: int = 0
+    #: Samples that entered the chain.
+    accepted: int = 0
+    #: Samples dropped for want of room in the daemon's feed (the chain behind the writer).
+    dropped: int = 0
+    #: Samples skipped by a jump in the frames' indices.
+    gap: int = 0
+    #: The writer's index of the next sample: ``first_index`` for a call that goes on.
+    next_index: int = 0
 
 
 @dataclass(frozen=True)
@@ -231,6 +254,95 @@ class Instrument:
         if op in _CHANGES and isinstance(reply.get("epoch"), int):
             self._epoch = max(self._epoch, reply["epoch"])
         return reply
+
+    async def stream_samples(
+        self,
+        samples: Any,
+        sample_rate: float | None = None,
+        *,
+        scale: float = 1.0,
+        first_index: int = 0,
+        frame_samples: int = 1 << 18,
+        window: int = 4,
+        realtime: bool = False,
+    ) -> StreamReceipt:
+        """Streams ``samples`` (a 1-D numpy array of int16, float32 or float64, or anything
+        ``numpy.asarray`` makes one of) into the chain as its photodiode signal, while
+        ``/source/kind`` is ``"stream"`` (set it first): the same lock-in bank, spectrum and
+        force inversion as the synthesiser's signal, on a reference at ``/drive/frequency``
+        with phase 0 at the writer's sample 0 (``first_index`` is the index of
+        ``samples[0]`` in that count; a later call that goes on where this one ended
+        continues the stream, one that skips ahead leaves a gap the daemon counts).
+
+        ``scale`` is metres per unit of the samples (an InvOLS in m/V times volts per
+        code); ``sample_rate`` must be the daemon's ``/synth/sample_rate`` (the default).
+        Frames of ``frame_samples`` go out with at most ``window`` unanswered, so the
+        daemon's feed sets the pace; ``realtime=True`` paces them by the wall clock too,
+        as a digitiser would deliver them. Returns what became of the samples; raises
+        :class:`InstrumentError` on a frame the daemon refuses (its message names why).
+        """
+        import time
+
+        import numpy as np
+
+        if self._ws is None or self._closed is not None:
+            raise ConnectionLost(self._closed or "not connected: use `async with` or connect()")
+        data = np.asarray(samples)
+        codes = {np.dtype("<i2"): 1, np.dtype("<f4"): 2, np.dtype("<f8"): 3}
+        dtype = data.dtype.newbyteorder("<")
+        if data.ndim != 1 or dtype not in codes:
+            raise ValueError(
+                f"samples must be a 1-D array of int16, float32 or float64, not "
+                f"{data.ndim}-D {data.dtype}"
+            )
+        data = data.astype(dtype, copy=False)
+        rate = float(sample_rate if sample_rate is not None else self.hello["sample_rate"])
+        if not (math.isfinite(scale) and scale != 0.0):
+            raise ValueError(f"scale = {scale!r}: metres per unit must be finite and non-zero")
+        if frame_samples < 1 or window < 1:
+            raise ValueError("frame_samples and window must be at least 1")
+        loop = asyncio.get_running_loop()
+        receipt = StreamReceipt()
+        unanswered: list[tuple[dict[str, Any], asyncio.Future[dict[str, Any]]]] = []
+
+        async def settle(fut: asyncio.Future[dict[str, Any]], frame: dict[str, Any]) -> None:
+            reply = await asyncio.wait_for(fut, self.timeout)
+            if not reply.get("ok"):
+                err = reply.get("error", {})
+                raise InstrumentError(err.get("code", "internal"), err.get("message", ""), frame)
+            receipt.frames += 1
+            receipt.accepted += reply["accepted"]
+            receipt.dropped += reply["dropped"]
+            receipt.gap += reply["gap"]
+            receipt.next_index = reply["next_index"]
+
+        start = time.monotonic()
+        try:
+            for offset in range(0, len(data), frame_samples):
+                part = data[offset : offset + frame_samples]
+                if realtime:
+                    due = start + offset / rate
+                    await asyncio.sleep(max(0.0, due - time.monotonic()))
+                rid = next(self._ids)
+                header = _FRAME_HEADER.pack(
+                    b"FTS1", codes[dtype], 0, rid, rate, scale, first_index + offset
+                )
+                fut: asyncio.Future[dict[str, Any]] = loop.create_future()
+                self._pending[rid] = fut
+                frame = {"id": rid, "first_index": first_index + offset, "samples": len(part)}
+                await self._ws.send(header + part.tobytes())
+                unanswered.append((frame, fut))
+                if len(unanswered) >= window:
+                    frame0, fut0 = unanswered.pop(0)
+                    await settle(fut0, frame0)
+            while unanswered:
+                frame0, fut0 = unanswered.pop(0)
+                await settle(fut0, frame0)
+        finally:
+            for frame0, fut0 in unanswered:
+                self._pending.pop(frame0["id"], None)
+                fut0.cancel()
+        return receipt
 
     async def info(self) -> dict[str, Any]:
         """Server name, version, protocol version and sample rate (Hz), and the warnings now

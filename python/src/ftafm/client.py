@@ -195,6 +195,31 @@ class Instrument:
         """Records ``streams`` for ``seconds`` of simulated time to HDF5 ``file``."""
         return self._run(self._async.record(file, streams, seconds))
 
+    def stream_samples(
+        self,
+        samples: Any,
+        sample_rate: float | None = None,
+        *,
+        scale: float = 1.0,
+        first_index: int = 0,
+        frame_samples: int = 1 << 18,
+        window: int = 4,
+        realtime: bool = False,
+    ) -> aio.StreamReceipt:
+        """Streams ``samples`` into the chain while ``/source/kind`` is ``"stream"``
+        (:meth:`ftafm.aio.Instrument.stream_samples`)."""
+        return self._run(
+            self._async.stream_samples(
+                samples,
+                sample_rate,
+                scale=scale,
+                first_index=first_index,
+                frame_samples=frame_samples,
+                window=window,
+                realtime=realtime,
+            )
+        )
+
     def presets(self) -> list[dict[str, str]]:
         """The presets: name, kind, summary."""
         return self._run(self._async.presets())
