@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 use ftafm::cli::analyse::{AnalyseArgs, RecordSignalArgs};
+use ftafm::cli::replay::ReplayArgs;
 use ftafm::cli::{self, ConfigArg, serve::ServeArgs};
 
 #[derive(Parser)]
@@ -162,6 +163,10 @@ enum Command {
     /// Write the synthesiser's own signal (through the ADC) to a .npy file in metres, with
     /// the drive's phase in a sidecar, for `ftafm analyse`.
     RecordSignal(RecordSignalArgs),
+    /// Replay a recorded photodiode signal into a running daemon as its streamed source
+    /// (/source/kind = "stream"), in real time or --fast, once or --loop
+    /// (docs/protocol.md, "Streaming samples in").
+    Replay(ReplayArgs),
     /// Print the configured instrument: its modes and the 1-DOF tapping solution.
     Info {
         #[command(flatten)]
@@ -243,6 +248,7 @@ fn main() -> ExitCode {
         Command::Stalls { seconds, json } => cli::stalls::command(seconds, json),
         Command::Analyse(args) => cli::analyse::command(args),
         Command::RecordSignal(args) => cli::analyse::record_signal(args),
+        Command::Replay(args) => cli::replay::command(args),
     };
     result.unwrap_or_else(|code| code)
 }
@@ -258,7 +264,10 @@ fn with_leading_config(mut command: Command, leading: ConfigArg) -> Result<Comma
         | Command::Info { config }
         | Command::Analyse(AnalyseArgs { config, .. })
         | Command::RecordSignal(RecordSignalArgs { config, .. }) => config,
-        Command::Presets { .. } | Command::Soak { .. } | Command::Stalls { .. } => {
+        Command::Presets { .. }
+        | Command::Soak { .. }
+        | Command::Stalls { .. }
+        | Command::Replay(_) => {
             return if leading.is_empty() {
                 Ok(command)
             } else {

@@ -293,3 +293,99 @@ async fn next_reply(ws: &mut Ws) -> Value {
         }
     }
 }
+
+/// `ftafm replay` (a second process) streams a WAV written by another library into the
+/// daemon as fast as it takes it: each tone read on the writer's reference, the file's
+/// sample 0 at phase 0, nothing lost; a file at another rate is refused before anything is
+/// sent, naming both rates.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ftafm_replay_streams_a_recording_into_the_daemon() {
+    let dir = std::env::temp_dir().join(format!("ftafm-replay-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let d = Daemon::start(light()).await;
+    let mut ws = connect(d.addr).await;
+    let f = call(&mut ws, json!({"op": "get", "path": "/drive/frequency"})).await["value"]
+        .as_f64()
+        .unwrap();
+    let step = PhaseAccumulator::new(f, RATE).unwrap().frequency_word();
+    let write = |name: &str, rate: u32| {
+        let path = dir.join(name);
+        let spec = hound::WavSpec {
+            channels: 1,
+            sample_rate: rate,
+            bits_per_sample: 32,
+            sample_format: hound::SampleFormat::Float,
+        };
+        let mut w = hound::WavWriter::create(&path, spec).unwrap();
+        // 0.3 s of the tones in nm.
+        for x in tones(step, 0, 600_000) {
+            w.write_sample(x as f32).unwrap();
+        }
+        w.finalize().unwrap();
+        path
+    };
+    let good = write("tones.wav", RATE as u32);
+    let bad = write("slow.wav", 1_000_000);
+    let url = format!("ws://{}/ws", d.addr);
+    let run = |file: std::path::PathBuf, url: String| {
+        tokio::task::spawn_blocking(move || {
+            std::process::Command::new(env!("CARGO_BIN_EXE_ftafm"))
+                .args([
+                    "replay", "--fast", "--json", "--invols", "1e-9", "--url", &url,
+                ])
+                .arg(&file)
+                .output()
+                .unwrap()
+        })
+    };
+    let out = run(bad, url.clone()).await.unwrap();
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("1000000 Hz") && err.contains("2000000 Hz"),
+        "{err}"
+    );
+    assert_eq!(
+        call(&mut ws, json!({"op": "get", "path": "/source/kind"})).await["value"],
+        "synth"
+    );
+
+    call(&mut ws, json!({"op": "subscribe", "stream": "demods"})).await;
+    let out = run(good, url).await.unwrap();
+    assert!(out.status.success(), "{out:?}");
+    let report: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["samples"], 600_000, "{report}");
+    assert_eq!(report["accepted"], 600_000, "{report}");
+    assert_eq!((&report["dropped"], &report["gap"]), (&json!(0), &json!(0)));
+    // Frames of the replayed signal, settled (the stream starts a sample after the
+    // synthesiser's last: a restart of the filters), until its end.
+    let mut seen = 0;
+    let mut stream_frames = 0;
+    while stream_frames < 30 {
+        let v = next_json(&mut ws).await;
+        if v["stream"] != "demods" {
+            continue;
+        }
+        seen += 1;
+        let (r, phase) = demod(&v, 3);
+        // The synthesiser's frames before the stream's are told apart by their H3.
+        if (r / TONES[1].1 - 1.0).abs() > 0.05 {
+            assert!(stream_frames == 0, "a frame off the tones mid-stream: {v}");
+            continue;
+        }
+        stream_frames += 1;
+        if stream_frames < 10 {
+            continue;
+        }
+        for (k, a, phi) in TONES {
+            let (r, ph) = if k == 3 { (r, phase) } else { demod(&v, k) };
+            assert!((r / a - 1.0).abs() < 1e-3, "H{k}: {r} against {a}: {v}");
+            let dphi = (ph - phi + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+                - std::f64::consts::PI;
+            assert!(dphi.abs() < 1e-3, "H{k}: phase {ph} against {phi}");
+        }
+    }
+    assert!(seen >= 30, "{seen}");
+    std::fs::remove_dir_all(&dir).ok();
+    d.shutdown().await;
+}

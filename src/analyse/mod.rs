@@ -14,4 +14,6 @@ pub mod reference;
 pub mod run;
 
 pub use reader::{Format, Source};
-pub use run::{Options, Output, Sidecar, Summary, analyse, analyse_with, sidecar_path};
+pub use run::{
+    Opened, Options, Output, Sidecar, Summary, analyse, analyse_with, open, sidecar_path,
+};

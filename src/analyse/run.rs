@@ -371,27 +371,34 @@ impl DspSink for Collector<'_> {
     }
 }
 
-/// Analyses `opts.file` with the lock-in, spectrum and inversion of `settings` (its sample
-/// rate and drive frequency replaced by the file's); writes the outputs to `opts.out`.
-pub fn analyse(settings: &Settings, opts: &Options) -> Result<Summary, String> {
-    analyse_with(settings, opts, None)
+/// A recording opened for reading, with its sample rate and its scale to metres and where
+/// each came from.
+pub struct Opened {
+    /// The samples, not yet read.
+    pub src: Source,
+    /// The file's name as given, for messages.
+    pub name: String,
+    /// Its `record-signal` sidecar, if it has one.
+    pub sidecar: Option<Sidecar>,
+    /// Sample rate (Hz) and what gave it (`--sample-rate`, the WAV header, the sidecar).
+    pub sample_rate: f64,
+    pub sample_rate_from: &'static str,
+    /// Metres per unit of the file's values (m), and how it was set, in words.
+    pub scale: f64,
+    pub scale_text: String,
 }
 
-/// [`analyse`], handing every demodulator frame and force estimate to `observer` too.
-pub fn analyse_with(
-    settings: &Settings,
-    opts: &Options,
-    observer: Option<&mut dyn FnMut(Output<'_>)>,
-) -> Result<Summary, String> {
-    let mut src = Source::open(&opts.file, opts.format, opts.channels)?;
+/// Opens `opts.file` and settles its sample rate, channels and scale from the file and the
+/// options (`ftafm analyse` and `ftafm replay`); an error names the file and the flag to
+/// give.
+pub fn open(opts: &Options) -> Result<Opened, String> {
+    let src = Source::open(&opts.file, opts.format, opts.channels)?;
     let name = src.name.clone();
     let sidecar: Option<Sidecar> = (opts.file.as_os_str() != "-")
         .then(|| std::fs::read(sidecar_path(&opts.file)).ok())
         .flatten()
         .and_then(|b| serde_json::from_slice::<Sidecar>(&b).ok())
         .filter(|s| s.format == "ftafm-signal");
-    let use_sidecar =
-        sidecar.is_some() && opts.reference_channel.is_none() && opts.drive_frequency.is_none();
     let (fs, fs_from) = match (opts.sample_rate, src.sample_rate, &sidecar) {
         (Some(f), _, _) => (f, "--sample-rate"),
         (None, Some(f), _) => (f, "the WAV header"),
@@ -449,6 +456,40 @@ pub fn analyse_with(
             ));
         }
     };
+    Ok(Opened {
+        src,
+        name,
+        sidecar,
+        sample_rate: fs,
+        sample_rate_from: fs_from,
+        scale,
+        scale_text,
+    })
+}
+
+/// Analyses `opts.file` with the lock-in, spectrum and inversion of `settings` (its sample
+/// rate and drive frequency replaced by the file's); writes the outputs to `opts.out`.
+pub fn analyse(settings: &Settings, opts: &Options) -> Result<Summary, String> {
+    analyse_with(settings, opts, None)
+}
+
+/// [`analyse`], handing every demodulator frame and force estimate to `observer` too.
+pub fn analyse_with(
+    settings: &Settings,
+    opts: &Options,
+    observer: Option<&mut dyn FnMut(Output<'_>)>,
+) -> Result<Summary, String> {
+    let Opened {
+        mut src,
+        name,
+        sidecar,
+        sample_rate: fs,
+        sample_rate_from: fs_from,
+        scale,
+        scale_text,
+    } = open(opts)?;
+    let use_sidecar =
+        sidecar.is_some() && opts.reference_channel.is_none() && opts.drive_frequency.is_none();
     if let Some(f) = opts.drive_frequency
         && !(f.is_finite() && f > 0.0 && f < fs / 2.0)
     {

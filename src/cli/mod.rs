@@ -1,4 +1,4 @@
-//! The commands (`serve`, `analyse`, `record-signal`, `paper`, `info`, `presets`, `bench`, `scan`, `soak`, `stalls`), one
+//! The commands (`serve`, `analyse`, `record-signal`, `replay`, `paper`, `info`, `presets`, `bench`, `scan`, `soak`, `stalls`), one
 //! file each, and what they share; `main.rs` only parses the command line and dispatches.
 
 pub mod analyse;
@@ -6,6 +6,7 @@ pub mod bench;
 pub mod info;
 pub mod paper;
 pub mod presets;
+pub mod replay;
 pub mod scan;
 pub mod serve;
 pub mod soak;
