@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 use ftafm::cli::analyse::{AnalyseArgs, RecordSignalArgs};
+use ftafm::cli::fm_invert::FmInvertArgs;
 use ftafm::cli::{self, ConfigArg, serve::ServeArgs};
 
 #[derive(Parser)]
@@ -162,6 +163,9 @@ enum Command {
     /// Write the synthesiser's own signal (through the ADC) to a .npy file in metres, with
     /// the drive's phase in a sidecar, for `ftafm analyse`.
     RecordSignal(RecordSignalArgs),
+    /// Invert an FM-AFM frequency-shift curve Δf(z) (CSV `z,df`) to the force F(z) by the
+    /// Sader–Jarvis formula (docs/loops.md).
+    FmInvert(FmInvertArgs),
     /// Print the configured instrument: its modes and the 1-DOF tapping solution.
     Info {
         #[command(flatten)]
@@ -243,6 +247,7 @@ fn main() -> ExitCode {
         Command::Stalls { seconds, json } => cli::stalls::command(seconds, json),
         Command::Analyse(args) => cli::analyse::command(args),
         Command::RecordSignal(args) => cli::analyse::record_signal(args),
+        Command::FmInvert(args) => cli::fm_invert::command(args),
     };
     result.unwrap_or_else(|code| code)
 }
@@ -258,7 +263,10 @@ fn with_leading_config(mut command: Command, leading: ConfigArg) -> Result<Comma
         | Command::Info { config }
         | Command::Analyse(AnalyseArgs { config, .. })
         | Command::RecordSignal(RecordSignalArgs { config, .. }) => config,
-        Command::Presets { .. } | Command::Soak { .. } | Command::Stalls { .. } => {
+        Command::Presets { .. }
+        | Command::Soak { .. }
+        | Command::Stalls { .. }
+        | Command::FmInvert(_) => {
             return if leading.is_empty() {
                 Ok(command)
             } else {
