@@ -201,6 +201,45 @@ mod tests {
     }
 
     #[test]
+    fn a_hertz_contact_is_recovered() {
+        // Repulsion only: (4/3)E*·√R·δ^{3/2} at indentation δ = −d, nothing out of contact.
+        let (e_star, radius) = (1e9, 10e-9_f64);
+        let force = move |d: f64| {
+            if d < 0.0 {
+                4.0 / 3.0 * e_star * radius.sqrt() * (-d).powf(1.5)
+            } else {
+                0.0
+            }
+        };
+        check_law(
+            "hertz",
+            force,
+            &grid(-0.5e-9, 5e-9, 1500),
+            [0.005, 0.02, 0.04, 0.01, 0.005],
+        );
+    }
+
+    #[test]
+    fn an_uneven_grid_is_inverted_as_well() {
+        // Samples dense near the surface, sparse far out (spacing growing 0.2 % a step).
+        let mut z = vec![0.1e-9];
+        let mut h = 2e-12;
+        while *z.last().unwrap() < 15e-9 {
+            z.push(z.last().unwrap() + h);
+            h *= 1.002;
+        }
+        let force = |d: f64| -1e-9 * (-d / 0.5e-9).exp();
+        let lever = FmLever::new(30.0, 300e3, 1e-9).unwrap();
+        let e = worst_error(force, &z, &lever);
+        eprintln!(
+            "sader-jarvis exponential, uneven grid of {} samples, A = 1 nm: worst error {:.3} % of the range",
+            z.len(),
+            100.0 * e
+        );
+        assert!(e < 0.02, "{e}");
+    }
+
+    #[test]
     fn a_zero_frequency_shift_is_no_force() {
         let z = grid(0.0, 1e-8, 50);
         let lever = FmLever::new(1.0, 1e5, 1e-9).unwrap();
