@@ -1,6 +1,7 @@
 //! ftafm: a real-time virtual instrument for Fourier-transform atomic force microscopy.
 //!
-//! Layers (each depends only on those before it): [`physics`] (pure maths of the paper),
+//! Layers (each depends only on those before it): [`physics`] (pure maths of the paper)
+//! and, beside it, [`control`] (pure maths of the closed loops: the PID),
 //! [`config`] (typed settings), [`timebase`] and [`cpu`] (the phase words and the CPU's
 //! features both real-time stages share),
 //! [`dsp`] and [`synth`] (real-time blocks, meeting only through the ring), [`pipeline`],
@@ -9,6 +10,7 @@
 pub mod analyse;
 pub mod cli;
 pub mod config;
+pub mod control;
 pub mod cpu;
 pub mod dsp;
 pub mod imaging;

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 use ftafm::cli::analyse::{AnalyseArgs, RecordSignalArgs};
+use ftafm::cli::fm_invert::FmInvertArgs;
 use ftafm::cli::replay::ReplayArgs;
 use ftafm::cli::{self, ConfigArg, serve::ServeArgs};
 
@@ -167,6 +168,9 @@ enum Command {
     /// (/source/kind = "stream"), in real time or --fast, once or --loop
     /// (docs/protocol.md, "Streaming samples in").
     Replay(ReplayArgs),
+    /// Invert an FM-AFM frequency-shift curve Δf(z) (CSV `z,df`) to the force F(z) by the
+    /// Sader–Jarvis formula (docs/loops.md).
+    FmInvert(FmInvertArgs),
     /// Print the configured instrument: its modes and the 1-DOF tapping solution.
     Info {
         #[command(flatten)]
@@ -249,6 +253,7 @@ fn main() -> ExitCode {
         Command::Analyse(args) => cli::analyse::command(args),
         Command::RecordSignal(args) => cli::analyse::record_signal(args),
         Command::Replay(args) => cli::replay::command(args),
+        Command::FmInvert(args) => cli::fm_invert::command(args),
     };
     result.unwrap_or_else(|code| code)
 }
@@ -267,7 +272,8 @@ fn with_leading_config(mut command: Command, leading: ConfigArg) -> Result<Comma
         Command::Presets { .. }
         | Command::Soak { .. }
         | Command::Stalls { .. }
-        | Command::Replay(_) => {
+        | Command::Replay(_)
+        | Command::FmInvert(_) => {
             return if leading.is_empty() {
                 Ok(command)
             } else {

@@ -49,6 +49,7 @@ fn the_synthesiser_and_the_dsp_meet_only_through_the_ring() {
 #[test]
 fn the_physics_depends_on_nothing_above_it() {
     assert_uses_only("physics", &[]);
+    assert_uses_only("control", &[]);
 }
 
 #[test]

@@ -1,8 +1,9 @@
-//! The commands (`serve`, `analyse`, `record-signal`, `replay`, `paper`, `info`, `presets`, `bench`, `scan`, `soak`, `stalls`), one
+//! The commands (`serve`, `analyse`, `record-signal`, `replay`, `fm-invert`, `paper`, `info`, `presets`, `bench`, `scan`, `soak`, `stalls`), one
 //! file each, and what they share; `main.rs` only parses the command line and dispatches.
 
 pub mod analyse;
 pub mod bench;
+pub mod fm_invert;
 pub mod info;
 pub mod paper;
 pub mod presets;

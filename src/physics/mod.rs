@@ -4,6 +4,7 @@
 pub mod beam;
 pub mod contact;
 pub mod coupled;
+pub mod fm;
 pub mod impact;
 pub mod inversion;
 pub mod sample_map;
