@@ -58,6 +58,15 @@ export class StatusPanel {
         "samples the DSP could not take in time, since start");
       add("dropped msgs", group(s.messages_dropped), s.messages_dropped > 0 ? "warn" : "", "data messages dropped for slow clients since start (server, all clients)");
       add("clients", group(s.clients));
+      if (s.source === "stream") {
+        // A client's samples, not the synthesiser's: what came, what the writer skipped and
+        // what the feed had no room for (both jumped by the chain), and what waits.
+        add("source", "stream", "", "the chain runs on samples a client streams in (/source/kind): the synthesiser's nodes shape nothing");
+        const lost = (c.stream_gap_samples || 0) + (c.stream_dropped_samples || 0);
+        add("streamed", `${compact(c.stream_samples || 0)} samples, ${compact(c.stream_gap_samples || 0)} skipped, ${compact(c.stream_dropped_samples || 0)} dropped; ${compact(s.stream_fill || 0)} waiting`,
+          lost > 0 ? "warn" : "",
+          `samples taken into the chain (${group(c.stream_samples || 0)} in ${group(c.stream_frames || 0)} frames), skipped by the writer's frames (a gap in their indices), dropped for want of room in the feed (the chain behind the writer), and waiting in the feed now (of ${group(s.stream_capacity || 0)})`);
+      }
       if (s.regime) add("regime", s.regime, "", "the tapping regime the live orbit is in (the branch it is on): the sign of the mean tip–sample force, read from harmonic 1's amplitude and phase against the free lever's (and the mean deflection where a demodulator measures harmonic 0)");
       const l = s.latency_synth_to_send || {};
       add("latency p50/p99", `${ns(l.p50)} / ${ns(l.p99)}`, "", "synthesis → handed to a client's socket (server's view)");
