@@ -18,6 +18,9 @@ use std::f64::consts::{PI, TAU};
 /// The least phase margin the advice keeps (degrees).
 pub const MIN_PHASE_MARGIN: f64 = 45.0;
 
+/// How close to the target the advice's bandwidth is (relative).
+pub const BANDWIDTH_TOLERANCE: f64 = 0.01;
+
 /// The PI zero's place: I/P = ω_c / this.
 const INTEGRAL_RATIO: f64 = 4.0;
 
@@ -58,7 +61,7 @@ pub enum AdvisorError {
     Input(#[from] ModelError),
     /// The target needs less phase margin than [`MIN_PHASE_MARGIN`].
     #[error(
-        "target bandwidth {target} Hz is out of reach: {limit} limits the bandwidth to {best:.4} Hz at {MIN_PHASE_MARGIN}° phase margin"
+        "target bandwidth {target} Hz is out of reach: {limit} limits the bandwidth to {best:.4} Hz at {MIN_PHASE_MARGIN}° phase margin ({lags})"
     )]
     Unreachable {
         /// The bandwidth asked for (Hz).
@@ -67,6 +70,20 @@ pub enum AdvisorError {
         best: f64,
         /// The part of the loop whose lag at that crossover is the largest, in words.
         limit: String,
+        /// Every part's phase lag at that crossover, in words.
+        lags: String,
+    },
+    /// The closed loop's −3 dB bandwidth jumps across the target as the gains grow (|T|
+    /// runs close to −3 dB over a range of frequencies): no gains of the advisor's shape
+    /// give it.
+    #[error(
+        "target bandwidth {target} Hz is not reached within 1 %: the bandwidth jumps past it, to {reached:.4} Hz; try another target or kind"
+    )]
+    Missed {
+        /// The bandwidth asked for (Hz).
+        target: f64,
+        /// The bandwidth of the closest gains (Hz).
+        reached: f64,
     },
 }
 
@@ -158,15 +175,18 @@ fn significant(x: f64) -> String {
     text.trim_end_matches('0').trim_end_matches('.').to_string()
 }
 
-/// Names the part of the loop whose lag at ω (rad/s) is the largest.
-fn limit_at(model: &LoopModel, omega: f64) -> String {
+/// Names the part of the loop whose lag at ω (rad/s) is the largest, of those that lag
+/// more the faster the loop (the filter, the hold, the dead time, the lever's envelope), and
+/// lists every part's lag there.
+fn limit_at(model: &LoopModel, kind: Kind, omega: f64) -> (String, String) {
     let d = &model.demodulator;
     let filter = d.order() as f64 * (omega * d.time_constant()).atan();
     let hold = omega * 0.5 / d.output_rate();
-    let dead = omega * d.dead_time();
+    let dead = omega * (d.dead_time() - d.filter_lead());
     let mut parts = vec![
         (
             filter,
+            "filter",
             format!(
                 "the demodulator's filter (order {}, τ {})",
                 d.order(),
@@ -175,25 +195,50 @@ fn limit_at(model: &LoopModel, omega: f64) -> String {
         ),
         (
             hold,
+            "hold",
             format!(
                 "the demodulator's output rate ({} Hz: a hold of half a period, {})",
                 significant(d.output_rate()),
                 time(0.5 / d.output_rate())
             ),
         ),
-        (dead, format!("the dead time ({})", time(d.dead_time()))),
+        (
+            dead,
+            "dead time",
+            format!("the dead time ({})", time(d.dead_time())),
+        ),
     ];
-    if let Plant::Amplitude { time_constant, .. } = model.plant {
-        parts.push((
-            (omega * time_constant).atan(),
-            format!("the lever's envelope (τ_c {})", time(time_constant)),
-        ));
+    let plant = match model.plant {
+        Plant::Pll => PI / 2.0,
+        Plant::Amplitude { time_constant, .. } => {
+            let lag = (omega * time_constant).atan();
+            parts.push((
+                lag,
+                "envelope",
+                format!("the lever's envelope (τ_c {})", time(time_constant)),
+            ));
+            lag
+        }
+    };
+    let controller = -gains_at(model, kind, omega).response(omega).arg();
+    let mut lags: Vec<String> = parts
+        .iter()
+        .map(|(lag, short, _)| format!("{short} {:.1}°", lag.to_degrees()))
+        .collect();
+    if let Plant::Pll = model.plant {
+        lags.push(format!("integrator {:.0}°", plant.to_degrees()));
     }
-    let (lag, name) = parts
+    lags.push(format!("controller {:.1}°", controller.to_degrees()));
+    let lags = format!(
+        "lags at the {} Hz crossover: {}",
+        significant(omega / TAU),
+        lags.join(", ")
+    );
+    let (_, _, name) = parts
         .into_iter()
         .max_by(|a, b| a.0.total_cmp(&b.0))
         .expect("parts");
-    format!("{name}, {:.0}° of lag at the crossover", lag.to_degrees())
+    (name, lags)
 }
 
 /// Gains giving the closed loop `model` a −3 dB bandwidth of `target_bandwidth` (Hz) with
@@ -211,10 +256,14 @@ pub fn advise(
         }
         .into());
     }
-    let unreachable = |best: f64, omega: f64| AdvisorError::Unreachable {
-        target: target_bandwidth,
-        best,
-        limit: limit_at(model, omega),
+    let unreachable = |best: f64, omega: f64| {
+        let (limit, lags) = limit_at(model, kind, omega);
+        AdvisorError::Unreachable {
+            target: target_bandwidth,
+            best,
+            limit,
+            lags,
+        }
     };
     let w_max = highest_crossover(model, kind).ok_or_else(|| unreachable(0.0, 0.0))?;
     let best = bandwidth_at(model, kind, w_max);
@@ -231,11 +280,20 @@ pub fn advise(
         bandwidth_at(model, kind, w) <= target_bandwidth
     });
     let gains = gains_at(model, kind, omega);
+    let bandwidth = model.bandwidth(&gains).unwrap_or(f64::INFINITY);
+    // The bandwidth jumps where |T| grazes −3 dB (a plateau near the crossover); the
+    // bisection then stops at the jump, short of the target.
+    if (bandwidth / target_bandwidth - 1.0).abs() > BANDWIDTH_TOLERANCE {
+        return Err(AdvisorError::Missed {
+            target: target_bandwidth,
+            reached: bandwidth,
+        });
+    }
     let crossover = model.crossover(&gains).unwrap_or(omega);
     let step = model_step(model, &gains, crossover, step_duration(crossover)).metrics();
     Ok(Advice {
         gains,
-        bandwidth: model.bandwidth(&gains).unwrap_or(f64::INFINITY),
+        bandwidth,
         crossover: crossover / TAU,
         phase_margin: model.phase_margin(&gains).unwrap_or(f64::NAN),
         step,
@@ -375,6 +433,7 @@ mod tests {
         let mut worst = (0.0f64, 0.0f64);
         for (model, target, kind) in cases {
             let a = advise(&model, target, kind).unwrap();
+            assert!((a.bandwidth / target - 1.0).abs() < 0.01, "{a:?}");
             let duration = step_duration(TAU * a.crossover);
             let sim = discrete_step(&model, &a.gains, FILTER_RATE, duration)
                 .unwrap()

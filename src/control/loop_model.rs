@@ -408,6 +408,38 @@ mod tests {
     }
 
     #[test]
+    fn the_discrete_filter_leads_the_continuous_one_by_half_a_sample_a_section() {
+        // dsp::lowpass's section, y[m] = y[m−1] + α(x[m] − y[m−1]): H(z) = α/(1 − (1−α)/z).
+        let (order, tau, rate) = (8, 1e-4, 625e3);
+        let d = Demodulator::new(order, tau, rate, 0.0)
+            .unwrap()
+            .with_filter_rate(rate)
+            .unwrap();
+        assert!(close(d.filter_lead(), 4.0 / rate, 1e-18));
+        let alpha = -(-1.0 / (tau * rate)).exp_m1();
+        for f in [10.0, 300.0, 1e3] {
+            let w = TAU * f;
+            let z_inv = Complex64::from_polar(1.0, -w / rate);
+            let discrete = (alpha / (1.0 - (1.0 - alpha) * z_inv)).powi(order as i32);
+            let model = d.filter(w) * Complex64::from_polar(1.0, w * d.filter_lead());
+            // The phase within 1e-3 of the filter's own lag; the gain within 1e-4.
+            let lag = order as f64 * (w * tau).atan();
+            assert!(
+                (discrete.arg() - model.arg()).abs() < 1e-3 * lag,
+                "{f} Hz: {} vs {}",
+                discrete.arg(),
+                model.arg()
+            );
+            assert!(
+                (discrete.norm() / model.norm() - 1.0).abs() < 1e-4,
+                "{f} Hz"
+            );
+            // Without the lead, the phase is off by ω·n/(2·rate).
+            assert!((discrete.arg() - d.filter(w).arg() - w * 4.0 / rate).abs() < 1e-3 * lag);
+        }
+    }
+
+    #[test]
     fn crossover_margin_and_bandwidth_of_a_pure_integrator_loop() {
         // P alone on 2π/s with a negligible filter and delay: L = 2πP/(iω), ω_c = 2πP,
         // margin 90°, T = 1/(1 + s/ω_c): −3 dB at ω_c.
