@@ -389,6 +389,27 @@ mod tests {
         assert!(e.to_string().contains("output rate (1000 Hz"), "{e}");
     }
 
+    /// The highest bandwidth with 45° of margin for every demodulator setting of the
+    /// tests, PI and PID: the derivative's lead reaches further.
+    #[test]
+    fn the_reach_grows_with_the_derivative_and_falls_with_the_filter() {
+        for (order, tau, f_out, _) in pll_cases() {
+            let model = pll(order, tau, f_out);
+            let best = |kind| match advise(&model, 1e9, kind) {
+                Err(AdvisorError::Unreachable { best, limit, .. }) => (best, limit),
+                other => panic!("{other:?}"),
+            };
+            let (pi, limit) = best(Kind::Pi);
+            let (pid, _) = best(Kind::Pid);
+            eprintln!(
+                "PLL order {order} τ {tau:e} s f_out {f_out:e} Hz: reach PI {pi:.1} Hz, PID {pid:.1} Hz; limit: {limit}"
+            );
+            assert!(pi > 0.0 && pid > pi, "{pi} {pid}");
+            // The hold's half period alone costs 45° at f_out/4.
+            assert!(pi < f_out / 10.0, "{pi}");
+        }
+    }
+
     #[test]
     fn bad_targets_are_refused_naming_them() {
         let model = pll(4, 1e-4, 25e3);
@@ -409,7 +430,19 @@ mod tests {
         let mut cases: Vec<(LoopModel, f64, Kind)> = Vec::new();
         for (order, tau, f_out, targets) in pll_cases() {
             for target in targets {
-                cases.push((pll(order, tau, f_out), target, Kind::Pi));
+                for kind in [Kind::Pi, Kind::Pid] {
+                    cases.push((pll(order, tau, f_out), target, kind));
+                }
+            }
+        }
+        // At the edge of the reach, where the margin is 45° and the delays matter most.
+        for (order, tau, f_out) in [(1, 10e-6, 125e3), (8, 10e-6, 125e3), (4, 1e-3, 5e3)] {
+            let model = pll(order, tau, f_out);
+            for kind in [Kind::Pi, Kind::Pid] {
+                let Err(AdvisorError::Unreachable { best, .. }) = advise(&model, 1e9, kind) else {
+                    panic!("reachable")
+                };
+                cases.push((model, 0.98 * best, kind));
             }
         }
         // A lever whose envelope is faster than the loop (no overshoot), and one (Q = 10⁴,
@@ -445,7 +478,7 @@ mod tests {
             let settling_error = (sim.settling_time / a.step.settling_time - 1.0).abs();
             worst = (worst.0.max(overshoot_error), worst.1.max(settling_error));
             eprintln!(
-                "{:?} order {} τ {:e} s f_out {:e} Hz target {target} Hz: overshoot model {:.2} % discrete {:.2} % ({:+.1} %), \
+                "{:?} {kind:?} order {} τ {:e} s f_out {:e} Hz target {target} Hz: overshoot model {:.2} % discrete {:.2} % ({:+.1} %), \
                  settling model {:.4e} s discrete {:.4e} s ({:+.1} %)",
                 model.plant,
                 model.demodulator.order(),
