@@ -454,14 +454,12 @@ mod tests {
             (1e4, 2, 1e-5, 1e3),
             (1e4, 8, 1e-5, 1e3),
         ] {
-            cases.push((
-                LoopModel {
-                    plant: Plant::amplitude(1.0, q, 300e3).unwrap(),
-                    demodulator: Demodulator::instrument(order, tau, 25e3, SAMPLE_RATE).unwrap(),
-                },
-                target,
-                Kind::Pi,
-            ));
+            let model = LoopModel {
+                plant: Plant::amplitude(1.0, q, 300e3).unwrap(),
+                demodulator: Demodulator::instrument(order, tau, 25e3, SAMPLE_RATE).unwrap(),
+            };
+            cases.push((model, target, Kind::Pi));
+            cases.push((model, target, Kind::Pid));
         }
         let mut worst = (0.0f64, 0.0f64);
         for (model, target, kind) in cases {

@@ -15,4 +15,4 @@ pub mod step;
 pub use advisor::{Advice, AdvisorError, Kind, advise};
 pub use loop_model::{Demodulator, Gains, LoopModel, ModelError, Plant};
 pub use pid::{Pid, PidError, PidSettings};
-pub use step::{StepMetrics, StepTrace, discrete_step, model_step};
+pub use step::{StepError, StepMetrics, StepTrace, discrete_step, model_step};

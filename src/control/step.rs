@@ -14,9 +14,20 @@
 //! the measurement in both, as in [`Pid`], so for the amplitude loop with D ≠ 0 the
 //! set-point response is not T alone.
 
-use super::loop_model::{Gains, LoopModel, Plant};
+use super::loop_model::{Gains, LoopModel, ModelError, Plant, positive};
 use super::pid::{Pid, PidError, PidSettings};
 use std::f64::consts::TAU;
+
+/// Why a discrete loop cannot be simulated.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum StepError {
+    /// The filter rate or the duration, named.
+    #[error(transparent)]
+    Input(#[from] ModelError),
+    /// The gains make no valid [`Pid`].
+    #[error(transparent)]
+    Pid(#[from] PidError),
+}
 
 /// Overshoot and settling of a unit step response.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -184,9 +195,20 @@ pub fn discrete_step(
     gains: &Gains,
     filter_rate: f64,
     duration: f64,
-) -> Result<StepTrace, PidError> {
+) -> Result<StepTrace, StepError> {
     let d = &model.demodulator;
-    let decimation = (filter_rate / d.output_rate()).round().max(1.0) as usize;
+    positive("filter_rate", filter_rate)?;
+    positive("duration", duration)?;
+    let ratio = filter_rate / d.output_rate();
+    if !(ratio >= 1.0 && (ratio - ratio.round()).abs() < 1e-9 * ratio) {
+        return Err(ModelError {
+            parameter: "filter_rate",
+            value: filter_rate,
+            allowed: "an integer multiple of the demodulator's output rate (the filter is decimated to it)",
+        }
+        .into());
+    }
+    let decimation = ratio.round() as usize;
     let h = 1.0 / filter_rate;
     let dt = decimation as f64 * h;
     let setpoint = match model.plant {
@@ -269,6 +291,28 @@ mod tests {
             (m.settling_time - expected).abs() < 1e-3 * expected,
             "{m:?} against {expected}"
         );
+    }
+
+    #[test]
+    fn a_filter_rate_that_is_no_multiple_of_the_output_rate_is_refused() {
+        let model = LoopModel {
+            plant: Plant::Pll,
+            demodulator: Demodulator::new(1, 1e-4, 25e3, 0.0).unwrap(),
+        };
+        let gains = Gains {
+            p: 10.0,
+            i: 100.0,
+            d: 0.0,
+            d_bandwidth: 1e3,
+        };
+        for (rate, duration) in [(60e3, 0.1), (10e3, 0.1), (f64::NAN, 0.1), (625e3, 0.0)] {
+            let e = discrete_step(&model, &gains, rate, duration).unwrap_err();
+            let StepError::Input(e) = e else {
+                panic!("{e}")
+            };
+            assert!(["filter_rate", "duration"].contains(&e.parameter), "{e}");
+        }
+        assert!(discrete_step(&model, &gains, 625e3, 1e-3).is_ok());
     }
 
     #[test]
