@@ -9,7 +9,7 @@
 //! grows with frequency); the highest ω_c with 45° of margin bounds what is reachable. Below
 //! it, the closed loop's −3 dB bandwidth grows monotonically with ω_c, and bisection on
 //! ω_c finds the target. The advice carries the predicted bandwidth, margin, overshoot and
-//! 2 % settling time ([`model_step`](super::step::model_step)).
+//! 2 % settling time ([`model_step`]).
 
 use super::loop_model::{Gains, LoopModel, ModelError, Plant};
 use super::step::{StepMetrics, model_step};
