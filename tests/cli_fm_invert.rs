@@ -14,12 +14,16 @@ fn ftafm(args: &[&str]) -> Output {
         .expect("the binary runs")
 }
 
-/// A file in the temporary directory, removed on drop.
+/// A file in the temporary directory, removed on drop. Its name is its own, also between
+/// the tests of this file, which run at once in one process: one test's file must not be
+/// removed under another's.
 struct TempFile(PathBuf);
 
 impl TempFile {
     fn new(name: &str, contents: &str) -> Self {
-        let path = std::env::temp_dir().join(format!("ftafm-{}-{name}", std::process::id()));
+        static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let path = std::env::temp_dir().join(format!("ftafm-{}-{n}-{name}", std::process::id()));
         std::fs::write(&path, contents).unwrap();
         Self(path)
     }

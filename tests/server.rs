@@ -711,11 +711,18 @@ async fn force_estimates_nobody_takes_are_not_fitted_and_no_taker_sees_a_gap() {
     d.shutdown().await;
 }
 
-/// Mean of `n` force estimates' field.
-async fn force_mean(ws: &mut Ws, n: usize, field: &str) -> f64 {
+/// Mean of `n` force estimates' field, of estimates that reflect settings epoch `epoch` or
+/// later and are not stale (made with the model of the settings in force: docs/protocol.md,
+/// "Settings epochs").
+async fn force_mean(ws: &mut Ws, n: usize, field: &str, epoch: u64) -> f64 {
     let mut sum = 0.0;
-    for _ in 0..n {
-        sum += next_of(ws, "force").await[field].as_f64().unwrap();
+    let mut taken = 0;
+    while taken < n {
+        let f = next_of(ws, "force").await;
+        if f["epoch"].as_u64().unwrap() >= epoch && f["stale"] != true {
+            sum += f[field].as_f64().unwrap();
+            taken += 1;
+        }
     }
     sum / n as f64
 }
@@ -774,17 +781,25 @@ async fn the_force_stream_recovers_contact_time_force_and_modulus() {
                 // The first estimate waits for the estimator's build at nice 10 (the coupled
                 // engine's table: ~1 s of work, which a loaded machine stretches many times):
                 // a hang guard, not a measure.
+                // And an estimate of the model of these settings: the epoch of the change or
+                // later, not stale (the estimator of the new modulus, whose table is dense
+                // about it, is built off the request path).
+                let epoch = r["epoch"].as_u64().unwrap();
                 let first = loop {
                     let f = next_within(&mut ws, "force", Duration::from_secs(180)).await;
-                    if f["t"].as_f64().unwrap() >= effective + 0.25 && f["method"] == method {
+                    if f["t"].as_f64().unwrap() >= effective + 0.25
+                        && f["method"] == method
+                        && f["epoch"].as_u64().unwrap() >= epoch
+                        && f["stale"] != true
+                    {
                         break f;
                     }
                 };
                 assert_eq!(first["method"], method);
                 assert_eq!(first["waveform"].as_array().unwrap().len(), 256);
-                let tau = force_mean(&mut ws, 10, "contact_time_ratio").await;
-                let force = force_mean(&mut ws, 10, "max_force").await;
-                let e = force_mean(&mut ws, 10, "youngs_modulus").await;
+                let tau = force_mean(&mut ws, 10, "contact_time_ratio", epoch).await;
+                let force = force_mean(&mut ws, 10, "max_force", epoch).await;
+                let e = force_mean(&mut ws, 10, "youngs_modulus", epoch).await;
                 let mut s = settings.clone();
                 s.sample.youngs_modulus = modulus;
                 // The configured engine's own pulse (the coupled orbit by default).
