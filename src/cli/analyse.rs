@@ -7,11 +7,9 @@ use std::process::ExitCode;
 use super::{ConfigArg, EXIT_USAGE, load, print_report};
 use crate::analyse::{self, Format, Options, Summary};
 
-/// `ftafm analyse`'s flags.
+/// The flags that name a recording and how to read it, shared by `analyse` and `replay`.
 #[derive(clap::Args)]
-pub struct AnalyseArgs {
-    #[command(flatten)]
-    pub config: ConfigArg,
+pub struct RecordingArgs {
     /// The recording: .npy (int16/int32/float32/float64, 1-D or samples × channels), .wav
     /// (PCM 16/24/32-bit, float 32-bit) or raw little-endian; `-` reads raw from stdin.
     #[arg(value_name = "FILE")]
@@ -28,13 +26,6 @@ pub struct AnalyseArgs {
     /// The channel holding the photodiode signal (0 = first).
     #[arg(long, value_name = "N", default_value_t = 0)]
     pub signal_channel: usize,
-    /// The channel holding the excitation: its phase is the lock-in's reference.
-    #[arg(long, value_name = "N")]
-    pub reference_channel: Option<usize>,
-    /// The drive frequency (Hz), refined from the signal's fundamental (or, with
-    /// --reference-channel, where to look for the excitation).
-    #[arg(long, value_name = "HZ")]
-    pub drive_frequency: Option<f64>,
     /// InvOLS (m/V): metres per unit of the file's values (a WAV's integers are ±1 at full
     /// scale).
     #[arg(long, value_name = "M_PER_V")]
@@ -42,6 +33,50 @@ pub struct AnalyseArgs {
     /// The units of the file's values: `m` (metres already; no --invols).
     #[arg(long, value_name = "UNITS")]
     pub units: Option<String>,
+}
+
+impl RecordingArgs {
+    /// The analysis options these flags give (no reference, no outputs), or the flag that
+    /// is wrong, in words.
+    pub fn options(&self) -> Result<Options, String> {
+        let metres = match self.units.as_deref() {
+            None => false,
+            Some("m") => true,
+            Some(u) => return Err(format!("--units {u:?}: the allowed value is \"m\"")),
+        };
+        if !(1..=64).contains(&self.channels) {
+            return Err(format!("--channels must be 1 to 64, got {}", self.channels));
+        }
+        Ok(Options {
+            file: self.file.clone(),
+            format: self.format,
+            channels: self.channels,
+            signal_channel: self.signal_channel,
+            sample_rate: self.sample_rate,
+            reference_channel: None,
+            drive_frequency: None,
+            invols: self.invols,
+            metres,
+            out: None,
+            progress: false,
+        })
+    }
+}
+
+/// `ftafm analyse`'s flags.
+#[derive(clap::Args)]
+pub struct AnalyseArgs {
+    #[command(flatten)]
+    pub config: ConfigArg,
+    #[command(flatten)]
+    pub recording: RecordingArgs,
+    /// The channel holding the excitation: its phase is the lock-in's reference.
+    #[arg(long, value_name = "N")]
+    pub reference_channel: Option<usize>,
+    /// The drive frequency (Hz), refined from the signal's fundamental (or, with
+    /// --reference-channel, where to look for the excitation).
+    #[arg(long, value_name = "HZ")]
+    pub drive_frequency: Option<f64>,
     /// Directory for demods.npy, spectrum.npy, force.npy and summary.json (created).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
@@ -56,30 +91,13 @@ pub fn command(args: AnalyseArgs) -> Result<ExitCode, ExitCode> {
         eprintln!("ftafm analyse: {e}");
         ExitCode::from(EXIT_USAGE)
     };
-    let metres = match args.units.as_deref() {
-        None => false,
-        Some("m") => true,
-        Some(u) => return Err(usage(format!("--units {u:?}: the allowed value is \"m\""))),
-    };
-    if !(1..=64).contains(&args.channels) {
-        return Err(usage(format!(
-            "--channels must be 1 to 64, got {}",
-            args.channels
-        )));
-    }
     let settings = load(&args.config)?;
     let opts = Options {
-        file: args.file,
-        format: args.format,
-        channels: args.channels,
-        signal_channel: args.signal_channel,
-        sample_rate: args.sample_rate,
         reference_channel: args.reference_channel,
         drive_frequency: args.drive_frequency,
-        invols: args.invols,
-        metres,
         out: args.out,
         progress: std::io::IsTerminal::is_terminal(&std::io::stderr()),
+        ..args.recording.options().map_err(usage)?
     };
     let summary = analyse::analyse(&settings, &opts).map_err(|e| {
         eprintln!("ftafm analyse: {e}");

@@ -6,7 +6,6 @@
 //! pieces, as `ftafm analyse` reads it.
 
 use std::collections::VecDeque;
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -15,8 +14,9 @@ use serde::Serialize;
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
+use super::analyse::RecordingArgs;
 use super::{EXIT_USAGE, print_report};
-use crate::analyse::{self, Format, Options};
+use crate::analyse::{self, Options};
 use crate::pipeline::{FrameHeader, SampleType};
 
 /// Samples a frame (0.1 s at 655 kS/s, 6.6 ms at 10 MS/s) and frames unanswered at a time.
@@ -28,32 +28,11 @@ const REPLY_TIMEOUT: Duration = Duration::from_secs(30);
 /// `ftafm replay`'s flags.
 #[derive(clap::Args)]
 pub struct ReplayArgs {
-    /// The recording: as `ftafm analyse` reads it (.npy, .wav, raw; `-` raw from stdin).
-    #[arg(value_name = "FILE")]
-    pub file: PathBuf,
+    #[command(flatten)]
+    pub recording: RecordingArgs,
     /// The daemon's WebSocket endpoint.
     #[arg(long, default_value = "ws://127.0.0.1:8700/ws")]
     pub url: String,
-    /// The format; auto takes it from the extension.
-    #[arg(long, value_enum, default_value_t = Format::Auto)]
-    pub format: Format,
-    /// Sample rate (Hz): needed for .npy and raw; overrides a WAV header's. Must be the
-    /// daemon's /synth/sample_rate.
-    #[arg(long, value_name = "HZ")]
-    pub sample_rate: Option<f64>,
-    /// Channels interleaved in raw input (1 ≤ N ≤ 64).
-    #[arg(long, value_name = "N", default_value_t = 1)]
-    pub channels: usize,
-    /// The channel holding the photodiode signal (0 = first).
-    #[arg(long, value_name = "N", default_value_t = 0)]
-    pub signal_channel: usize,
-    /// InvOLS (m/V): metres per unit of the file's values (a WAV's integers are ±1 at full
-    /// scale).
-    #[arg(long, value_name = "M_PER_V")]
-    pub invols: Option<f64>,
-    /// The units of the file's values: `m` (metres already; no --invols).
-    #[arg(long, value_name = "UNITS")]
-    pub units: Option<String>,
     /// As fast as the daemon takes the samples, not paced by the wall clock.
     #[arg(long)]
     pub fast: bool,
@@ -95,40 +74,17 @@ pub fn command(args: ReplayArgs) -> Result<ExitCode, ExitCode> {
         eprintln!("ftafm replay: {e}");
         ExitCode::from(EXIT_USAGE)
     };
-    let metres = match args.units.as_deref() {
-        None => false,
-        Some("m") => true,
-        Some(u) => return Err(usage(format!("--units {u:?}: the allowed value is \"m\""))),
-    };
-    if !(1..=64).contains(&args.channels) {
-        return Err(usage(format!(
-            "--channels must be 1 to 64, got {}",
-            args.channels
-        )));
-    }
     if let Some(s) = args.seconds
         && !(s.is_finite() && s > 0.0)
     {
         return Err(usage(format!("--seconds must be finite and > 0, got {s}")));
     }
-    if args.looping && args.file.as_os_str() == "-" {
+    if args.looping && args.recording.file.as_os_str() == "-" {
         return Err(usage(
             "--loop needs a file: standard input cannot be read twice".into(),
         ));
     }
-    let opts = Options {
-        file: args.file.clone(),
-        format: args.format,
-        channels: args.channels,
-        signal_channel: args.signal_channel,
-        sample_rate: args.sample_rate,
-        reference_channel: None,
-        drive_frequency: None,
-        invols: args.invols,
-        metres,
-        out: None,
-        progress: false,
-    };
+    let opts = args.recording.options().map_err(usage)?;
     // The file's errors before the daemon is touched.
     let opened = analyse::open(&opts).map_err(usage)?;
     let runtime = tokio::runtime::Builder::new_current_thread()
