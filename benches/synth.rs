@@ -32,7 +32,8 @@ fn synth(c: &mut Criterion) {
             Engine::Coupled,
             true,
         ),
-        // Half the default's sub-steps in contact (`/synth/contact_substeps` = 6).
+        // Half the default's sub-steps in contact (`/synth/contact_substeps` = 6, with
+        // `/synth/substep_budget` = 0.1, the slow machine's setting).
         (
             "coupled_5_modes_noise_on_6_substeps",
             true,
@@ -49,6 +50,7 @@ fn synth(c: &mut Criterion) {
         }
         if name.ends_with("_6_substeps") {
             settings.synth.contact_substeps = 6;
+            settings.synth.substep_budget = 0.1;
         }
         let plan = SynthPlan::new(&settings).expect("default plan");
         let mut state = SynthState::steady(&plan, 1);

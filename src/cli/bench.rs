@@ -227,7 +227,7 @@ pub fn verdict(r: &BenchReport) -> String {
         r.sample_rate / short / 1e6
     );
     let engine = if r.engine == "coupled" {
-        "/synth/contact_substeps (6), or /synth/engine = \"paper\""
+        "/synth/contact_substeps (6, with /synth/substep_budget 0.1), or /synth/engine = \"paper\""
     } else {
         "the number of modes"
     };
@@ -342,7 +342,11 @@ pub fn render_text(r: &BenchReport) -> String {
         ms(r.sample_rate),
         r.demodulators,
         if r.engine == "coupled" {
-            format!("coupled engine, {} contact sub-steps", r.contact_substeps)
+            format!(
+                "coupled engine, {} contact sub-steps ({} samples refined to more, {} over the \
+                 error budget)",
+                r.contact_substeps, r.counters.refined_samples, r.counters.over_budget_samples
+            )
         } else {
             format!("{} engine", r.engine)
         },

@@ -43,6 +43,9 @@ pub const MAX_DSP_THREADS: u32 = 8;
 /// the contact is one kick each side of the midpoint; at 64 the worst error is a tenth of
 /// the default's, at five times its cost in contact (docs/ft-afm.md).
 pub const MIN_CONTACT_SUBSTEPS: u32 = 2;
+/// Error budget of the coupled engine's sub-steps, ω_c·dt in rad (`/synth/substep_budget`):
+/// 0 (off) to 1, where the harmonics' error would be tens of per cent.
+pub(crate) const SUBSTEP_BUDGET: Range = Range::closed(0.0, 1.0);
 pub const MAX_CONTACT_SUBSTEPS: u32 = 64;
 /// Shortest per-client outgoing queue, in messages (`/server/client_queue`).
 pub const MIN_CLIENT_QUEUE: u32 = 16;

@@ -334,6 +334,7 @@ fn shapes_only_the_synthesis(path: &str) -> bool {
         "/inclusions/",
         "/synth/engine",
         "/synth/contact_substeps",
+        "/synth/substep_budget",
         "/synth/anti_alias",
         "/synth/seed",
         "/drive/free_amplitude",

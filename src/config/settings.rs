@@ -166,6 +166,11 @@ pub struct SynthSettings {
     /// from older files: the default, 12).
     #[serde(default = "default_contact_substeps")]
     pub contact_substeps: u32,
+    /// Error budget of the sub-steps in contact, ω_c·dt (rad; 0: off, every contact sample
+    /// at `contact_substeps`). Absent from older files: the default, 0.05
+    /// (`synth::coupled::DEFAULT_SUBSTEP_BUDGET`, which says how it was measured).
+    #[serde(default = "default_substep_budget")]
+    pub substep_budget: f64,
 }
 
 /// A `u64` in a file: TOML's integers end at 2⁶³ − 1, so a larger value (a seed may be any
@@ -218,6 +223,10 @@ pub(crate) mod wide_u64 {
 
 fn default_contact_substeps() -> u32 {
     12
+}
+
+fn default_substep_budget() -> f64 {
+    0.05
 }
 
 fn yes() -> bool {

@@ -23,6 +23,8 @@ pub struct Counters {
     pub(crate) overrun_samples: AtomicU64,
     pub(crate) overrun_blocks: AtomicU64,
     pub(crate) clipped_samples: AtomicU64,
+    pub(crate) refined_samples: AtomicU64,
+    pub(crate) over_budget_samples: AtomicU64,
     pub(crate) discontinuities: AtomicU64,
     pub(crate) demod_frames: AtomicU64,
     pub(crate) demod_frames_dropped: AtomicU64,
@@ -74,6 +76,8 @@ impl Counters {
             overrun_samples: r(&self.overrun_samples),
             overrun_blocks: r(&self.overrun_blocks),
             clipped_samples: r(&self.clipped_samples),
+            refined_samples: r(&self.refined_samples),
+            over_budget_samples: r(&self.over_budget_samples),
             discontinuities: r(&self.discontinuities),
             demod_frames: r(&self.demod_frames),
             demod_frames_dropped: r(&self.demod_frames_dropped),
@@ -120,6 +124,13 @@ pub struct CountersSnapshot {
     pub overrun_blocks: u64,
     /// Samples clipped by the ADC's full scale.
     pub clipped_samples: u64,
+    /// Samples in contact the coupled engine integrated at more sub-steps than
+    /// `/synth/contact_substeps`, their contact being stiffer than that count resolves
+    /// within its error budget (docs/ft-afm.md).
+    pub refined_samples: u64,
+    /// Samples in contact over that error budget even at 8× `/synth/contact_substeps`
+    /// sub-steps: their harmonics may be off by more than 0.1 %.
+    pub over_budget_samples: u64,
     /// Times the DSP saw a jump in the sample index (after an overrun).
     pub discontinuities: u64,
     /// Demodulator frames produced.

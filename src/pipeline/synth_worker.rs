@@ -124,6 +124,8 @@ impl SynthWorker {
             // synthesis by the ADC filter's delay, so the lock-in sees no shift from it.
             let phase = self.plan.output_phase(self.state.phase());
             let clipped_before = self.state.counters.clipped;
+            let (refined_before, over_before) =
+                (self.state.counters.refined, self.state.counters.over_budget);
             let pages_before = self.state.noise_pages();
             let busy = Instant::now();
             let digitise = if self.plan.scan.is_some() {
@@ -151,6 +153,14 @@ impl SynthWorker {
             Counters::add(
                 &self.counters.synth_busy_ns,
                 busy.elapsed().as_nanos() as u64,
+            );
+            Counters::add(
+                &self.counters.refined_samples,
+                self.state.counters.refined - refined_before,
+            );
+            Counters::add(
+                &self.counters.over_budget_samples,
+                self.state.counters.over_budget - over_before,
             );
             let pages = self.state.noise_pages();
             Counters::add(

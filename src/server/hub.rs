@@ -428,6 +428,17 @@ pub(crate) async fn run(
                     adc_range
                 ));
             }
+            let over_budget = counters.over_budget_samples - last_counters.over_budget_samples;
+            if over_budget > 0 {
+                warnings.push(format!(
+                    "the coupled engine's contact is stiffer than its sub-steps resolve: \
+                     {over_budget} samples in the last {:.1} s were over the error budget even \
+                     at 8 × /synth/contact_substeps ({}), so the harmonics may be off by more \
+                     than 0.1 % (docs/ft-afm.md); raise /synth/contact_substeps",
+                    elapsed.as_secs_f64(),
+                    c.synth.contact_substeps
+                ));
+            }
             if realtime
                 && let Some(w) = behind_warning(&last_counters, &counters, elapsed, substeps)
             {
@@ -532,8 +543,9 @@ fn behind_warning(
     let remedy = if synth >= dsp {
         let fewer = match substeps {
             Some(n) if n > 6 => format!(
-                "fewer contact sub-steps (/synth/contact_substeps, now {n}; at 6 the coupled \
-                 engine stays within its accuracy goals, docs/ft-afm.md), "
+                "fewer contact sub-steps (/synth/contact_substeps, now {n}; at 6 with \
+                 /synth/substep_budget 0.1 the coupled engine stays within its accuracy goals, \
+                 docs/ft-afm.md), "
             ),
             _ => String::new(),
         };

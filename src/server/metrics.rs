@@ -98,6 +98,21 @@ pub(crate) fn render(state: &AppState) -> String {
         &one(counters.clipped_samples),
     );
     metric(
+        "substep_samples_total",
+        "counter",
+        "Samples in contact the coupled engine integrated at more sub-steps than /synth/contact_substeps to keep within its error budget (outcome=\"refined\"), and those over the budget even at 8 times the count (outcome=\"over_budget\").",
+        &[
+            (
+                "{outcome=\"refined\"}".into(),
+                counters.refined_samples as f64,
+            ),
+            (
+                "{outcome=\"over_budget\"}".into(),
+                counters.over_budget_samples as f64,
+            ),
+        ],
+    );
+    metric(
         "noise_pages_total",
         "counter",
         "Pages of noise deviates (4096 samples) the synthesiser used, by the thread that drew them: the DSP thread ahead, or the synthesiser itself when none was ready.",

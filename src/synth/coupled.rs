@@ -18,6 +18,19 @@
 //! which lasts a few samples, is resolved. The thermal input is held
 //! over the whole sample, and the sub-steps' propagation of it sums to exactly the
 //! one-step value, so the noise does not depend on where the engine sub-steps.
+//!
+//! The sub-step follows an error budget: the splitting's error grows as (ω_c·dt)², where
+//! ω_c = √(k_c·Σ φ_n(L)²/M_n) is the frequency of the tip on the contact's stiffness
+//! k_c = (3/2)·κ·√δ at the deepest indentation δ. Each tap is integrated at one sub-step
+//! count, the base count (`/synth/contact_substeps`) doubled up to [`REFINEMENTS`] times:
+//! the count the last tap's stiffest contact needed with [`HEADROOM`] to spare. A sample
+//! whose contact is stiffer than its count resolves within `/synth/substep_budget`
+//! ([`DEFAULT_SUBSTEP_BUDGET`] by default) is redone at
+//! twice the count, which the rest of the tap keeps. So a stiff contact or a lever with
+//! many modes (its tip lighter) is resolved where it needs it, without a constant for the
+//! user to tune; and a tap is not cut into samples of different counts, whose different
+//! errors would add harmonics of their own (measured: mixing 12 and 24 per sample raised
+//! H30's error on a 10-mode lever from 0.07 % to 0.21 %).
 
 // The lanes are read and written in lock-step by index: the form the compiler vectorises.
 #![allow(clippy::needless_range_loop)]
@@ -41,6 +54,33 @@ pub const ADHESION_REACH: f64 = 10.0;
 /// Sub-steps per sample near and in contact by default (`/synth/contact_substeps`).
 /// Measured against the offline reference (`tests/synth_coupled.rs`): see docs/ft-afm.md.
 pub const DEFAULT_SUBSTEPS: usize = 12;
+
+/// The default of `/synth/substep_budget`: the most ω_c·dt a sub-step may span in contact
+/// (rad), ω_c being the tip's frequency on the contact stiffness at the deepest
+/// indentation (module docs). Measured against
+/// the offline orbit (`tests/synth_coupled.rs`, noise off): the worst error of H2–H18 is
+/// about 28 %·(ω_c·dt)² over the default lever in hard tapping, 10- and 16-mode levers and
+/// the 300 kHz lever, so this budget keeps it below 0.07 %, inside the 0.1 % goal.
+/// The defaults (Table 1, 12 sub-steps) peak at 0.042: they are not refined.
+pub const DEFAULT_SUBSTEP_BUDGET: f64 = 0.05;
+
+/// The contact stiffness a tap's sub-step count is chosen for, over the stiffest the last
+/// tap met: a tap up to this much stiffer (its indentation 44 % deeper) needs no redo.
+pub const HEADROOM: f64 = 1.2;
+
+/// The sub-step count the coupled engine's taps use, carried from sample to sample
+/// ([`CoupledKernel::step_lanes`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Refinement {
+    /// 0: the base count; r: 2^r times it.
+    level: usize,
+    /// The stiffest contact k_c (N/m) met since the last sub-stepped sample without one.
+    peak: f64,
+}
+
+/// How many times a sample may be redone at twice the sub-steps to meet
+/// the budget: up to 8× `/synth/contact_substeps`.
+pub const REFINEMENTS: usize = 3;
 
 /// Propagation of the mode lanes over one step: `q ← e^{λ dt}·q + noise·ξ`.
 #[derive(Clone, Debug, Default)]
@@ -79,6 +119,13 @@ pub(crate) struct CoupledLanes<V> {
     a_im: V,
     noise_re: V,
     noise_im: V,
+    /// The base level's sub-step constants.
+    sub: SubLanes<V>,
+}
+
+/// A [`SubstepLevel`]'s constants as lanes.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SubLanes<V> {
     sub_a_re: V,
     sub_a_im: V,
     sub_noise_re: V,
@@ -89,6 +136,141 @@ pub(crate) struct CoupledLanes<V> {
     two_gap_re: V,
     two_gap_im: V,
     two_gap_noise: V,
+}
+
+/// How [`CoupledKernel::step_lanes`] took a sample.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct Stepping {
+    /// Sub-steps taken: 0 where the sample was one step.
+    pub substeps: u32,
+    /// Whether the sample took more sub-steps than the base count.
+    pub refined: bool,
+    /// Whether even the finest level left the sample over the budget.
+    pub over_budget: bool,
+}
+
+impl Stepping {
+    /// Whether the sample was sub-stepped.
+    pub fn substepped(self) -> bool {
+        self.substeps > 0
+    }
+}
+
+/// The constants of one sub-step count: its drift, the gap's parts and the stiffest
+/// contact it resolves within the budget.
+#[derive(Clone, Debug)]
+pub(crate) struct SubstepLevel {
+    /// The sub-step's drift.
+    sub: Drift,
+    /// Sub-steps per sample (even).
+    substeps: usize,
+    /// Half a sub-step (s).
+    half_dt: f64,
+    /// Drive phasor per sub-step, e^{iΩh/S}.
+    sub_rotation: Complex64,
+    /// The tip's displacement after a sub-step's drift per unit of Im q, of Re q and of
+    /// the thermal deviate before it (m), and per newton of the force whose kick opened
+    /// the sub-step (Σ tip·a_im·kick times the kick's duration, m/N): half a sub-step
+    /// for the first, a whole one for the others.
+    sub_gap_im: [f64; MAX_MODES],
+    sub_gap_re: [f64; MAX_MODES],
+    sub_gap_noise: [f64; MAX_MODES],
+    first_gap_per_force: f64,
+    gap_per_force: f64,
+    /// The same two sub-steps on: the tip's displacement after a sub-step's kick and two
+    /// drifts per unit of the Re q and Im q before them and of the held deviate (m), and
+    /// per newton-second of that kick (m/(N·s)).
+    two_gap_re: [f64; MAX_MODES],
+    two_gap_im: [f64; MAX_MODES],
+    two_gap_noise: [f64; MAX_MODES],
+    two_gap_per_impulse: f64,
+    /// The stiffest contact k_c (N/m) this level resolves within the budget.
+    stiffness_limit: f64,
+}
+
+impl SubstepLevel {
+    /// `substeps` sub-steps of a sample of `h` (s) for `modes` with the kernel's `tip` and
+    /// `kick` gains, driven at `omega` (rad/s), the thermal input as in [`Drift::new`];
+    /// `inverse_mass` Σ φ_n(L)²/M_n (1/kg) and `budget` (ω_c·dt, rad; 0: none) set the
+    /// stiffness limit.
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        modes: &[Mode],
+        tip: &[f64; MAX_MODES],
+        kick: &[f64; MAX_MODES],
+        h: f64,
+        omega: f64,
+        thermal_sigma: &[f64],
+        substeps: usize,
+        inverse_mass: f64,
+        budget: f64,
+    ) -> Self {
+        let dt = h / substeps as f64;
+        let sub = Drift::new(modes, dt, thermal_sigma);
+        let (mut sub_gap_im, mut sub_gap_re) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
+        let mut sub_gap_noise = [0.0; MAX_MODES];
+        let mut sub_gap_kick = 0.0;
+        for m in 0..modes.len() {
+            sub_gap_im[m] = tip[m] * sub.a_re[m];
+            sub_gap_re[m] = tip[m] * sub.a_im[m];
+            sub_gap_noise[m] = tip[m] * sub.noise_im[m];
+            sub_gap_kick += tip[m] * sub.a_im[m] * kick[m];
+        }
+        // Two drifts compose: the gap two sub-steps on is the one-sub-step gap of the
+        // drifted lanes, Σ g_re·(a_re·re − a_im·im + n_re·ξ) + g_im·(a_im·re + a_re·im +
+        // n_im·ξ) + g_ξ·ξ.
+        let (mut two_gap_re, mut two_gap_im) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
+        let mut two_gap_noise = [0.0; MAX_MODES];
+        let mut two_gap_per_impulse = 0.0;
+        for m in 0..modes.len() {
+            two_gap_re[m] = sub_gap_re[m] * sub.a_re[m] + sub_gap_im[m] * sub.a_im[m];
+            two_gap_im[m] = sub_gap_im[m] * sub.a_re[m] - sub_gap_re[m] * sub.a_im[m];
+            two_gap_noise[m] = sub_gap_re[m] * sub.noise_re[m]
+                + sub_gap_im[m] * sub.noise_im[m]
+                + sub_gap_noise[m];
+            two_gap_per_impulse += two_gap_re[m] * kick[m];
+        }
+        // ω_c·dt ≤ budget: k_c·Σφ²/M ≤ (budget/dt)².
+        let omega_limit = budget / dt;
+        let stiffness_limit = if budget > 0.0 {
+            omega_limit * omega_limit / inverse_mass
+        } else {
+            f64::INFINITY
+        };
+        Self {
+            sub_gap_im,
+            sub_gap_re,
+            sub_gap_noise,
+            first_gap_per_force: sub_gap_kick * 0.5 * dt,
+            gap_per_force: sub_gap_kick * dt,
+            two_gap_re,
+            two_gap_im,
+            two_gap_noise,
+            two_gap_per_impulse,
+            sub,
+            substeps,
+            half_dt: 0.5 * dt,
+            sub_rotation: Complex64::from_polar(1.0, omega * dt),
+            stiffness_limit,
+        }
+    }
+
+    /// This level's constants as lanes of `V`.
+    #[inline(always)]
+    fn lanes<V: Lanes>(&self) -> SubLanes<V> {
+        SubLanes {
+            sub_a_re: V::load(&self.sub.a_re),
+            sub_a_im: V::load(&self.sub.a_im),
+            sub_noise_re: V::load(&self.sub.noise_re),
+            sub_noise_im: V::load(&self.sub.noise_im),
+            sub_gap_im: V::load(&self.sub_gap_im),
+            sub_gap_re: V::load(&self.sub_gap_re),
+            sub_gap_noise: V::load(&self.sub_gap_noise),
+            two_gap_re: V::load(&self.two_gap_re),
+            two_gap_im: V::load(&self.two_gap_im),
+            two_gap_noise: V::load(&self.two_gap_noise),
+        }
+    }
 }
 
 /// The coupled engine's contact as it integrated it ([`SynthPlan::coupled_trace`]).
@@ -129,32 +311,17 @@ pub struct CoupledKernel {
     pub(crate) tip: [f64; MAX_MODES],
     /// Change of Re q per newton-second of tip force: φ_n(L)/M_n (1/kg).
     pub(crate) kick: [f64; MAX_MODES],
-    /// Whole-sample and sub-step drifts.
+    /// The whole sample's drift.
     pub(crate) full: Drift,
-    pub(crate) sub: Drift,
-    /// Sub-steps of a sample near and in contact (even).
-    pub(crate) substeps: usize,
-    /// Half the sample period and half a sub-step (s).
+    /// The sub-steps of a sample near and in contact: `/synth/contact_substeps`, and twice,
+    /// four and eight times as many for samples whose contact is stiffer than the base
+    /// resolves within the budget.
+    base: SubstepLevel,
+    finer: [SubstepLevel; REFINEMENTS],
+    /// The budget the levels were built for (ω_c·dt, rad; 0: none).
+    budget: f64,
+    /// Half the sample period (s).
     pub(crate) half_h: f64,
-    pub(crate) half_dt: f64,
-    /// Drive phasor per sub-step, e^{iΩh/S}.
-    pub(crate) sub_rotation: Complex64,
-    /// The tip's displacement after a sub-step's drift per unit of Im q, of Re q and of
-    /// the thermal deviate before it (m), and per newton of the force whose kick opened
-    /// the sub-step (Σ tip·a_im·kick times the kick's duration, m/N): half a sub-step
-    /// for the first, a whole one for the others.
-    sub_gap_im: [f64; MAX_MODES],
-    sub_gap_re: [f64; MAX_MODES],
-    sub_gap_noise: [f64; MAX_MODES],
-    first_gap_per_force: f64,
-    gap_per_force: f64,
-    /// The same two sub-steps on: the tip's displacement after a sub-step's kick and two
-    /// drifts per unit of the Re q and Im q before them and of the held deviate (m), and
-    /// per newton-second of that kick (m/(N·s)).
-    two_gap_re: [f64; MAX_MODES],
-    two_gap_im: [f64; MAX_MODES],
-    two_gap_noise: [f64; MAX_MODES],
-    two_gap_per_impulse: f64,
     /// A sample whose ends both leave at least this gap to the surface is one step (m):
     /// a bound on how far the tip can dip below the chord of its path within a sample.
     pub(crate) margin: f64,
@@ -171,7 +338,8 @@ impl CoupledKernel {
     /// `base_amplitude` (m), the surface at `distance` (m), the `contact` and its
     /// `adhesion`, with the thermal input of each mode held over a sample of standard
     /// deviation `thermal_sigma`, a sample near and in contact cut into `substeps` (even,
-    /// at least 2).
+    /// at least 2) or up to 8 times as many for a tap whose contact is stiffer than
+    /// `substeps` resolve within `budget` (ω_c·dt, rad; 0: never).
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn new(
         modes: &[Mode],
@@ -184,6 +352,7 @@ impl CoupledKernel {
         adhesion: Option<Adhesion>,
         thermal_sigma: &[f64],
         substeps: usize,
+        budget: f64,
     ) -> Self {
         assert!(
             substeps >= 2 && substeps.is_multiple_of(2),
@@ -204,7 +373,6 @@ impl CoupledKernel {
             free_tip += y * mode.tip_value;
             curvature += omega * omega * (y * mode.tip_value).norm();
         }
-        let dt = h / substeps as f64;
         // Twice the chord bound a·h²/8, and never below 1 pm.
         let mut margin = (curvature * h * h / 4.0).max(1e-12);
         let (mut strength, mut a0, mut pull_off) = (0.0, 1.0, 0.0);
@@ -214,41 +382,30 @@ impl CoupledKernel {
             pull_off = a.pull_off(contact.radius);
             margin = margin.max(ADHESION_REACH * a.distance);
         }
-        let sub = Drift::new(modes, dt, thermal_sigma);
-        let (mut sub_gap_im, mut sub_gap_re) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
-        let mut sub_gap_noise = [0.0; MAX_MODES];
-        let mut sub_gap_kick = 0.0;
-        for m in 0..modes.len() {
-            sub_gap_im[m] = tip[m] * sub.a_re[m];
-            sub_gap_re[m] = tip[m] * sub.a_im[m];
-            sub_gap_noise[m] = tip[m] * sub.noise_im[m];
-            sub_gap_kick += tip[m] * sub.a_im[m] * kick[m];
-        }
-        // Two drifts compose: the gap two sub-steps on is the one-sub-step gap of the
-        // drifted lanes, Σ g_re·(a_re·re − a_im·im + n_re·ξ) + g_im·(a_im·re + a_re·im +
-        // n_im·ξ) + g_ξ·ξ.
-        let (mut two_gap_re, mut two_gap_im) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
-        let mut two_gap_noise = [0.0; MAX_MODES];
-        let mut two_gap_per_impulse = 0.0;
-        for m in 0..modes.len() {
-            two_gap_re[m] = sub_gap_re[m] * sub.a_re[m] + sub_gap_im[m] * sub.a_im[m];
-            two_gap_im[m] = sub_gap_im[m] * sub.a_re[m] - sub_gap_re[m] * sub.a_im[m];
-            two_gap_noise[m] = sub_gap_re[m] * sub.noise_re[m]
-                + sub_gap_im[m] * sub.noise_im[m]
-                + sub_gap_noise[m];
-            two_gap_per_impulse += two_gap_re[m] * kick[m];
-        }
+        // Σ φ_n(L)²/M_n: the tip's inverse mass on a point force, which sets the frequency
+        // of the tip on the contact's stiffness.
+        let inverse_mass: f64 = modes
+            .iter()
+            .zip(&kick)
+            .map(|(mode, k)| mode.tip_value * k)
+            .sum();
+        let level = |substeps| {
+            SubstepLevel::new(
+                modes,
+                &tip,
+                &kick,
+                h,
+                omega,
+                thermal_sigma,
+                substeps,
+                inverse_mass,
+                budget,
+            )
+        };
+        let base = level(substeps);
+        let finer = std::array::from_fn(|r| level(substeps << (r + 1)));
         Self {
             stiffness: contact.stiffness_coefficient(),
-            sub_gap_im,
-            sub_gap_re,
-            sub_gap_noise,
-            first_gap_per_force: sub_gap_kick * 0.5 * dt,
-            gap_per_force: sub_gap_kick * dt,
-            two_gap_re,
-            two_gap_im,
-            two_gap_noise,
-            two_gap_per_impulse,
             strength,
             a0,
             pull_off,
@@ -258,11 +415,10 @@ impl CoupledKernel {
             tip,
             kick,
             full: Drift::new(modes, h, thermal_sigma),
-            sub,
-            substeps,
+            base,
+            finer,
+            budget,
             half_h: 0.5 * h,
-            half_dt: 0.5 * dt,
-            sub_rotation: Complex64::from_polar(1.0, omega * dt),
             margin,
             base_amplitude,
             omega,
@@ -326,17 +482,14 @@ impl CoupledKernel {
             a_im: V::load(&self.full.a_im),
             noise_re: V::load(&self.full.noise_re),
             noise_im: V::load(&self.full.noise_im),
-            sub_a_re: V::load(&self.sub.a_re),
-            sub_a_im: V::load(&self.sub.a_im),
-            sub_noise_re: V::load(&self.sub.noise_re),
-            sub_noise_im: V::load(&self.sub.noise_im),
-            sub_gap_im: V::load(&self.sub_gap_im),
-            sub_gap_re: V::load(&self.sub_gap_re),
-            sub_gap_noise: V::load(&self.sub_gap_noise),
-            two_gap_re: V::load(&self.two_gap_re),
-            two_gap_im: V::load(&self.two_gap_im),
-            two_gap_noise: V::load(&self.two_gap_noise),
+            sub: self.base.lanes(),
         }
+    }
+
+    /// Sub-steps of a sample near and in contact before any refinement
+    /// (`/synth/contact_substeps`).
+    pub(crate) fn substeps(&self) -> usize {
+        self.base.substeps
     }
 
     /// Tip position z (m) at drive phasor `rho` with mode lanes `im` (Im q).
@@ -378,15 +531,16 @@ impl CoupledKernel {
 
     /// Advances the lanes `re`, `im` (Re q, Im q) by one sample from drive phasor `rho` to
     /// `next` with the thermal deviates `z` (one per mode lane), with the constants `c` of
-    /// this kernel. Returns the lanes and the tip position at `next`, and whether it
-    /// sub-stepped; if it did, `mid` holds the lanes' Re q and Im q at the sample's
-    /// midpoint, before the kick there (for the ADC's window). `moments` gets the kicks'
-    /// impulses (N·s) and their first moments over the sample's halves, the kicks at the
-    /// sample's ends included. `tip` is the position at `rho` if known (NaN if not: it is
-    /// computed), so a loop of steps computes each position once. `record` is handed the
-    /// force at the end of every sub-step ([`substeps`](Self::substeps) values per sample, the
-    /// end-of-sample force repeated where the sample is one step); the real-time loop
-    /// passes a no-op, which compiles away.
+    /// this kernel. Returns the lanes and the tip position at `next`, and how it stepped; if
+    /// it sub-stepped, `mid` holds the lanes' Re q and Im q at the sample's midpoint, before
+    /// the kick there (for the ADC's window). `moments` gets the kicks' impulses (N·s) and
+    /// their first moments over the sample's halves, the kicks at the sample's ends
+    /// included. `tip` is the position at `rho` if known (NaN if not: it is computed), so a
+    /// loop of steps computes each position once. `record` is handed the index j and the
+    /// force at the end of every base sub-step j ([`substeps`](Self::substeps) values per
+    /// sample, the end-of-sample force repeated where the sample is one step; a refined
+    /// sample hands those of its sub-steps that end on the base grid, and a sample redone
+    /// hands them again from j = 0); the real-time loop passes a no-op, which compiles away.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     pub(crate) fn step_lanes<V: Lanes>(
@@ -400,8 +554,9 @@ impl CoupledKernel {
         tip: f64,
         mid: &mut (V, V),
         moments: &mut Moments,
-        record: &mut impl FnMut(f64),
-    ) -> (V, V, f64, bool) {
+        refinement: &mut Refinement,
+        record: &mut impl FnMut(usize, f64),
+    ) -> (V, V, f64, Stepping) {
         let z0 = if tip.is_nan() {
             self.tip_position(c, rho, im)
         } else {
@@ -428,72 +583,194 @@ impl CoupledKernel {
                 r1 = c.kick.mul_add(V::splat(self.half_h * g1), r1);
                 moments.kick(self.half_h * g1, h, true);
             }
-            for _ in 0..self.substeps {
-                record(g1);
+            for j in 0..self.base.substeps {
+                record(j, g1);
             }
-            return (r1, i1, z1, false);
+            return (r1, i1, z1, Stepping::default());
         }
-        // The default count compiled as a constant: its loop's bounds and midpoint known.
-        if self.substeps == DEFAULT_SUBSTEPS {
-            self.substeps::<V, DEFAULT_SUBSTEPS>(c, re, im, rho, z, g0, mid, moments, record)
+        let before = *moments;
+        let mut r = refinement.level.min(REFINEMENTS);
+        let (mut re1, mut im1, mut z1, deepest) =
+            self.at_level(c, r, re, im, rho, z, g0, gap0, mid, moments, record);
+        // The contact's stiffness at the deepest indentation met, against the budget.
+        let stiffness = 1.5 * self.stiffness * (-deepest).max(0.0).sqrt();
+        while r < REFINEMENTS && stiffness > self.level(r).stiffness_limit {
+            // Redone from the same start (a sample's inputs are its arguments) at twice
+            // the count, which the rest of the tap keeps.
+            r += 1;
+            *moments = before;
+            let refined = self.at_level(c, r, re, im, rho, z, g0, gap0, mid, moments, record);
+            (re1, im1, z1) = (refined.0, refined.1, refined.2);
+        }
+        let stepping = Stepping {
+            substeps: self.level(r).substeps as u32,
+            refined: r > 0,
+            over_budget: stiffness > self.level(r).stiffness_limit,
+        };
+        refinement.level = r;
+        if deepest >= 0.0 {
+            // Near the surface, not in it: between taps. The next tap's count is the one
+            // the last tap's stiffest contact needs with headroom (finer or coarser).
+            if refinement.peak > 0.0 {
+                let want = refinement.peak * HEADROOM;
+                refinement.level = (0..REFINEMENTS)
+                    .find(|&r| want <= self.level(r).stiffness_limit)
+                    .unwrap_or(REFINEMENTS);
+                refinement.peak = 0.0;
+            }
         } else {
-            self.substeps::<V, 0>(c, re, im, rho, z, g0, mid, moments, record)
+            refinement.peak = refinement.peak.max(stiffness);
+        }
+        (re1, im1, z1, stepping)
+    }
+
+    /// The sub-step level `r`: 0 the base count, r the base count times 2^r.
+    #[inline(always)]
+    fn level(&self, r: usize) -> &SubstepLevel {
+        if r == 0 {
+            &self.base
+        } else {
+            &self.finer[r - 1]
         }
     }
 
-    /// The sub-steps of [`step_lanes`](Self::step_lanes) from the force `g0` at the
-    /// sample's start, the two half kicks between them merged into one. The sub-steps are
-    /// a chain from one force to the next, so the gap at the end of sub-step j is taken
-    /// apart by what it waits for: the lanes two sub-steps back (before sub-step j − 1's
-    /// kick, a sum across lanes that runs beside the chain), that kick's part (Φ·impulse)
-    /// and sub-step j's own kick's part (C·g, fused into the force law). The chain from one
-    /// gap to the next is then the force law's square root and one multiply-add; the lanes'
-    /// arithmetic and the kick's part, a sub-step ahead of it, run beside it. `FIXED`: the
-    /// kernel's count of sub-steps as a constant, or 0 to read it.
+    /// [`sub_step`](Self::sub_step) at level `r`.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn substeps<V: Lanes, const FIXED: usize>(
+    fn at_level<V: Lanes>(
         &self,
         c: &CoupledLanes<V>,
+        r: usize,
+        re: V,
+        im: V,
+        rho: Complex64,
+        z: V,
+        g0: f64,
+        gap0: f64,
+        mid: &mut (V, V),
+        moments: &mut Moments,
+        record: &mut impl FnMut(usize, f64),
+    ) -> (V, V, f64, f64) {
+        if r > 0 {
+            self.finer_steps(c, r, re, im, rho, z, g0, gap0, mid, moments, record)
+        } else if self.base.substeps == DEFAULT_SUBSTEPS {
+            // The default count compiled as a constant: its loop's bounds and midpoint known.
+            self.sub_step::<V, DEFAULT_SUBSTEPS>(
+                c, &self.base, &c.sub, 1, re, im, rho, z, g0, gap0, mid, moments, record,
+            )
+        } else {
+            self.sub_step::<V, 0>(
+                c, &self.base, &c.sub, 1, re, im, rho, z, g0, gap0, mid, moments, record,
+            )
+        }
+    }
+
+    /// [`sub_step`](Self::sub_step) at a finer level `r` ≥ 1, its lanes loaded here. Inline
+    /// like the rest: the loop is compiled once per instruction set under its target
+    /// features, which a function out of line would not inherit (out of line, every lane
+    /// operation became a call: the synthesis ran 9× slower).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn finer_steps<V: Lanes>(
+        &self,
+        c: &CoupledLanes<V>,
+        r: usize,
+        re: V,
+        im: V,
+        rho: Complex64,
+        z: V,
+        g0: f64,
+        gap0: f64,
+        mid: &mut (V, V),
+        moments: &mut Moments,
+        record: &mut impl FnMut(usize, f64),
+    ) -> (V, V, f64, f64) {
+        let level = self.level(r);
+        let lanes = level.lanes::<V>();
+        self.sub_step::<V, 0>(
+            c,
+            level,
+            &lanes,
+            1 << r,
+            re,
+            im,
+            rho,
+            z,
+            g0,
+            gap0,
+            mid,
+            moments,
+            record,
+        )
+    }
+
+    /// The sub-steps of [`step_lanes`](Self::step_lanes) at `level` (its lanes `s`) from
+    /// the force `g0` at the sample's start, the two half kicks between them merged into
+    /// one. The sub-steps are a chain from one force to the next, so the gap at the end of
+    /// sub-step j is taken apart by what it waits for: the lanes two sub-steps back (before
+    /// sub-step j − 1's kick, a sum across lanes that runs beside the chain), that kick's
+    /// part (Φ·impulse) and sub-step j's own kick's part (C·g, fused into the force law).
+    /// The chain from one gap to the next is then the force law's square root and one
+    /// multiply-add; the lanes' arithmetic and the kick's part, a sub-step ahead of it, run
+    /// beside it. `FIXED`: the level's count of sub-steps as a constant, or 0 to read it.
+    /// `stride`: sub-steps per base sub-step, for `record`. Returns the lanes, the tip
+    /// position at the end and the smallest gap met (m; from `gap0`, the start's).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn sub_step<V: Lanes, const FIXED: usize>(
+        &self,
+        c: &CoupledLanes<V>,
+        level: &SubstepLevel,
+        s: &SubLanes<V>,
+        stride: usize,
         mut re: V,
         mut im: V,
         rho: Complex64,
         z: V,
         g0: f64,
+        gap0: f64,
         mid: &mut (V, V),
         moments: &mut Moments,
-        record: &mut impl FnMut(f64),
-    ) -> (V, V, f64, bool) {
-        let dt = 2.0 * self.half_dt;
+        record: &mut impl FnMut(usize, f64),
+    ) -> (V, V, f64, f64) {
+        let dt = 2.0 * level.half_dt;
         let h = 2.0 * self.half_h;
-        let mut r = rho * self.sub_rotation;
+        let mut r = rho * level.sub_rotation;
         // Sub-step 0: its gap from the lanes it starts from.
-        let p = c
+        let p = s
             .sub_gap_im
-            .mul_add(im, c.sub_gap_re.mul_add(re, c.sub_gap_noise.mul(z)));
+            .mul_add(im, s.sub_gap_re.mul_add(re, s.sub_gap_noise.mul(z)));
         let mut gap =
-            (self.free_tip * r).re + p.sum() + self.distance + self.first_gap_per_force * g0;
+            (self.free_tip * r).re + p.sum() + self.distance + level.first_gap_per_force * g0;
+        let mut deepest = gap0;
         let mut g = g0;
-        let mut impulse = self.half_dt * g0;
-        let substeps = if FIXED > 0 { FIXED } else { self.substeps };
+        let mut impulse = level.half_dt * g0;
+        let substeps = if FIXED > 0 { FIXED } else { level.substeps };
         for j in 1..=substeps {
             // The lanes before the kick of sub-step j − 1 give the gap at the end of
             // sub-step j, with that kick's part (Φ·impulse) and sub-step j's (C·g) added.
-            let two = c
+            let two = s
                 .two_gap_re
-                .mul_add(re, c.two_gap_im.mul_add(im, c.two_gap_noise.mul(z)));
+                .mul_add(re, s.two_gap_im.mul_add(im, s.two_gap_noise.mul(z)));
+            // Beside the chain: the deepest point for the budget.
+            deepest = deepest.min(gap);
             let next_g;
             if j < substeps {
-                r *= self.sub_rotation;
+                r *= level.sub_rotation;
                 let base = (self.free_tip * r).re
                     + two.sum()
                     + self.distance
-                    + self.two_gap_per_impulse * impulse;
-                (next_g, gap) = self.force_and_gap(gap, base, self.gap_per_force);
+                    + level.two_gap_per_impulse * impulse;
+                (next_g, gap) = self.force_and_gap(gap, base, level.gap_per_force);
             } else {
                 next_g = self.force(gap);
             }
-            record(next_g);
+            // The base grid's sub-steps only (a stride of 1 is every one: no division).
+            if stride == 1 {
+                record(j - 1, next_g);
+            } else if j.is_multiple_of(stride) {
+                record(j / stride - 1, next_g);
+            }
             if g != 0.0 {
                 re = c.kick.mul_add(V::splat(impulse), re);
             }
@@ -501,12 +778,12 @@ impl CoupledKernel {
             // Through u32 (the count is a u32 in the settings): one conversion instruction,
             // where a u64's takes five without AVX-512. The same value.
             moments.kick(impulse, f64::from((j - 1) as u32) * dt, j > substeps / 2);
-            let r1 = c
+            let r1 = s
                 .sub_a_im
-                .neg_mul_add(im, c.sub_a_re.mul_add(re, c.sub_noise_re.mul(z)));
-            im = c
+                .neg_mul_add(im, s.sub_a_re.mul_add(re, s.sub_noise_re.mul(z)));
+            im = s
                 .sub_a_im
-                .mul_add(re, c.sub_a_re.mul_add(im, c.sub_noise_im.mul(z)));
+                .mul_add(re, s.sub_a_re.mul_add(im, s.sub_noise_im.mul(z)));
             re = r1;
             if j == substeps / 2 {
                 // The midpoint, before its kick.
@@ -516,10 +793,10 @@ impl CoupledKernel {
             impulse = dt * g;
         }
         if g != 0.0 {
-            re = c.kick.mul_add(V::splat(self.half_dt * g), re);
+            re = c.kick.mul_add(V::splat(level.half_dt * g), re);
         }
-        moments.kick(self.half_dt * g, h, true);
-        (re, im, gap - self.distance, true)
+        moments.kick(level.half_dt * g, h, true);
+        (re, im, gap - self.distance, deepest)
     }
 
     /// The modal states at drive phase `theta` (rad) on the engine's own periodic orbit: the
@@ -533,9 +810,13 @@ impl CoupledKernel {
         drive_response: &[Complex64],
         h: f64,
         theta: f64,
-    ) -> [Complex64; MAX_MODES] {
-        let (re, im) = self.orbit(modes, drive_response, h, theta, 0, &mut |_, _, _| {});
-        std::array::from_fn(|m| Complex64::new(re[m], im[m]))
+    ) -> ([Complex64; MAX_MODES], Refinement) {
+        let (re, im, refinement) =
+            self.orbit(modes, drive_response, h, theta, 0, &mut |_, _, _| {});
+        (
+            std::array::from_fn(|m| Complex64::new(re[m], im[m])),
+            refinement,
+        )
     }
 
     /// One period of the engine's own periodic orbit ([`steady_state`](Self::steady_state)
@@ -571,7 +852,7 @@ impl CoupledKernel {
     /// Runs the noise-free engine from the free orbit to its periodic orbit (see
     /// [`steady_state`](Self::steady_state)), then `extra` more periods, handing `sample`
     /// the drive phase, the lanes' Im q and the largest sub-step force of every step of
-    /// those. Returns the lanes at the end.
+    /// those. Returns the lanes at the end and the sub-step count its taps settled on.
     fn orbit(
         &self,
         modes: &[Mode],
@@ -580,7 +861,7 @@ impl CoupledKernel {
         theta: f64,
         extra: usize,
         sample: &mut impl FnMut(f64, &[f64; MAX_MODES], f64),
-    ) -> ([f64; MAX_MODES], [f64; MAX_MODES]) {
+    ) -> ([f64; MAX_MODES], [f64; MAX_MODES], Refinement) {
         let omega = self.omega;
         let period = 2.0 * PI / omega;
         let steps = (period / h).round().max(8.0) as usize;
@@ -596,7 +877,8 @@ impl CoupledKernel {
             &self.contact,
             self.adhesion,
             &silent,
-            self.substeps,
+            self.base.substeps,
+            self.budget,
         );
         // A scan may have set another surface under the tip.
         kernel.stiffness = self.stiffness;
@@ -607,6 +889,7 @@ impl CoupledKernel {
         let (mut re, mut im) = (All::splat(0.0), All::splat(0.0));
         let mut mid = (re, im);
         let mut moments = Moments::default();
+        let mut refinement = Refinement::default();
         let z = All::splat(0.0);
         for period in 0..periods + extra {
             let mut rho = Complex64::from_polar(1.0, theta);
@@ -631,7 +914,14 @@ impl CoupledKernel {
                     f64::NAN,
                     &mut mid,
                     &mut moments,
-                    &mut |g| largest = largest.max(g),
+                    &mut refinement,
+                    &mut |j, g| {
+                        // A sample redone finer hands its forces again from j = 0.
+                        if j == 0 {
+                            largest = 0.0;
+                        }
+                        largest = largest.max(g);
+                    },
                 );
                 if recorded {
                     sample(phase, &before, largest);
@@ -642,7 +932,7 @@ impl CoupledKernel {
         let (mut re_out, mut im_out) = ([0.0; MAX_MODES], [0.0; MAX_MODES]);
         re.store(&mut re_out);
         im.store(&mut im_out);
-        (re_out, im_out)
+        (re_out, im_out, refinement)
     }
 }
 
@@ -660,6 +950,16 @@ mod tests {
     /// A kernel for the default lever with the surface at `distance` (m) and `adhesion`,
     /// with thermal input.
     fn kernel_at(h: f64, distance: f64, adhesion: Option<Adhesion>) -> (CoupledKernel, Vec<Mode>) {
+        kernel_with(h, distance, adhesion, DEFAULT_SUBSTEPS)
+    }
+
+    /// [`kernel_at`] with `substeps` sub-steps in contact.
+    fn kernel_with(
+        h: f64,
+        distance: f64,
+        adhesion: Option<Adhesion>,
+        substeps: usize,
+    ) -> (CoupledKernel, Vec<Mode>) {
         let c = Cantilever::new(100e3, 20.0, &[100.0, 417.0, 340.0, 200.0, 26.0], 0).unwrap();
         let si = Elastic {
             youngs_modulus: 129e9,
@@ -678,7 +978,8 @@ mod tests {
             &contact,
             adhesion,
             &sigma,
-            DEFAULT_SUBSTEPS,
+            substeps,
+            DEFAULT_SUBSTEP_BUDGET,
         );
         (k, c.modes)
     }
@@ -704,6 +1005,8 @@ mod tests {
         let mut rho = Complex64::new(1.0, 0.0);
         let mut mid = (a_re, a_im);
         let mut moments = Moments::default();
+        let (mut refinement_one, mut refinement_sub) =
+            (Refinement::default(), Refinement::default());
         for n in 0..5000 {
             let z = deviates(n);
             let next = rho * rotation;
@@ -718,9 +1021,10 @@ mod tests {
                 f64::NAN,
                 &mut mid,
                 &mut moments,
-                &mut |_| {},
+                &mut refinement_one,
+                &mut |_, _| {},
             );
-            assert!(!substepped);
+            assert!(!substepped.substepped());
             let substepped;
             (b_re, b_im, _, substepped) = sub.step_lanes(
                 &lanes_sub,
@@ -732,9 +1036,10 @@ mod tests {
                 f64::NAN,
                 &mut mid,
                 &mut moments,
-                &mut |_| {},
+                &mut refinement_sub,
+                &mut |_, _| {},
             );
-            assert!(substepped);
+            assert!(substepped.substepped());
             rho = next;
         }
         let array = |x: P| {
@@ -776,6 +1081,7 @@ mod tests {
             let (mut re, mut im) = (P::splat(0.0), P::splat(0.0));
             let mut rho = Complex64::new(1.0, 0.0);
             let mut tip = f64::NAN;
+            let mut refinement = Refinement::default();
             let (mut clear, mut near) = (0, 0);
             for n in 0..20_000 {
                 let z = deviates(n);
@@ -794,8 +1100,10 @@ mod tests {
                     tip,
                     &mut mid,
                     &mut moments,
-                    &mut |_| {},
+                    &mut refinement,
+                    &mut |_, _| {},
                 );
+                let substepped = substepped.substepped();
                 match quick {
                     Some((q_re, q_im, q_tip)) => {
                         clear += 1;
@@ -815,5 +1123,146 @@ mod tests {
                 assert!(clear > 10_000 && near > 1_000, "{clear} clear, {near} not");
             }
         }
+    }
+
+    /// What a run of samples of `k` gave: per sample its stepping and whether it was
+    /// redone (its forces handed from j = 0 more than once), and the lanes' bits at the end.
+    struct Run {
+        steps: Vec<Stepping>,
+        redone: Vec<bool>,
+        bits: [u64; 16],
+    }
+
+    /// `samples` samples of `k` tapping from the free orbit without thermal input (so the
+    /// taps settle on one periodic orbit), from `refinement`; `soften` at sample `soften.0` multiplies the contact's stiffness by
+    /// `soften.1` (as a scan does, moving onto another material).
+    fn tap_run(
+        k: &mut CoupledKernel,
+        samples: usize,
+        mut refinement: Refinement,
+        soften: (usize, f64),
+    ) -> Run {
+        type P = Portable<8>;
+        let rotation = Complex64::from_polar(1.0, 2.0 * PI * 100e3 * 1e-7);
+        let c = k.lanes::<P>();
+        let (mut re, mut im) = (P::splat(0.0), P::splat(0.0));
+        let mut rho = Complex64::new(1.0, 0.0);
+        let mut tip = f64::NAN;
+        let mut run = Run {
+            steps: Vec::new(),
+            redone: Vec::new(),
+            bits: [0; 16],
+        };
+        for n in 0..samples {
+            if n == soften.0 {
+                k.stiffness *= soften.1;
+            }
+            let z = P::splat(0.0);
+            let next = rho * rotation;
+            let mut mid = (re, im);
+            let mut moments = Moments::default();
+            let mut starts = 0;
+            let stepping;
+            (re, im, tip, stepping) = k.step_lanes(
+                &c,
+                re,
+                im,
+                rho,
+                next,
+                z,
+                tip,
+                &mut mid,
+                &mut moments,
+                &mut refinement,
+                &mut |j, _| starts += usize::from(j == 0),
+            );
+            run.steps.push(stepping);
+            run.redone.push(starts > 1);
+            rho = next;
+        }
+        let (mut a, mut b) = ([0.0; 8], [0.0; 8]);
+        re.store(&mut a);
+        im.store(&mut b);
+        for m in 0..8 {
+            run.bits[m] = a[m].to_bits();
+            run.bits[8 + m] = b[m].to_bits();
+        }
+        run
+    }
+
+    /// The surface of [`a_clear_step_is_the_general_step_bit_for_bit`]'s tapping, its
+    /// contact `stiffer` times the silicon's: taps stiffer than 12 sub-steps resolve.
+    fn stiff_kernel(substeps: usize, stiffer: f64) -> CoupledKernel {
+        let (far, _) = far_kernel(1e-7);
+        let (mut k, _) = kernel_with(1e-7, far.free_tip.norm() / 3.0, None, substeps);
+        k.stiffness *= stiffer;
+        k
+    }
+
+    /// The settings' default budget is this module's, whose docs say how it was measured.
+    #[test]
+    fn the_default_budget_is_the_settings_default() {
+        let s = crate::config::default_settings();
+        assert_eq!(s.synth.substep_budget, DEFAULT_SUBSTEP_BUDGET);
+        assert_eq!(s.synth.contact_substeps as usize, DEFAULT_SUBSTEPS);
+    }
+
+    /// A tap refined to twice the base count is, bit for bit, the tap of a kernel whose
+    /// base count is twice as many: a refinement is the finer count, not an approximation.
+    /// (Over the first 4000 samples from the free orbit, where every tap of this contact
+    /// needs 24 or 48 sub-steps.)
+    #[test]
+    fn a_refined_tap_is_the_finer_counts_tap_bit_for_bit() {
+        let mut k12 = stiff_kernel(12, 8.0);
+        let mut k24 = stiff_kernel(24, 8.0);
+        let from_1 = Refinement {
+            level: 1,
+            peak: 0.0,
+        };
+        let a = tap_run(&mut k12, 4000, from_1, (usize::MAX, 1.0));
+        let b = tap_run(&mut k24, 4000, Refinement::default(), (usize::MAX, 1.0));
+        let contact: Vec<_> = a.steps.iter().filter(|s| s.substepped()).collect();
+        assert!(contact.len() > 200, "{} samples in contact", contact.len());
+        // Every tap needed more than the 12 sub-steps, and 24 or 48 were within budget.
+        assert!(contact.iter().all(|s| s.refined && !s.over_budget));
+        assert!(contact.iter().any(|s| s.substeps == 24));
+        assert!(contact.iter().any(|s| s.substeps == 48));
+        assert_eq!(a.bits, b.bits);
+        for (sa, sb) in a.steps.iter().zip(&b.steps) {
+            assert_eq!(sa.substeps, sb.substeps);
+        }
+    }
+
+    /// From the base count, the first stiff tap is redone finer where it crosses the
+    /// budget. Once the taps have settled, every tap starts at the finer count it needs (no
+    /// redo). When the contact turns soft, the taps after the next return to the base count.
+    #[test]
+    fn the_count_follows_the_contacts_stiffness_from_tap_to_tap() {
+        let mut k = stiff_kernel(12, 8.0);
+        let period = 100;
+        let soft_from = 20_000;
+        let run = tap_run(
+            &mut k,
+            26_000,
+            Refinement::default(),
+            (soft_from, 1.0 / 40.0),
+        );
+        let first_redo = run.redone.iter().position(|&r| r).expect("a redo");
+        assert!(first_redo < period, "first redo at sample {first_redo}");
+        // Settled (from the free orbit the taps take ~120 periods to settle).
+        let settled = 14_000..soft_from;
+        assert!(!run.redone[settled.clone()].contains(&true));
+        let stiff: Vec<_> = run.steps[settled]
+            .iter()
+            .filter(|s| s.substepped())
+            .collect();
+        assert!(stiff.len() > 100, "{}", stiff.len());
+        assert!(stiff.iter().all(|s| s.refined && s.substeps == 24));
+        let soft: Vec<_> = run.steps[soft_from + 2 * period..]
+            .iter()
+            .filter(|s| s.substepped())
+            .collect();
+        assert!(soft.len() > 100, "{}", soft.len());
+        assert!(soft.iter().all(|s| s.substeps == 12 && !s.refined));
     }
 }

@@ -19,7 +19,7 @@ pub mod synthesizer;
 pub mod window;
 
 pub use adc::{Adc, AdcHistory, WindowSample};
-pub use coupled::{CoupledKernel, CoupledTrace, DEFAULT_SUBSTEPS};
+pub use coupled::{CoupledKernel, CoupledTrace, DEFAULT_SUBSTEP_BUDGET, DEFAULT_SUBSTEPS};
 pub use digitiser::{Digitiser, DigitiserInput};
 pub use plan::{BOLTZMANN, PlanError, SynthPlan, TapForce};
 pub use pulse::PulseTrain;

@@ -7,7 +7,7 @@ use std::f64::consts::PI;
 use rustfft::num_complex::Complex64;
 
 use super::adc::{self, Adc};
-use super::coupled::CoupledKernel;
+use super::coupled::{CoupledKernel, Refinement};
 use super::modal::ModalKernel;
 use super::pulse::{PulseKernel, PulseTrain};
 use super::scan_plan::{ScanBase, ScanPlan, TapTables};
@@ -307,6 +307,7 @@ impl SynthPlan {
                 model::adhesion(settings),
                 &thermal_sigma,
                 settings.synth.contact_substeps as usize,
+                settings.synth.substep_budget,
             )
         });
         let scan = settings.scan.enable.then(|| {
@@ -394,15 +395,19 @@ impl SynthPlan {
     /// Steady-state modal states at drive phase `theta` (rad) under the tap force alone:
     /// q_n = Σ_k (ikΩ − λ̄n)·Y_{n,k}·e^{ikθ} with Y_{n,k} = gain·c_k·Hn(kΩ)/ωn², summed over
     /// |k| ≤ 4096 (the terms fall off like 1/k³ past the pulse's bandwidth). With the
-    /// coupled engine: its own periodic orbit ([`CoupledKernel::steady_state`]).
-    pub(crate) fn tap_steady_state(&self, theta: f64) -> Vec<Complex64> {
+    /// coupled engine: its own periodic orbit ([`CoupledKernel::steady_state`]), and the
+    /// sub-step count its taps settled on (the default with the paper engine).
+    pub(crate) fn tap_steady_state(&self, theta: f64) -> (Vec<Complex64>, Refinement) {
         if let Some(coupled) = &self.coupled {
-            let q =
+            let (q, refinement) =
                 coupled.steady_state(&self.cantilever.modes, &self.drive_response, self.h, theta);
-            return q[..self.modes.len()].to_vec();
+            return (q[..self.modes.len()].to_vec(), refinement);
         }
         let Some(tap) = self.tap else {
-            return vec![Complex64::new(0.0, 0.0); self.modes.len()];
+            return (
+                vec![Complex64::new(0.0, 0.0); self.modes.len()],
+                Refinement::default(),
+            );
         };
         let omega = 2.0 * PI * self.drive_frequency;
         let train = tap.train;
@@ -413,7 +418,8 @@ impl SynthPlan {
             train.centre_phase,
             kmax,
         );
-        self.cantilever
+        let q = self
+            .cantilever
             .modes
             .iter()
             .zip(&self.modes)
@@ -437,7 +443,8 @@ impl SynthPlan {
                 }
                 q
             })
-            .collect()
+            .collect();
+        (q, Refinement::default())
     }
 }
 

@@ -10,7 +10,7 @@
 use rustfft::num_complex::Complex64;
 
 use super::adc::{AdcFilter, COMPENSATOR_HISTORY, GRID_HISTORY, WindowSample};
-use super::coupled::{CoupledKernel, CoupledTrace};
+use super::coupled::{CoupledKernel, CoupledTrace, Refinement};
 use super::digitiser::{DigitiserInput, detect_and_quantise};
 #[cfg(target_arch = "x86_64")]
 use super::lanes::{Avx8, Avx512x8};
@@ -59,6 +59,12 @@ pub struct SynthCounters {
     /// ([`SynthPlan::process`]; [`SynthPlan::process_window`] leaves them to its
     /// [`Digitiser`](super::digitiser::Digitiser)).
     pub clipped: u64,
+    /// Samples in contact the coupled engine redid at more than `/synth/contact_substeps`
+    /// sub-steps, their contact being stiffer than that count resolves within the error
+    /// budget ([`SUBSTEP_BUDGET`](super::coupled::SUBSTEP_BUDGET)).
+    pub refined: u64,
+    /// Samples over that budget even at the finest sub-steps (8× the count).
+    pub over_budget: u64,
 }
 
 /// What the ADC's window carries from one sample to the next ([`super::window`]): the
@@ -119,6 +125,8 @@ pub struct SynthState {
     window: WindowCarry,
     /// The widest vector instructions the CPU has (the loop is compiled for them).
     build: Build,
+    /// The coupled engine's sub-step count for the next tap.
+    refinement: Refinement,
     /// Counters.
     pub counters: SynthCounters,
 }
@@ -149,14 +157,20 @@ impl SynthState {
             let [z1, z2] = z;
             thermal[m] = Complex64::new(l11 * z1, l21 * z1 + l22 * z2);
         }
-        let (q, adc, window) = if plan.anti_alias.is_some() {
+        let (q, adc, window, refinement) = if plan.anti_alias.is_some() {
             plan.settled_start(&thermal)
         } else {
             let mut q = thermal;
-            for (q, tap) in q.iter_mut().zip(plan.tap_steady_state(0.0)) {
+            let (tap, refinement) = plan.tap_steady_state(0.0);
+            for (q, tap) in q.iter_mut().zip(tap) {
                 *q += tap;
             }
-            (q, AdcFilter::new(CHUNK, |_| 0.0), WindowCarry::default())
+            (
+                q,
+                AdcFilter::new(CHUNK, |_| 0.0),
+                WindowCarry::default(),
+                refinement,
+            )
         };
         Self {
             re: q.map(|q| q.re),
@@ -168,6 +182,7 @@ impl SynthState {
             adc,
             window,
             build: Build::detect(),
+            refinement,
             counters: SynthCounters::default(),
         }
     }
@@ -440,6 +455,8 @@ impl SynthPlan {
         let mut rho = state.rho;
         let mut index = state.counters.samples;
         let mut clipped = 0u64;
+        let (mut refined, mut over_budget) = (0u64, 0u64);
+        let mut refinement = state.refinement;
         let mut out = out;
         let total = out.len();
         // The detector's deviates are drawn where the samples are finished.
@@ -542,8 +559,8 @@ impl SynthPlan {
                         && let (Some(coupled), Some(lanes)) = (coupled, &coupled_lanes)
                     {
                         let mut midq = (re, im);
-                        let substepped;
-                        (re, im, tip, substepped) = coupled.step_lanes(
+                        let stepping;
+                        (re, im, tip, stepping) = coupled.step_lanes(
                             lanes,
                             re,
                             im,
@@ -553,11 +570,14 @@ impl SynthPlan {
                             tip,
                             &mut midq,
                             &mut moments,
-                            &mut |_| {},
+                            &mut refinement,
+                            &mut |_, _| {},
                         );
+                        refined += u64::from(stepping.refined);
+                        over_budget += u64::from(stepping.over_budget);
                         if MID {
                             forced = moments != Moments::default();
-                            if substepped {
+                            if stepping.substepped() {
                                 knot_mid = V::load(&k.knot_re)
                                     .mul_add(midq.0, V::load(&k.knot_im).mul(midq.1));
                             } else if forced {
@@ -676,6 +696,9 @@ impl SynthPlan {
         state.rho = rho;
         state.counters.samples = index;
         state.counters.clipped += clipped;
+        state.counters.refined += refined;
+        state.refinement = refinement;
+        state.counters.over_budget += over_budget;
     }
 
     /// The windows on grid sample n and on midpoint n + ½ where neither sample n nor n − 1
@@ -777,10 +800,10 @@ impl SynthPlan {
         let coupled = self.coupled.as_ref()?;
         let step = self.frequency_word;
         let mut trace = CoupledTrace {
-            force: Vec::with_capacity(samples * coupled.substeps),
+            force: Vec::with_capacity(samples * coupled.substeps()),
             tip: Vec::with_capacity(samples),
-            dt: self.h / coupled.substeps as f64,
-            substeps: coupled.substeps,
+            dt: self.h / coupled.substeps() as f64,
+            substeps: coupled.substeps(),
             start_phase: state.phase,
             free_tip: coupled.free_tip,
         };
@@ -796,6 +819,7 @@ impl SynthPlan {
             let next = Complex64::from_polar(1.0, phase_to_radians(next_phase));
             let tip = coupled.tip_position(&lanes, rho, im);
             trace.tip.push(tip);
+            let start = trace.force.len();
             (re, im, _, _) = coupled.step_lanes(
                 &lanes,
                 re,
@@ -806,7 +830,12 @@ impl SynthPlan {
                 tip,
                 &mut mid,
                 &mut moments,
-                &mut |g| trace.force.push(g),
+                &mut state.refinement,
+                // A sample redone finer hands its forces again from j = 0.
+                &mut |j, g| {
+                    trace.force.truncate(start + j);
+                    trace.force.push(g);
+                },
             );
             state.phase = next_phase;
             state.counters.samples += 1;
@@ -828,7 +857,7 @@ impl SynthPlan {
     fn settled_start(
         &self,
         thermal: &[Complex64; MAX_MODES],
-    ) -> ([Complex64; MAX_MODES], AdcFilter, WindowCarry) {
+    ) -> ([Complex64; MAX_MODES], AdcFilter, WindowCarry, Refinement) {
         let mut quiet = self.clone();
         quiet.thermal_sigma.iter_mut().for_each(|s| *s = 0.0);
         quiet.detector_sigma = 0.0;
@@ -838,7 +867,7 @@ impl SynthPlan {
         let word = self.frequency_word;
         let start = 0u64.wrapping_sub((before as u64).wrapping_mul(word));
         let t = -(before as f64) * self.h;
-        let periodic = self.tap_steady_state(phase_to_radians(start));
+        let (periodic, refinement) = self.tap_steady_state(phase_to_radians(start));
         let mut temp = SynthState {
             re: [0.0; MAX_MODES],
             im: [0.0; MAX_MODES],
@@ -849,11 +878,25 @@ impl SynthPlan {
             adc: AdcFilter::new(CHUNK, |_| 0.0),
             window: WindowCarry::default(),
             build: Build::detect(),
+            refinement,
             counters: SynthCounters::default(),
         };
+        // A mode so heavily damped (a high mode under Rayleigh damping) that its thermal
+        // state, propagated back over the prehistory, would grow by more than MAX_BACK
+        // takes its thermal state at the end instead: propagated back, it reached 1e100
+        // and more on a 10-mode lever and the filter's history overflowed to NaN. Such a
+        // mode forgets its state within the prehistory, so its part of the history is
+        // below the thermal motion it starts with.
+        const MAX_BACK: f64 = 1e3;
+        let mut late = [Complex64::new(0.0, 0.0); MAX_MODES];
         for (m, kernel) in self.modes.iter().enumerate() {
             let back = (kernel.lambda * t).exp();
-            temp.set_q(m, periodic[m] + thermal[m] * back);
+            if back.norm() <= MAX_BACK {
+                temp.set_q(m, periodic[m] + thermal[m] * back);
+            } else {
+                temp.set_q(m, periodic[m]);
+                late[m] = thermal[m];
+            }
         }
         let mut scratch = [0.0; BEFORE];
         quiet.process_with(
@@ -862,7 +905,12 @@ impl SynthPlan {
             &mut temp,
             Output::Samples(&mut scratch),
         );
-        (std::array::from_fn(|m| temp.q(m)), temp.adc, temp.window)
+        (
+            std::array::from_fn(|m| temp.q(m) + late[m]),
+            temp.adc,
+            temp.window,
+            temp.refinement,
+        )
     }
 
     /// Makes the page of deviates that holds sample `index` current, if the plan has noise.
