@@ -241,6 +241,48 @@ fn the_same_seed_and_settings_give_the_same_loop_trace() {
     assert_ne!(a, trace(12));
 }
 
+/// A unit's demodulator reads a harmonic's phase as the lock-in bank does: zero gains (it
+/// measures, the output stays), the phase at harmonic 2 against the bank's on the same
+/// samples. Without the ADC's filter, so that the bank's reference (phase 0 at its first
+/// sample) is the synthesis's; with it, both take its delay off alike (`output_phase`).
+#[test]
+fn the_phase_input_reads_as_the_lock_in_does() {
+    use ftafm::dsp::{Demodulator, LockInBank};
+    let mut settings = amplitude_loop(0.0);
+    settings.noise.enable = false;
+    settings.synth.anti_alias = false;
+    let pid = &mut settings.pids[0];
+    (pid.input, pid.harmonic, pid.p, pid.i) = (PidInput::Phase, 2, 0.0, 0.0);
+    let (plan, mut state, mut rt) = start(&settings, 1);
+    let mut bank = LockInBank::new(
+        plan.sample_rate,
+        plan.drive_frequency,
+        &[Demodulator::new(2, 4, 1e-4, 1e4)],
+    )
+    .unwrap();
+    let mut block = vec![0.0; 4096];
+    let (mut readings, mut lock_in) = (Vec::new(), None);
+    for _ in 0..50 {
+        plan.process_pids(&mut state, &mut rt, &mut block, &mut |r| readings.push(r));
+        bank.process(&block, |s| lock_in = Some(s));
+    }
+    let lock_in = lock_in.unwrap();
+    let last = readings.last().unwrap();
+    let wrapped = |d: f64| {
+        (d + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+    };
+    let difference = wrapped(last.measurement - lock_in.phase());
+    eprintln!(
+        "harmonic 2: the PID reads {:.6} rad, the lock-in {:.6} rad (r = {:e} m)",
+        last.measurement,
+        lock_in.phase(),
+        lock_in.r()
+    );
+    assert!(difference.abs() < 1e-3, "{difference} rad apart");
+    // Zero gains: the surface stays where it was.
+    assert!(readings.iter().all(|r| r.output == 20e-9));
+}
+
 /// A change refused: the nodes set, the node the error names, words its message has.
 type Case<'a> = (&'a [(&'a str, serde_json::Value)], &'a str, &'a [&'a str]);
 
