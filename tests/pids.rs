@@ -283,6 +283,30 @@ fn the_phase_input_reads_as_the_lock_in_does() {
     assert!(readings.iter().all(|r| r.output == 20e-9));
 }
 
+/// A file names only the units and keys it changes; a whole file written before the PIDs
+/// existed (no `[pids]`) has the four at their defaults; a unit past 3 is an unknown key.
+#[test]
+fn files_set_the_units_by_index() {
+    let s = ftafm::config::load_str(
+        "[pids.2]\nenable = true\nsetpoint = 18e-9\ninput = \"x\"\n",
+        "site.toml",
+    )
+    .unwrap();
+    assert!(s.pids[2].enable && s.pids[2].input == PidInput::X);
+    assert_eq!(s.pids[2].setpoint, 18e-9);
+    assert_eq!(s.pids[2].i, 1200.0, "the rest from the default");
+    assert!(!s.pids[0].enable);
+
+    let default = ftafm::config::DEFAULT_TOML;
+    let at = default.find("\n[pids]").unwrap();
+    let before_pids = &default[..at];
+    let old: Settings = toml::from_str(before_pids).unwrap();
+    assert_eq!(old.pids, default_settings().pids);
+
+    let e = ftafm::config::load_str("[pids.4]\nenable = true\n", "site.toml").unwrap_err();
+    assert!(e.to_string().contains("0 … 3"), "{e}");
+}
+
 /// A change refused: the nodes set, the node the error names, words its message has.
 type Case<'a> = (&'a [(&'a str, serde_json::Value)], &'a str, &'a [&'a str]);
 
