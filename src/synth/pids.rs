@@ -56,6 +56,10 @@ struct Unit {
     output: PidTarget,
     /// The boxcar's sum Σ s·e^{−ikθ} over the period in progress.
     acc: Complex64,
+    /// Whether the unit started, or changed its harmonic, during the period in progress:
+    /// its boxcar then holds part of a period (or of another harmonic), which the next
+    /// update does not feed to its controller.
+    partial: bool,
 }
 
 /// The mutable side of the PID units: controllers, demodulators and the output they hold.
@@ -90,6 +94,7 @@ impl PidRuntime {
             harmonic: 1,
             output: PidTarget::SurfaceDistance,
             acc: Complex64::new(0.0, 0.0),
+            partial: false,
         };
         Self {
             units: std::array::from_fn(|_| unit.clone()),
@@ -147,7 +152,9 @@ impl PidRuntime {
                             PidTarget::SurfaceDistance => self.distance,
                         };
                         unit.pid.enable(present);
+                        unit.partial = true;
                     }
+                    unit.partial |= unit.harmonic != plan.harmonic;
                     unit.input = plan.input;
                     unit.harmonic = plan.harmonic;
                     unit.output = plan.output;
@@ -276,7 +283,7 @@ impl SynthPlan {
         if whole {
             let scale = 2.0 / f64::from(rt.acc_count);
             for (unit_index, unit) in rt.units.iter_mut().enumerate() {
-                if !unit.enabled {
+                if !unit.enabled || unit.partial {
                     continue;
                 }
                 let z = unit.acc * scale;
@@ -302,6 +309,7 @@ impl SynthPlan {
         }
         for unit in &mut rt.units {
             unit.acc = Complex64::new(0.0, 0.0);
+            unit.partial = false;
         }
         rt.acc_count = 0;
         rt.next_update = index + samples_until(phase, self.pids.update_phase, self.frequency_word);
