@@ -1,7 +1,8 @@
 //! The physical model the settings describe: settings (SI, validated) → physics types.
 
 use crate::config::quantity::{number, quantity};
-use crate::config::{Material, NodeError, Settings};
+use crate::config::{Material, NodeError, PidTarget, Settings};
+use crate::control::{PidError, PidSettings};
 use crate::physics::beam::BeamError;
 use crate::physics::impact::ImpactError;
 use crate::physics::{
@@ -19,6 +20,7 @@ use crate::physics::{
 pub fn check(settings: &Settings) -> Result<Feasible, NodeError> {
     let solution = check_orbit(settings)?;
     check_tune(settings)?;
+    check_pids(settings)?;
     Ok(Feasible {
         range_warnings: warnings_of(settings, &solution),
     })
@@ -92,6 +94,76 @@ fn list_of_numbers(list: &[f64]) -> String {
         String::new()
     };
     format!("[{}{more}]", shown.join(", "))
+}
+
+/// The controller settings of PID unit `index` (`/pids/N/*`): its period dt is one drive
+/// period (it runs once per period), its centre the output's present value
+/// (`/surface/distance`) within its limits. `None` for an index the settings lack.
+pub fn pid_settings(s: &Settings, index: usize) -> Option<PidSettings> {
+    let pid = s.pids.get(index)?;
+    let present = match pid.output {
+        PidTarget::SurfaceDistance => s.surface.distance,
+    };
+    Some(PidSettings {
+        setpoint: pid.setpoint,
+        p: pid.p,
+        i: pid.i,
+        d: pid.d,
+        d_bandwidth: pid.d_bandwidth,
+        output_min: pid.output_min,
+        output_max: pid.output_max,
+        rate_limit: (pid.rate > 0.0).then_some(pid.rate),
+        // Not `clamp`: it panics on crossed limits, which `validate` names instead.
+        center: present.max(pid.output_min).min(pid.output_max),
+        dt: 1.0 / s.drive.frequency,
+    })
+}
+
+/// Every enabled PID unit's gains and limits as its controller takes them
+/// ([`PidSettings::validate`]): the error names the node (`/pids/N/p`, …) and the allowed
+/// range. Part of [`check`], and run alone for changes that leave the orbit alone.
+pub fn check_pids(s: &Settings) -> Result<(), NodeError> {
+    for (index, _) in s.pids.iter().enumerate().filter(|(_, p)| p.enable) {
+        let Some(settings) = pid_settings(s, index) else {
+            continue;
+        };
+        if let Err(e) = settings.validate() {
+            return Err(pid_error(index, &e));
+        }
+    }
+    Ok(())
+}
+
+/// A controller's refusal as the node's: `rate_limit` is `/pids/N/rate`, the period dt is
+/// the drive's.
+fn pid_error(index: usize, e: &PidError) -> NodeError {
+    let node = match e.parameter {
+        "rate_limit" => "rate",
+        "dt" => {
+            return invalid(
+                "/drive/frequency",
+                format!(
+                    "/pids/{index} runs once per drive period, and /drive/frequency gives it \
+                     dt = {}: allowed {}",
+                    number(e.value),
+                    e.allowed
+                ),
+            );
+        }
+        // The centre is the output's present value, clamped into the limits: only crossed
+        // limits make it fail, which `output_min` names first.
+        "center" => "output_min",
+        other => other,
+    };
+    let path = format!("/pids/{index}/{node}");
+    invalid(
+        path.clone(),
+        format!(
+            "{path} = {} is out of range while /pids/{index}/enable is true: allowed {}",
+            number(e.value),
+            e.allowed
+        ),
+    )
 }
 
 /// For a tune of the drive frequency at a constant base amplitude: the free amplitude at

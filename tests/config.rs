@@ -2124,8 +2124,8 @@ fn every_node_round_trips_through_set() {
 fn list_entries_have_the_protocol_fields() {
     let nodes = default_settings().nodes();
     assert_eq!(nodes.len(), registry().len());
-    // 69 scalar nodes, 8 inclusions of 10 nodes, 32 demodulators of 5.
-    assert_eq!(nodes.len(), 69 + 8 * 10 + 32 * 5);
+    // 69 scalar nodes, 8 inclusions of 10 nodes, 32 demodulators of 5, 4 PIDs of 12.
+    assert_eq!(nodes.len(), 69 + 8 * 10 + 32 * 5 + 4 * 12);
     let entry = serde_json::to_value(&nodes[0]).unwrap();
     let keys: BTreeSet<&str> = entry
         .as_object()
@@ -2323,10 +2323,12 @@ fn nodes_under_matches_whole_segments() {
 // ---------------------------------------------------------------------------------------------
 // Docs and defaults stay in step with the registry
 
-/// `/demods/17/rate` → `/demods/N/rate`, `/inclusions/3/x` → `/inclusions/N/x`: the docs
-/// describe each index-keyed table once.
+/// `/demods/17/rate` → `/demods/N/rate`, `/inclusions/3/x` → `/inclusions/N/x`,
+/// `/pids/2/p` → `/pids/N/p`: the docs describe each index-keyed table once.
 fn generic_path(path: &str) -> String {
-    let indexed = path.starts_with("/demods/") || path.starts_with("/inclusions/");
+    let indexed = ["/demods/", "/inclusions/", "/pids/"]
+        .iter()
+        .any(|table| path.starts_with(table));
     let segments: Vec<&str> = path
         .split('/')
         .enumerate()
@@ -2362,6 +2364,7 @@ fn docs_describe_every_node() {
     .unwrap();
     assert!(docs.contains("`/demods/N/…` for N = 0 … 31"));
     assert!(docs.contains("`/inclusions/N/…` for N = 0 … 7"));
+    assert!(docs.contains("`/pids/N/…` for N = 0 … 3"));
     let documented: BTreeSet<String> = registry().iter().map(|s| generic_path(&s.path)).collect();
     let mut problems = Vec::new();
     let mut checked = BTreeSet::new();

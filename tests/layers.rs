@@ -42,7 +42,10 @@ fn assert_uses_only(layer: &str, allowed: &[&str]) {
 
 #[test]
 fn the_synthesiser_and_the_dsp_meet_only_through_the_ring() {
-    assert_uses_only("synth", &["physics", "config", "model", "timebase", "cpu"]);
+    assert_uses_only(
+        "synth",
+        &["physics", "config", "model", "control", "timebase", "cpu"],
+    );
     assert_uses_only("dsp", &["timebase", "cpu"]);
 }
 

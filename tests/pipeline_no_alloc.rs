@@ -214,6 +214,58 @@ fn a_running_scan_allocates_nothing_on_the_realtime_threads() {
     );
 }
 
+/// The PID units on the synthesiser thread (their demodulators, controllers, the coupled
+/// surface they move and the board their updates go to) allocate and free nothing, through
+/// a start, new gains, a stop with the surface held, a restart and a new
+/// `/surface/distance`.
+#[test]
+fn running_pids_allocate_nothing_on_the_realtime_threads() {
+    let _serial = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let mut settings = default_settings();
+    settings.synth.realtime = false;
+    settings.pids[0].setpoint = 17e-9;
+    let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    let board = pipeline.counters_handle();
+    while pipeline.counters().samples_processed < 1_000_000 {
+        output.drain();
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let before = REALTIME_ALLOCATIONS.load(Ordering::SeqCst);
+    let mut next = settings.clone();
+    let changes: [&dyn Fn(&mut ftafm::config::Settings); 5] = [
+        &|s| s.pids[0].enable = true,
+        &|s| s.pids[0].i = 2000.0,
+        &|s| s.pids[0].enable = false,
+        &|s| s.pids[0].enable = true,
+        &|s| {
+            s.pids[0].enable = false;
+            s.surface.distance = 21e-9;
+        },
+    ];
+    let mut updates = Vec::new();
+    for change in changes {
+        change(&mut next);
+        pipeline.apply(&next).unwrap();
+        for _ in 0..50 {
+            output.drain();
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        updates.push(board.pids().latest(0).map_or(0, |u| u.updates));
+    }
+    let after = REALTIME_ALLOCATIONS.load(Ordering::SeqCst);
+    assert!(updates[0] > 100, "the loop ran: {updates:?}");
+    assert!(
+        updates[1] > updates[0] && updates[3] > updates[2],
+        "{updates:?}"
+    );
+    assert_eq!(pipeline.counters().synth_plans_applied, 5);
+    assert_eq!(
+        after - before,
+        0,
+        "allocations or frees on the real-time threads while the PIDs ran"
+    );
+}
+
 /// A streamed source (`/source/kind = "stream"`): the synthesiser thread passing a client's
 /// samples on, across gaps, a start, a full feed and a change back to the synthesiser with
 /// samples still in the feed, allocates and frees nothing on the real-time threads.

@@ -7,7 +7,7 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
 use ftafm::config::{Engine, default_settings};
-use ftafm::synth::{Digitiser, ScanRuntime, SynthPlan, SynthState, WindowSample};
+use ftafm::synth::{Digitiser, PidRuntime, ScanRuntime, SynthPlan, SynthState, WindowSample};
 
 struct Counting;
 
@@ -153,4 +153,51 @@ fn a_scan_allocates_nothing() {
         assert!(pixels > 100, "{engine:?}: the scan ran ({pixels} pixels)");
         assert_eq!(n, 0, "{engine:?}: the scan allocated {n} times");
     }
+}
+
+/// The PID units on the real-time thread allocate nothing: a loop running (its
+/// demodulator, controller and the coupled surface it moves), started, retuned, stopped
+/// and restarted by plan changes, with every noise source on.
+#[test]
+fn running_pids_allocate_nothing() {
+    let mut s = default_settings();
+    s.pids[0].enable = true;
+    s.pids[0].setpoint = 15e-9;
+    let plan = SynthPlan::new(&s).unwrap();
+    let mut retuned = s.clone();
+    retuned.pids[0].i = 2400.0;
+    retuned.pids[0].rate = 1e-3;
+    retuned.pids[0].d = 1e-6;
+    retuned.pids[0].harmonic = 2;
+    retuned.pids[0].input = ftafm::config::PidInput::Phase;
+    retuned.pids[0].setpoint = 0.5;
+    let retuned = SynthPlan::new(&retuned).unwrap();
+    let mut stopped = s.clone();
+    stopped.pids[0].enable = false;
+    let stopped = SynthPlan::new(&stopped).unwrap();
+    let mut state = SynthState::steady(&plan, 1);
+    let mut rt = PidRuntime::new(&plan);
+    let mut block = vec![0.0; 4096];
+    let mut updates = 0usize;
+    let n = allocations_in(|| {
+        rt.retarget(&plan, &plan, 0);
+        for _ in 0..10 {
+            plan.process_pids(&mut state, &mut rt, &mut block, &mut |_| updates += 1);
+        }
+        state.retarget(&plan, &retuned);
+        rt.retarget(&plan, &retuned, state.sample_index());
+        for len in [4096, 1, 777] {
+            retuned.process_pids(&mut state, &mut rt, &mut block[..len], &mut |_| {
+                updates += 1
+            });
+        }
+        state.retarget(&retuned, &stopped);
+        rt.retarget(&retuned, &stopped, state.sample_index());
+        stopped.process_pids(&mut state, &mut rt, &mut block, &mut |_| updates += 1);
+        state.retarget(&stopped, &plan);
+        rt.retarget(&stopped, &plan, state.sample_index());
+        plan.process_pids(&mut state, &mut rt, &mut block, &mut |_| updates += 1);
+    });
+    assert!(updates > 400, "the loops ran ({updates} updates)");
+    assert_eq!(n, 0, "the PIDs allocated {n} times");
 }

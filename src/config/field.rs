@@ -7,8 +7,9 @@
 use super::kind::{Kind, NodeValue, TextEntry, Typed};
 use super::limits::*;
 use super::settings::{
-    DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, InclusionShape, InversionMethod, Settings,
-    SourceKind, SpectrumWindow, SweepDirection, SweepParameter, SweepScale,
+    DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, InclusionShape, InversionMethod, PID_COUNT,
+    PidInput, PidTarget, Settings, SourceKind, SpectrumWindow, SweepDirection, SweepParameter,
+    SweepScale,
 };
 
 /// Declares [`Field`] and its table from rows of
@@ -153,7 +154,9 @@ named_value!(
     SweepParameter,
     SweepScale,
     SweepDirection,
-    InclusionShape
+    InclusionShape,
+    PidInput,
+    PidTarget
 );
 
 node_table! {
@@ -330,5 +333,31 @@ node_table! {
             "Time constant of each first-order low-pass section of demodulator {i}, in s; at least one sample period.";
         DemodRate "rate", "Hz", Kind::Float(OUTPUT_RATE), rate,
             "Output rate of demodulator {i}, in Hz; at most the sample rate.";
+    }
+    table pid(i) in pids[PID_COUNT] at "/pids" {
+        PidEnable "enable", "", Kind::Bool, enable,
+            "PID {i} regulates, once per drive period in the synthesiser (true), or is idle (false); enabling it starts from the output's present value (bumpless), disabling it leaves the output where it is.";
+        PidInput "input", "", Kind::Text(PidInput::NAMES), input,
+            "What PID {i} regulates: \"r\" (amplitude, m peak), \"phase\" (rad), \"x\" or \"y\" (m) of its own demodulator at /pids/{i}/harmonic, a one-period boxcar of the photodiode samples (ADC and noise included) read as the demods stream reads it.";
+        PidHarmonic "harmonic", "1", Kind::Integer { min: 1, max: MAX_HARMONIC.into() }, harmonic,
+            "Harmonic k of the drive that PID {i}'s demodulator reads (dimensionless); k × drive frequency must stay below half the sample rate while enabled.";
+        PidSetpoint "setpoint", "", Kind::Float(PID_SETPOINT), setpoint,
+            "Set-point of PID {i}, in its input's unit (m for r, x, y; rad for the phase).";
+        PidP "p", "", Kind::Float(PID_P), p,
+            "Proportional gain P of PID {i}, in output unit per input unit (m/m for an amplitude loop on the surface distance); negative for a reverse-acting loop, all non-zero gains sharing one sign while enabled.";
+        PidI "i", "1/s", Kind::Float(PID_I), i,
+            "Integral gain I of PID {i}, in output unit per input unit per s; the sign of P (or any sign if P is 0) while enabled.";
+        PidD "d", "s", Kind::Float(PID_D), d,
+            "Derivative gain D of PID {i}, in output unit·s per input unit, on the measurement (a set-point step does not kick); the sign of P and I while enabled.";
+        PidDBandwidth "d_bandwidth", "Hz", Kind::Float(PID_D_BANDWIDTH), d_bandwidth,
+            "Bandwidth of PID {i}'s derivative low-pass (first order), in Hz; below half the drive frequency (the PID's Nyquist frequency) while enabled.";
+        PidOutputMin "output_min", "", Kind::Float(PID_OUTPUT), output_min,
+            "Lowest output of PID {i}, in its output's unit (m for surface_distance, at least 0); at most output_max.";
+        PidOutputMax "output_max", "", Kind::Float(PID_OUTPUT), output_max,
+            "Highest output of PID {i}, in its output's unit (m for surface_distance, at most 1e-6).";
+        PidRate "rate", "", Kind::Float(PID_RATE), rate,
+            "Largest change of PID {i}'s output per second, in its output's unit per s; 0: no rate limit.";
+        PidOutput "output", "", Kind::Text(PidTarget::NAMES), output,
+            "What PID {i} drives: \"surface_distance\" (the z piezo: the distance from the tip's rest position to the surface, as the scan's feedback moves it; the coupled engine only). At most one enabled PID drives an output, and none the surface distance while a scan runs.";
     }
 }

@@ -149,3 +149,23 @@ pub(crate) const SWEEP_SETTLING: Range = Range::closed(0.0, 100.0);
 pub const MAX_SWEEP_POINTS: u32 = 10_000;
 /// Most demodulator frames averaged per sweep point.
 pub const MAX_SWEEP_AVERAGING: u32 = 100_000;
+/// A PID's set-point, in its input's unit (m for r, x, y; rad for the phase): ±10, which
+/// holds every phase and any photodiode reading.
+pub(crate) const PID_SETPOINT: Range = Range::closed(-10.0, 10.0);
+/// A PID's proportional gain (output unit per input unit); negative for a reverse-acting
+/// loop. The bound only keeps the arithmetic finite: the loop's stability is the user's.
+pub(crate) const PID_P: Range = Range::closed(-1e9, 1e9);
+/// A PID's integral gain (output unit per input unit per s).
+pub(crate) const PID_I: Range = Range::closed(-1e12, 1e12);
+/// A PID's derivative gain (output unit·s per input unit).
+pub(crate) const PID_D: Range = Range::closed(-1e6, 1e6);
+/// A PID derivative low-pass's bandwidth in Hz; below half the drive frequency (the PID's
+/// Nyquist frequency) while the unit is enabled.
+pub(crate) const PID_D_BANDWIDTH: Range = Range::above_up_to(0.0, 1e8);
+/// A PID's output limits, in its output's unit; the output's own range narrows them
+/// (`/pids/N/output`: the surface distance's 0 … 1 µm).
+pub(crate) const PID_OUTPUT: Range = Range::closed(-1e9, 1e9);
+/// A PID's output rate limit, in its output's unit per s; 0: none.
+pub(crate) const PID_RATE: Range = Range::closed(0.0, 1e12);
+/// Highest surface distance a PID may drive to (m): `/surface/distance`'s own maximum.
+pub const MAX_PID_DISTANCE: f64 = 1e-6;

@@ -125,19 +125,24 @@ pub(crate) fn unknown_path_message(path: &str) -> String {
 mod tests {
     use super::*;
     use crate::config::field::Field;
-    use crate::config::settings::{DEMODULATOR_COUNT, INCLUSION_COUNT};
+    use crate::config::settings::{DEMODULATOR_COUNT, INCLUSION_COUNT, PID_COUNT};
 
     #[test]
     fn registry_lists_each_path_once() {
         let scalars = Field::every()
             .iter()
-            .filter(|f| !f.path().starts_with("/inclusions/") && !f.path().starts_with("/demods/"))
+            .filter(|f| {
+                !["/inclusions/", "/demods/", "/pids/"]
+                    .iter()
+                    .any(|table| f.path().starts_with(table))
+            })
             .count();
         assert_eq!(
             registry().len(),
             scalars
                 + Field::inclusion(0).len() * INCLUSION_COUNT
                 + Field::demod(0).len() * DEMODULATOR_COUNT
+                + Field::pid(0).len() * PID_COUNT
         );
         assert_eq!(registry_data().by_path.len(), registry().len());
         assert_eq!(
@@ -153,11 +158,19 @@ mod tests {
     fn tables_mirror_the_paths() {
         let top = table_keys("").unwrap();
         assert_eq!(top[0], "cantilever");
-        assert_eq!(top.last().unwrap(), "demods");
+        assert_eq!(top.last().unwrap(), "pids");
         assert_eq!(
-            top[top.len() - 5..],
-            ["scan", "feedback", "sweeper", "inclusions", "demods"]
+            top[top.len() - 6..],
+            [
+                "scan",
+                "feedback",
+                "sweeper",
+                "inclusions",
+                "demods",
+                "pids"
+            ]
         );
+        assert_eq!(key_list(table_keys("/pids").unwrap()), "0 … 3");
         assert_eq!(key_list(table_keys("/inclusions").unwrap()), "0 … 7");
         assert_eq!(
             table_keys("/inclusions/2").unwrap(),
@@ -199,7 +212,8 @@ mod tests {
         }
         let long = format!("/{}", "x".repeat(20_000_000));
         let message = unknown_path_message(&long);
-        assert!(message.len() < 300, "{} bytes", message.len());
+        // The cut path and the top level's keys: a few hundred bytes, not 20 MB.
+        assert!(message.len() < 320, "{} bytes", message.len());
         assert!(message.contains("(20000001 bytes)"), "{message}");
     }
 }

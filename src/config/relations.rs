@@ -8,13 +8,16 @@
 use super::error::NodeError;
 use super::kind::Kind;
 use super::limits::{
-    MAX_HARMONIC, MAX_MODES, MAX_PIXEL_RATE, MAX_SCAN_PIXELS, MAX_SCOPE_DECIMATION,
-    MAX_SCOPE_LENGTH, MIN_INVERSION_HARMONIC, MIN_PIXEL_PERIODS,
+    MAX_HARMONIC, MAX_MODES, MAX_PID_DISTANCE, MAX_PIXEL_RATE, MAX_SCAN_PIXELS,
+    MAX_SCOPE_DECIMATION, MAX_SCOPE_LENGTH, MIN_INVERSION_HARMONIC, MIN_PIXEL_PERIODS,
 };
 use super::quantity::{number, quantity};
 use super::range::{Bound, Range};
 use super::registry::registry;
-use super::settings::{DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, Settings, SourceKind};
+use super::settings::{
+    DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, PID_COUNT, PidTarget, Settings, SourceKind,
+    SweepParameter,
+};
 
 impl Settings {
     /// Checks everything `set` and the config loader guarantee: exactly
@@ -28,6 +31,16 @@ impl Settings {
                     "/inclusions has {} inclusions: exactly {INCLUSION_COUNT} (0 … {}) are required",
                     self.inclusions.len(),
                     INCLUSION_COUNT - 1
+                ),
+            });
+        }
+        if self.pids.len() != PID_COUNT {
+            return Err(NodeError::InvalidValue {
+                path: "/pids".to_owned(),
+                message: format!(
+                    "/pids has {} PIDs: exactly {PID_COUNT} (0 … {}) are required",
+                    self.pids.len(),
+                    PID_COUNT - 1
                 ),
             });
         }
@@ -57,7 +70,8 @@ impl Settings {
         check_demods(self)?;
         check_inversion(self)?;
         check_scan(self)?;
-        check_sweeper(self)
+        check_sweeper(self)?;
+        check_pids(self)
     }
 }
 
@@ -331,6 +345,7 @@ fn shapes_only_the_synthesis(path: &str) -> bool {
         "/noise/",
         "/scan/",
         "/feedback/",
+        "/pids/",
         "/inclusions/",
         "/synth/engine",
         "/synth/contact_substeps",
@@ -808,6 +823,109 @@ fn check_sweeper(s: &Settings) -> Result<(), NodeError> {
              one (/demods/N/enable)"
                 .to_owned(),
         ));
+    }
+    Ok(())
+}
+
+/// The enabled PID units' limits between nodes: their harmonic in band, an output the
+/// engine can move exactly, output limits inside the output's range, at most one unit per
+/// output, and no PID on the surface distance while the scan's feedback or a sweep of it
+/// holds it. The gains' own consistency (signs, the derivative's bandwidth under the PID's
+/// Nyquist frequency, min ≤ max) is the controller's: `model::check_pids`.
+fn check_pids(s: &Settings) -> Result<(), NodeError> {
+    let mut driven: [Option<usize>; PidTarget::ALL.len()] = [None; PidTarget::ALL.len()];
+    for (index, pid) in s.pids.iter().enumerate().filter(|(_, p)| p.enable) {
+        let target = pid.output.name();
+        if !harmonic_in_band(s, pid.harmonic) {
+            return Err(invalid(
+                format!("/pids/{index}/harmonic"),
+                format!(
+                    "/pids/{index}/harmonic = {} is out of band while /pids/{index}/enable is \
+                     true: k × /drive/frequency = {} must stay below /synth/sample_rate / 2 = {} \
+                     (at most {})",
+                    pid.harmonic,
+                    quantity(f64::from(pid.harmonic) * s.drive.frequency, "Hz"),
+                    quantity(nyquist(s), "Hz"),
+                    highest_harmonic(s)
+                ),
+            ));
+        }
+        if s.source.kind == SourceKind::Stream {
+            return Err(invalid(
+                format!("/pids/{index}/enable"),
+                format!(
+                    "/pids/{index}/enable = true with /source/kind = \"stream\": the PIDs act on \
+                     the synthesised cantilever, which a streamed source replaces"
+                ),
+            ));
+        }
+        match pid.output {
+            PidTarget::SurfaceDistance => {
+                if s.synth.engine != Engine::Coupled {
+                    return Err(invalid(
+                        format!("/pids/{index}/output"),
+                        format!(
+                            "/pids/{index}/output = \"{target}\" needs /synth/engine = \
+                             \"coupled\": the paper engine's tap force is the 1-DOF orbit at a \
+                             fixed /surface/distance, which it cannot move sample by sample"
+                        ),
+                    ));
+                }
+                if s.scan.enable {
+                    let why = if s.feedback.enable {
+                        "the scan's amplitude feedback (/feedback/enable = true) drives it"
+                    } else {
+                        "the scan sets it under the tip (and /feedback/enable would drive it)"
+                    };
+                    return Err(invalid(
+                        format!("/pids/{index}/output"),
+                        format!(
+                            "/pids/{index} drives the surface distance (/pids/{index}/output = \
+                             \"{target}\") while /scan/enable = true, and {why}: disable one of \
+                             them"
+                        ),
+                    ));
+                }
+                if s.sweeper.enable && s.sweeper.parameter == SweepParameter::SurfaceDistance {
+                    return Err(invalid(
+                        format!("/pids/{index}/output"),
+                        format!(
+                            "/pids/{index} drives the surface distance (/pids/{index}/output = \
+                             \"{target}\") while a sweep steps it (/sweeper/parameter = \
+                             \"/surface/distance\", /sweeper/enable = true): disable one of them"
+                        ),
+                    ));
+                }
+                for (key, value) in [
+                    ("output_min", pid.output_min),
+                    ("output_max", pid.output_max),
+                ] {
+                    if !(0.0..=MAX_PID_DISTANCE).contains(&value) {
+                        return Err(invalid(
+                            format!("/pids/{index}/{key}"),
+                            format!(
+                                "/pids/{index}/{key} = {} is outside the surface distance's \
+                                 range for /pids/{index}/output = \"{target}\": allowed 0 ≤ \
+                                 value ≤ {}",
+                                quantity(value, "m"),
+                                quantity(MAX_PID_DISTANCE, "m")
+                            ),
+                        ));
+                    }
+                }
+            }
+        }
+        let slot = &mut driven[pid.output as usize];
+        if let Some(first) = *slot {
+            return Err(invalid(
+                format!("/pids/{index}/output"),
+                format!(
+                    "/pids/{index}/output = \"{target}\", which /pids/{first} drives already \
+                     (both enabled): an output takes at most one enabled PID"
+                ),
+            ));
+        }
+        *slot = Some(index);
     }
     Ok(())
 }

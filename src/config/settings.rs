@@ -9,6 +9,8 @@ use super::indexed_table::Indexed;
 pub const DEMODULATOR_COUNT: usize = 32;
 /// Number of inclusion slots in the sample map (`/inclusions/0` … `/inclusions/7`).
 pub const INCLUSION_COUNT: usize = 8;
+/// Number of PID units (`/pids/0` … `/pids/3`), as an MFLI with its PID option has.
+pub const PID_COUNT: usize = 4;
 
 /// The whole instrument configuration.
 ///
@@ -50,6 +52,10 @@ pub struct Settings {
     /// TOML and JSON paths mirror the node tree.
     #[serde(with = "super::indexed_table")]
     pub demods: Vec<DemodSettings>,
+    /// PID units; always [`PID_COUNT`] entries, index = N of `/pids/N`, keyed by index like
+    /// `[demods]` (absent from older files: every unit disabled, at its defaults).
+    #[serde(default = "default_pids", with = "super::indexed_table")]
+    pub pids: Vec<PidUnitSettings>,
 }
 
 /// `[cantilever]`: the rectangular beam.
@@ -577,6 +583,86 @@ named_choice! {
     }
 }
 
+named_choice! {
+    /// What a PID unit reads (`/pids/N/input`): a part of the reading of its own modelled
+    /// demodulator at `/pids/N/harmonic` (the `demods` stream's names and units).
+    PidInput {
+        /// The amplitude r = |x + iy| (m, peak).
+        R = "r",
+        /// The phase atan2(y, x) (rad, in [−π, π]).
+        Phase = "phase",
+        /// The in-phase part x (m).
+        X = "x",
+        /// The quadrature part y (m).
+        Y = "y",
+    }
+}
+
+named_choice! {
+    /// What a PID unit drives (`/pids/N/output`).
+    PidTarget {
+        /// The z piezo: the distance from the tip's rest position to the sample surface (m),
+        /// `/surface/distance`'s quantity, moved as the scan's amplitude feedback moves it.
+        SurfaceDistance = "surface_distance",
+    }
+}
+
+/// `[pids.N]`: one PID unit in LabOne's shape, run once per drive period in the
+/// synthesiser (docs/loops.md). Gains are in the output's unit per the input's unit.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PidUnitSettings {
+    /// The unit regulates (true) or is idle (false).
+    pub enable: bool,
+    /// The part of its demodulator's reading it regulates.
+    pub input: PidInput,
+    /// Harmonic k of the drive its demodulator reads (1 … 10000, in band while enabled).
+    pub harmonic: u32,
+    /// Set-point r (the input's unit: m, or rad for the phase).
+    pub setpoint: f64,
+    /// Proportional gain P (output unit per input unit).
+    pub p: f64,
+    /// Integral gain I (output unit per input unit per s).
+    pub i: f64,
+    /// Derivative gain D (output unit·s per input unit).
+    pub d: f64,
+    /// −3 dB bandwidth of the derivative's low-pass (Hz), below half the drive frequency.
+    pub d_bandwidth: f64,
+    /// Lowest output (the output's unit).
+    pub output_min: f64,
+    /// Highest output (the output's unit).
+    pub output_max: f64,
+    /// Largest change of the output per second (the output's unit per s); 0: none.
+    pub rate: f64,
+    /// What it drives.
+    pub output: PidTarget,
+}
+
+impl Default for PidUnitSettings {
+    /// A disabled amplitude loop on the surface distance with the scan feedback's gains.
+    fn default() -> Self {
+        Self {
+            enable: false,
+            input: PidInput::R,
+            harmonic: 1,
+            setpoint: 20e-9,
+            p: 0.0,
+            i: 1200.0,
+            d: 0.0,
+            d_bandwidth: 1000.0,
+            output_min: 0.0,
+            output_max: 100e-9,
+            rate: 0.0,
+            output: PidTarget::SurfaceDistance,
+        }
+    }
+}
+
+/// [`PID_COUNT`] units at their defaults: what a file without `[pids]` has.
+fn default_pids() -> Vec<PidUnitSettings> {
+    vec![PidUnitSettings::default(); PID_COUNT]
+}
+
 /// `[sweeper]`: steps one node through a range in simulated time and measures every
 /// demodulator at each point (the `sweep` stream); the node is restored afterwards.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -667,6 +753,12 @@ impl Indexed for DemodSettings {
     const COUNT: usize = DEMODULATOR_COUNT;
     const TABLE: &'static str = "demods";
     const ITEM: &'static str = "demodulator";
+}
+
+impl Indexed for PidUnitSettings {
+    const COUNT: usize = PID_COUNT;
+    const TABLE: &'static str = "pids";
+    const ITEM: &'static str = "PID";
 }
 
 impl Indexed for InclusionSettings {

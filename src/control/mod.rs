@@ -4,8 +4,9 @@
 //! sets the gains for a target bandwidth. No threads, no I/O; a layer beside `physics`,
 //! depending on nothing else in the crate.
 //!
-//! All of it is library code: the PID is not yet wired into the live signal chain, and the
-//! advisor is behind no node or op.
+//! The PID runs live in the synthesiser as the `/pids/N/*` units (`synth::pids`, on the
+//! surface distance); the loop models and the advisor are library code, behind no node or
+//! op.
 
 pub mod advisor;
 pub mod loop_model;

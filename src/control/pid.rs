@@ -93,6 +93,16 @@ fn refuse(parameter: &'static str, value: f64, allowed: impl Into<String>) -> Pi
     }
 }
 
+/// A value as a message shows it: plain where that is short, in exponent form where it is
+/// not (an output limit of 4e-8 m, not 0.00000004).
+fn show(x: f64) -> String {
+    if x == 0.0 || (1e-3..1e6).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
 fn finite(parameter: &'static str, value: f64) -> Result<(), PidError> {
     if value.is_finite() {
         Ok(())
@@ -126,6 +136,9 @@ impl PidSettings {
         }
         let nyquist = 0.5 / self.dt;
         if !(self.d_bandwidth.is_finite() && self.d_bandwidth > 0.0 && self.d_bandwidth < nyquist) {
+            // To 12 significant digits: 0.5/1e-5 is 49999.99999999999, which no one should
+            // have to read.
+            let nyquist = format!("{nyquist:.11e}").parse::<f64>().unwrap_or(nyquist);
             return Err(refuse(
                 "d_bandwidth",
                 self.d_bandwidth,
@@ -138,7 +151,7 @@ impl PidSettings {
             return Err(refuse(
                 "output_min",
                 self.output_min,
-                format!("≤ output_max = {}", self.output_max),
+                format!("≤ output_max = {}", show(self.output_max)),
             ));
         }
         if let Some(rate) = self.rate_limit
@@ -156,7 +169,8 @@ impl PidSettings {
                 self.center,
                 format!(
                     "[{}, {}] (the output limits)",
-                    self.output_min, self.output_max
+                    show(self.output_min),
+                    show(self.output_max)
                 ),
             ));
         }
@@ -182,6 +196,8 @@ pub struct Pid {
     preset: Option<f64>,
     error: f64,
     output: f64,
+    /// Whether the last update's output was limited (output limits or rate limit).
+    limited: bool,
 }
 
 impl Pid {
@@ -200,7 +216,17 @@ impl Pid {
             preset: None,
             error: 0.0,
             output: settings.center,
+            limited: false,
         })
+    }
+
+    /// Takes the settings of `tuned` (validated when it was built) and keeps this one's
+    /// state: integrator, output, the derivative's history, enabled or not. A change of
+    /// gains while running thus moves the output only by what the new gains make of the
+    /// next error (the integrator's sum stays), as LabOne's PIDs do. Allocation-free.
+    pub fn retune(&mut self, tuned: &Pid) {
+        self.settings = tuned.settings;
+        self.alpha = tuned.alpha;
     }
 
     /// The settings it runs with.
@@ -225,6 +251,7 @@ impl Pid {
         self.primed = false;
         self.preset = None;
         self.error = 0.0;
+        self.limited = false;
     }
 
     /// Stops regulating: updates hold the last output (the error is still computed).
@@ -262,6 +289,12 @@ impl Pid {
         self.output
     }
 
+    /// Whether the last update's output was held by a limit: the output limits or the rate
+    /// limit (the integrator then holds too, see the module docs).
+    pub fn is_limited(&self) -> bool {
+        self.limited
+    }
+
     /// The integrator's state (output units), `center` included.
     pub fn integral(&self) -> f64 {
         self.integral
@@ -281,6 +314,7 @@ impl Pid {
         self.last_measurement = measurement;
         self.error = error;
         if !self.enabled {
+            self.limited = false;
             return self.output;
         }
         let p_term = s.p * error;
@@ -289,6 +323,7 @@ impl Pid {
         if let Some(start) = self.preset.take() {
             self.integral = start - p_term - d_term;
             self.output = start;
+            self.limited = false;
             return start;
         }
         let candidate = self.integral + s.i * error * s.dt;
@@ -304,6 +339,7 @@ impl Pid {
             self.integral = candidate;
         }
         self.output = out;
+        self.limited = out != wanted;
         out
     }
 }
@@ -477,6 +513,27 @@ mod tests {
         let next = pid.update(0.1);
         // Continues smoothly: only one sample's integration away.
         assert!((next - 0.3).abs() < 5.0 * 0.4 * 1e-3 + 1e-12, "{next}");
+    }
+
+    #[test]
+    fn retuning_keeps_the_integrator_and_the_limit_is_reported() {
+        let mut pid = Pid::new(settings(1.0, 50.0)).unwrap();
+        let mut plant = Plant::new(2.0, 0.1, 1e-3);
+        run(&mut pid, &mut plant, 3000);
+        let (integral, output) = (pid.integral(), pid.output());
+        assert!(!pid.is_limited());
+        let tuned = Pid::new(settings(2.0, 80.0)).unwrap();
+        pid.retune(&tuned);
+        assert_eq!(pid.settings().p, 2.0);
+        assert_eq!((pid.integral(), pid.output()), (integral, output));
+        // Settled: the error is ~0, so the new gains move the output by next to nothing.
+        let next = pid.update(plant.y);
+        assert!((next - output).abs() < 1e-6, "{next} vs {output}");
+        // A set-point out of reach drives the output into its limit, and says so.
+        pid.set_setpoint(100.0).unwrap();
+        let out = pid.update(plant.y);
+        assert_eq!(out, 10.0);
+        assert!(pid.is_limited());
     }
 
     #[test]

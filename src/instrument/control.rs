@@ -189,6 +189,11 @@ impl Control {
         self.counters.as_ref().map(|c| c.snapshot())
     }
 
+    /// Each PID unit's latest update (`None` before its first, and without a pipeline).
+    pub fn pid_updates(&self) -> [Option<crate::pipeline::PidUpdate>; crate::config::PID_COUNT] {
+        std::array::from_fn(|unit| self.counters.as_ref().and_then(|c| c.pids().latest(unit)))
+    }
+
     /// The plans the real-time threads handed back, to be freed here; empty while a change
     /// holds the pipeline (they wait for the next call).
     pub fn take_retired(&self) -> Option<RetiredPlans> {
@@ -251,6 +256,7 @@ impl Control {
             Arc::new(crate::model::check(&next).map_err(named)?.range_warnings)
         } else {
             crate::model::check_tune(&next).map_err(named)?;
+            crate::model::check_pids(&next).map_err(named)?;
             before.range_warnings.clone()
         };
         let (epoch, t) = match writer.pipeline.as_mut() {

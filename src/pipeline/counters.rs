@@ -54,12 +54,20 @@ pub struct Counters {
     pub(crate) stream_gap_samples: AtomicU64,
     pub(crate) stream_dropped_samples: AtomicU64,
     pub(crate) stream_discarded_samples: AtomicU64,
+    /// The PID units' latest updates (not counters, but published the same way: by the
+    /// real-time thread, without waiting, for anyone to read).
+    pub(crate) pids: super::pid_board::PidBoard,
 }
 
 impl Counters {
     #[inline]
     pub(crate) fn add(counter: &AtomicU64, n: u64) {
         counter.fetch_add(n, Ordering::Relaxed);
+    }
+
+    /// The PID units' latest updates.
+    pub fn pids(&self) -> &super::pid_board::PidBoard {
+        &self.pids
     }
 
     /// A consistent-enough copy (each counter read once, relaxed).

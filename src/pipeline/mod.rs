@@ -31,6 +31,7 @@ mod epochs;
 mod feed;
 mod frame_signal;
 mod frames;
+mod pid_board;
 pub mod realtime;
 mod scope;
 pub mod stall;
@@ -53,6 +54,7 @@ pub use feed::{
 };
 pub use frame_signal::FrameSignal;
 pub use frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
+pub use pid_board::{PidBoard, PidUpdate};
 pub use scope::MAX_SCOPE_SAMPLES;
 pub use stall::{StallEvent, StallMeter};
 pub use synth_worker::BLOCK_SAMPLES;
@@ -60,8 +62,8 @@ pub use synth_worker::BLOCK_SAMPLES;
 use crate::config::{MAX_SPECTRUM_SIZE, Settings};
 use crate::dsp::DspError;
 use crate::synth::{
-    Digitiser, PixelTopography, PlanError, ScanRuntime, SynthPlan, SynthState, TapTables,
-    WindowSample,
+    Digitiser, PidRuntime, PixelTopography, PlanError, ScanRuntime, SynthPlan, SynthState,
+    TapTables, WindowSample,
 };
 use dsp_worker::DspWorker;
 use synth_worker::SynthWorker;
@@ -369,10 +371,12 @@ impl Pipeline {
         let realtime = Arc::new(AtomicBool::new(settings.synth.realtime));
         let epochs = Arc::new(Epochs::default());
         let scan = ScanRuntime::new(&synth_plan);
+        let pids = PidRuntime::new(&synth_plan);
         let mut synth = SynthWorker {
             plan: synth_plan,
             state,
             scan,
+            pids,
             topography: topography_in,
             samples: samples_in,
             headers: headers_in,
@@ -526,6 +530,7 @@ impl Pipeline {
             || settings.scan != old.scan
             || settings.feedback != old.feedback
             || settings.inclusions != old.inclusions
+            || settings.pids != old.pids
             || settings.source != old.source;
         // A drive change can move demodulators in or out of band, which the bank must follow.
         let dsp_changed = settings.demods != old.demods

@@ -14,7 +14,7 @@ use super::counters::Counters;
 use super::epochs::Epochs;
 use super::feed::{FeedReader, Piece};
 use crate::config::SourceKind;
-use crate::synth::{PixelTopography, ScanRuntime, SynthPlan, SynthState, WindowSample};
+use crate::synth::{PidRuntime, PixelTopography, ScanRuntime, SynthPlan, SynthState, WindowSample};
 
 /// Samples per block: 0.41 ms at 10 MS/s, short against the 1 ms output period.
 pub const BLOCK_SAMPLES: usize = 4096;
@@ -26,6 +26,8 @@ pub(crate) struct SynthWorker {
     pub plan: Box<SynthPlan>,
     pub state: SynthState,
     pub scan: ScanRuntime,
+    /// The PID units' controllers and demodulators.
+    pub pids: PidRuntime,
     /// Finished pixels' topography, to the consumer.
     pub topography: HeapProd<PixelTopography>,
     /// The signal through the ADC's window, which the DSP thread finishes.
@@ -60,6 +62,8 @@ impl SynthWorker {
         // A scan configured from the start begins at the first sample.
         self.scan
             .retarget(&self.plan, &self.plan, self.state.sample_index());
+        self.pids
+            .retarget(&self.plan, &self.plan, self.state.sample_index());
         // The epoch the starting plan reflects, not the newest published: a change applied
         // before this thread got here is then stamped with its first block like any other.
         let mut stamped = self.plan.epoch;
@@ -88,6 +92,8 @@ impl SynthWorker {
                 self.state.retarget(&self.plan, &next);
                 self.scan
                     .retarget(&self.plan, &next, self.state.sample_index());
+                self.pids
+                    .retarget(&self.plan, &next, self.state.sample_index());
                 let old = std::mem::replace(&mut self.plan, next);
                 // The control side keeps plans in flight (a held one included) within the
                 // return queue's capacity, so this has room; the old plan is freed there.
@@ -102,6 +108,7 @@ impl SynthWorker {
             was_realtime = realtime;
 
             if self.plan.source == SourceKind::Stream {
+                self.pids.pause();
                 if !self.pass_stream(&mut block, &mut finished, epoch, &mut stamped) {
                     // Nothing has come: the next sample is where this epoch takes effect.
                     if epoch != stamped {
@@ -129,6 +136,7 @@ impl SynthWorker {
             let pages_before = self.state.noise_pages();
             let busy = Instant::now();
             let digitise = if self.plan.scan.is_some() {
+                self.pids.pause();
                 let (out, counters) = (&mut self.topography, &self.counters);
                 self.plan
                     .process_scan(&mut self.state, &mut self.scan, &mut finished, &mut |p| {
@@ -146,7 +154,23 @@ impl SynthWorker {
                     self.state.counters.clipped - clipped_before,
                 );
                 None
+            } else if self.pids.active(&self.plan) {
+                // The loops read the finished samples, so they are finished here.
+                let board = &self.counters.pids;
+                self.plan
+                    .process_pids(&mut self.state, &mut self.pids, &mut finished, &mut |r| {
+                        board.publish(&r, epoch)
+                    });
+                for (w, &s) in block.iter_mut().zip(&finished) {
+                    w.grid = s;
+                }
+                Counters::add(
+                    &self.counters.clipped_samples,
+                    self.state.counters.clipped - clipped_before,
+                );
+                None
             } else {
+                self.pids.pause();
                 // The ADC's FIRs, detector noise and quantiser run on the DSP thread.
                 Some(self.plan.process_window(&mut self.state, &mut block))
             };

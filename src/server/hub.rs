@@ -464,6 +464,7 @@ pub(crate) async fn run(
                 counters,
                 warnings,
                 regime: regime.map(crate::sweep::Regime::name),
+                pids: pid_reports(c, state.control.pid_updates()),
                 epoch: current.epoch,
                 ..state.status_fields()
             };
@@ -590,6 +591,28 @@ fn sweep_envelope(seq: u64, t: f64, t_synth_ns: u64, fields: &Map<String, Value>
     m.insert("t_synth_ns".into(), json!(t_synth_ns));
     m.extend(fields.clone());
     Value::Object(m).to_string()
+}
+
+/// The PID units for `status`: their settings in `settings`, their latest updates.
+fn pid_reports(
+    settings: &crate::config::Settings,
+    updates: [Option<crate::pipeline::PidUpdate>; crate::config::PID_COUNT],
+) -> Vec<super::status::PidReport> {
+    settings
+        .pids
+        .iter()
+        .zip(updates)
+        .enumerate()
+        .map(|(index, (pid, latest))| super::status::PidReport {
+            index,
+            enable: pid.enable,
+            input: pid.input.name(),
+            harmonic: pid.harmonic,
+            output: pid.output.name(),
+            setpoint: pid.setpoint,
+            latest,
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -164,6 +164,28 @@ pub struct StatusReport {
     /// Every connected client: messages written to its socket and dropped for it, and the
     /// latency at its socket since it connected.
     pub clients_detail: Vec<ClientReport>,
+    /// The PID units (`/pids/N`), by index: what each runs on and its latest update.
+    pub pids: Vec<PidReport>,
+}
+
+/// One PID unit in `status`: its settings in force and its latest update.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct PidReport {
+    /// N of `/pids/N`.
+    pub index: usize,
+    /// `/pids/N/enable` in force.
+    pub enable: bool,
+    /// `/pids/N/input`: `"r"`, `"phase"`, `"x"` or `"y"`.
+    pub input: &'static str,
+    /// `/pids/N/harmonic`.
+    pub harmonic: u32,
+    /// `/pids/N/output`: `"surface_distance"`.
+    pub output: &'static str,
+    /// `/pids/N/setpoint` in force (the input's unit).
+    pub setpoint: f64,
+    /// The latest update the synthesiser made (its epoch says under which settings);
+    /// `None` before the unit's first. A disabled unit keeps its last.
+    pub latest: Option<crate::pipeline::PidUpdate>,
 }
 
 #[cfg(test)]

@@ -9,6 +9,7 @@ use rustfft::num_complex::Complex64;
 use super::adc::{self, Adc};
 use super::coupled::{CoupledKernel, Refinement};
 use super::modal::ModalKernel;
+use super::pid_plan::PidPlan;
 use super::pulse::{PulseKernel, PulseTrain};
 use super::scan_plan::{ScanBase, ScanPlan, TapTables};
 use super::window::{ModeWindow, Moments};
@@ -35,6 +36,10 @@ pub enum PlanError {
     /// The drive frequency cannot be represented.
     #[error(transparent)]
     Drive(#[from] WordError),
+    /// A PID unit's settings that its controller refuses (`model::check_pids` names the
+    /// node first).
+    #[error(transparent)]
+    Pid(#[from] crate::control::PidError),
 }
 
 /// The tap force the synthesiser applies, from the 1-DOF solution (paper engine).
@@ -112,6 +117,9 @@ pub struct SynthPlan {
     /// The scan, when `/scan/enable` is on: the tip moves over the sample map under the
     /// amplitude feedback ([`process_scan`](Self::process_scan)).
     pub scan: Option<ScanPlan>,
+    /// The PID units (`/pids/N/*`): with one enabled the synthesiser runs them
+    /// ([`process_pids`](Self::process_pids)).
+    pub pids: PidPlan,
     /// Where the chain's samples come from (`/source/kind`): with a stream the synthesiser
     /// thread passes the streamed samples on instead of synthesising, and keeps the sample
     /// index and the drive phase running ([`SynthState::skip`](super::SynthState::skip)).
@@ -333,8 +341,10 @@ impl SynthPlan {
             };
             ScanPlan::new(settings, &cantilever, base, tables)
         });
+        let pids = PidPlan::new(settings, coupled.as_ref().map(|c| c.free_tip))?;
         Ok(Self {
             scan,
+            pids,
             lanes,
             seed: settings.synth.seed,
             sample_rate,
