@@ -1,16 +1,17 @@
 //! Every lever preset with every sample preset, at its defaults: whether the live force
 //! estimator's modulus is within 3 of its own σ of the set modulus, or the estimate carries
 //! a warning (or a table-range flag) that says why not:
-//! `cargo run --release --example preset_estimates`. Exits 1 if a point is neither.
+//! `cargo test --release --test preset_estimates -- --nocapture` prints every point.
 //!
 //! What it does: per combination, loads the presets as `--preset LEVER --preset SAMPLE`
 //! does, builds the daemon's [`ForceEstimator`] (coupled engine, its modulus table), solves
 //! the coupled orbit at the set modulus as the live engine reaches it (an approach from
 //! far), reads every active demodulator off it through the estimator's own lock-in model
 //! (the anti-alias filter and aliases), adds Gaussian noise of the predicted σ of one live
-//! estimate (seeded; the presets average one frame), and estimates from that reading. Where
-//! that estimate fails and the estimator says one frame is noise-limited, the point is tried
-//! again at `/inversion/averaging` = 100 (0.1 s). The 24 points run on two threads.
+//! estimate (seeded; the presets average one frame), and estimates from that reading. With
+//! `FTAFM_PRESET_AVERAGED=1`, where that estimate fails and the estimator says one frame is
+//! noise-limited, the point is tried again at `/inversion/averaging` = 100 (0.1 s), for the
+//! figures docs/ft-afm.md quotes. The 24 points run on two threads.
 //!
 //! What it does not cover: the synthesiser and the DSP chain themselves (the readings are
 //! the model's, not a demodulated photodiode stream: `tests/physics_inversion.rs` checks
@@ -112,7 +113,8 @@ fn point(lever: &str, sample: &str, seed: u64, averaging: Option<u32>) -> Outcom
     }
 }
 
-fn main() -> std::process::ExitCode {
+#[test]
+fn every_lever_preset_on_every_sample_preset_estimates_within_3_sigma_or_says_why_not() {
     let pick = |kind| {
         PRESETS
             .iter()
@@ -125,6 +127,7 @@ fn main() -> std::process::ExitCode {
             todo.push((lever, sample, todo.len() as u64 + 1));
         }
     }
+    let averaged_too = std::env::var_os("FTAFM_PRESET_AVERAGED").is_some();
     let todo = Mutex::new(todo);
     let outcomes = Mutex::new(Vec::new());
     std::thread::scope(|scope| {
@@ -132,8 +135,11 @@ fn main() -> std::process::ExitCode {
             scope.spawn(|| {
                 while let Some((lever, sample, seed)) = todo.lock().unwrap().pop() {
                     let outcome = point(lever, sample, seed, None);
-                    // Where one frame carries too little, what averaging brings.
-                    let retry = outcome.estimate.is_err()
+                    // Where one frame carries too little, what averaging brings: with
+                    // FTAFM_PRESET_AVERAGED set (a figure for the docs, not the check: the
+                    // point has already passed by its warning).
+                    let retry = averaged_too
+                        && outcome.estimate.is_err()
                         && outcome.warnings.iter().any(|w| w.contains("noise-limited"));
                     outcomes.lock().unwrap().push(outcome);
                     if retry {
@@ -150,7 +156,7 @@ fn main() -> std::process::ExitCode {
     for o in &outcomes {
         let within = match &o.estimate {
             Ok((e, sigma, range)) => {
-                println!(
+                eprintln!(
                     "{}: E {:.4e} ± {:.2e} Pa, set {:.4e} ({:+.2} σ, {range:?}); warnings {:?}",
                     o.names,
                     e,
@@ -164,7 +170,7 @@ fn main() -> std::process::ExitCode {
                     && (e - o.set).abs() <= 3.0 * sigma
             }
             Err(why) => {
-                println!(
+                eprintln!(
                     "{}: no estimate ({why}); warnings {:?}",
                     o.names, o.warnings
                 );
@@ -176,11 +182,18 @@ fn main() -> std::process::ExitCode {
             bad.push(o.names.clone());
         }
     }
-    if bad.is_empty() {
-        println!("every point within 3 σ or warned");
-        std::process::ExitCode::SUCCESS
-    } else {
-        println!("neither within 3 σ of the set modulus nor warned: {bad:?}");
-        std::process::ExitCode::FAILURE
-    }
+    assert!(
+        bad.is_empty(),
+        "neither within 3 σ of the set modulus nor warned: {bad:?}"
+    );
+    // Not a vacuous pass: most points estimate within 3 σ.
+    let within = outcomes
+        .iter()
+        .filter(|o| matches!(&o.estimate, Ok((e, s, TableRange::Inside)) if (e - o.set).abs() <= 3.0 * s))
+        .count();
+    assert!(
+        within >= outcomes.len() / 2,
+        "{within} of {} within 3 σ",
+        outcomes.len()
+    );
 }
