@@ -349,7 +349,10 @@ async fn write(
         // A reply's bytes leave the client's count once the socket has taken it.
         drop(hold);
         if let Some(end) = end {
-            if matches!(sent, Ok(Ok(()))) {
+            // Also where the send failed: a send the reader overtook with the peer's close
+            // fails (the library refuses data after it), and the answer it queued must
+            // still go out. Not where the socket took nothing for the stall timeout.
+            if sent.is_ok() {
                 finish(&mut sink, end).await;
             }
             return;
@@ -360,7 +363,15 @@ async fn write(
         match sent {
             Ok(Ok(())) if !closing => {}
             Ok(Ok(())) => return,
-            Ok(Err(_)) => return,
+            Ok(Err(_)) => {
+                // The reader may have read the peer's close while this send waited (the
+                // library then refuses data and queues its answer), before it could say so:
+                // flush that answer, bounded, rather than drop the connection without it (the
+                // peer saw "reset without closing handshake"). On a broken socket this ends
+                // at once.
+                let _ = tokio::time::timeout(CLOSE_ANSWER_WAIT, sink.close()).await;
+                return;
+            }
             Err(_) => {
                 state.closed_stalled.fetch_add(1, Ordering::Relaxed);
                 tracing::warn!(
