@@ -28,6 +28,14 @@ def amplitude_at(inst: ftafm.Instrument, distance: float) -> float:
     return float(frames.r[:, frames.column(1)].mean())
 
 
+def release_the_surface(inst: ftafm.Instrument) -> None:
+    """Every unit off and a new ``/surface/distance``: the surface leaves the distance the
+    loops held (a stopped unit keeps it until that node changes), so the fixture's restore
+    of the settings (which sets it back) moves it for the tests after."""
+    inst.set_many({f"/pids/{n}/enable": False for n in range(4)})
+    inst.set("/surface/distance", START + 1e-9)
+
+
 def amplitude_loop(inst: ftafm.Instrument, setpoint: float) -> PidStatus:
     """PID 0 holding ``setpoint`` on harmonic 1's amplitude, started from ``START``,
     after ``SETTLE_UPDATES`` updates of its settings."""
@@ -83,6 +91,7 @@ def test_an_amplitude_loop_holds_the_distance_whose_amplitude_it_is_given(
     assert later.latest.updates == off.latest.updates
     assert later.latest.epoch < epoch
     assert unit.nodes.enable() is False
+    release_the_surface(inst)
 
 
 def test_bad_settings_raise_naming_the_node_and_change_nothing(
@@ -114,3 +123,4 @@ def test_bad_settings_raise_naming_the_node_and_change_nothing(
         unit.configure(gain=1.0)
     with pytest.raises(IndexError, match="/pids/3"):
         inst.pids[4]
+    release_the_surface(inst)

@@ -174,3 +174,7 @@ def test_pid_units_as_a_channel_list_reading_their_latest_update(afm: FTAFM) -> 
     assert unit.p() == 0.0
     # Before a read of its own, a unit's update parameters hold NaN (in a snapshot too).
     assert math.isnan(afm.pids[3].error.cache.get())
+    # Off, and the surface released from the distance the unit held (until the node
+    # changes), so that the restore of the settings after the test moves it back.
+    unit.enable(False)
+    afm.surface.distance(21e-9)
