@@ -35,6 +35,18 @@ function esc(s) {
 /** The input's unit: rad for the phase, else m (peak). */
 const inputUnit = (input) => (input === "phase" ? "rad" : "m");
 
+/** The unit a unit's node is in where `list` gives none (it depends on the input, or on the
+ * output: m for the surface distance, its only output yet): values typed and shown with SI
+ * prefixes ("16.7 nm"). */
+function unitOf(node, nodes) {
+  if (node.unit) return node.unit;
+  const [, , n, key] = node.path.split("/");
+  if (key === "setpoint") return inputUnit(nodes.get(`/pids/${n}/input`)?.value);
+  if (key === "output_min" || key === "output_max") return "m";
+  if (key === "rate") return "m/s";
+  return node.unit;
+}
+
 export class PidsPanel {
   constructor(app) {
     this.app = app;
@@ -93,7 +105,7 @@ export class PidsPanel {
       c.errEl.textContent = "";
       c.el.classList.remove("rejected");
       const n = nodes.get(c.path);
-      if (n) c.setNode({ ...n });
+      if (n) c.setNode({ ...n, unit: unitOf(n, nodes) });
     }
   }
 
@@ -128,7 +140,7 @@ export class PidsPanel {
       c.el.classList.remove("rejected");
       c.editing = false;
       const n = this.app.nodes.get(c.path);
-      if (n) c.setNode({ ...n });
+      if (n) c.setNode({ ...n, unit: unitOf(n, this.app.nodes) });
       this.refresh(c);
     }
     this.dirty = true;
@@ -142,7 +154,7 @@ export class PidsPanel {
       const n = r.nodes.find((x) => x.path === c.path);
       if (n) {
         this.app.nodes.set(n.path, n);
-        if (!c.pending) c.setNode({ ...n });
+        if (!c.pending) c.setNode({ ...n, unit: unitOf(n, this.app.nodes) });
       }
     } catch (e) {
       if (e.code !== "disconnected") console.warn("ftafm: list", c.path, e.message);
