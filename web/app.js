@@ -17,6 +17,7 @@ import { ControlsPanel } from "./controls.js";
 import { ForcePanel } from "./force.js";
 import { ImagePanel } from "./image.js";
 import { SweeperPanel } from "./sweeper.js";
+import { PidsPanel } from "./pids.js";
 import { si } from "./units.js";
 
 const STREAMS = ["demods", "spectrum", "scope", "status", "force", "image", "sweep"];
@@ -33,7 +34,7 @@ const stats = {
   messages: zero(), // data messages received per stream, since the page loaded (demods: time points)
   gaps: zero(), // messages lost (seq gaps) per stream (demods: time points)
   frames: zero(), // WebSocket messages received per stream (a batched demods message holds many points)
-  draws: { harmonics: 0, contrast: 0, scope: 0, spectrum: 0, force: 0, image: 0, sweep: 0 },
+  draws: { harmonics: 0, contrast: 0, scope: 0, spectrum: 0, force: 0, image: 0, sweep: 0, pids: 0 },
   connects: 0,
   disconnects: [], // the last 20 closes of the connection: { at: page time (ms), why: the status line's words }
   state: "connecting",
@@ -78,7 +79,8 @@ const controls = new ControlsPanel(app);
 const force = new ForcePanel(app);
 const image = new ImagePanel(app);
 const sweeper = new SweeperPanel(app);
-const panels = [spectrum, harmonics, contrast, scope, status, force, image, sweeper];
+const pids = new PidsPanel(app);
+const panels = [spectrum, harmonics, contrast, scope, status, force, image, sweeper, pids];
 app.force = force; // the scope marks the tap at the latest estimate's pulse phase
 const byStream = { spectrum, scope, status, force, image, sweep: sweeper };
 app.sweeper = sweeper;
@@ -180,6 +182,7 @@ async function onOpen(conn) {
     for (const n of list.nodes) app.nodes.set(n.path, n);
     updateParams();
     controls.setNodes(app.nodes);
+    pids.setNodes(app.nodes);
     await subs;
   } catch (e) {
     if (e.code !== "disconnected") console.warn("ftafm: setting up the connection:", e.message);
@@ -207,7 +210,10 @@ function onMessage(m, recvMs) {
     stats.latency[stats.latencyCount++ % stats.latency.length] = late;
     backlog.add(late, recvMs);
   } else {
-    if (s === "status") noteStrain(m, performance.now());
+    if (s === "status") {
+      noteStrain(m, performance.now());
+      pids.onData(m); // the PID units' latest updates ride on status
+    }
     try {
       byStream[s].onData(m);
     } catch (e) {
@@ -311,7 +317,7 @@ app.conn.start();
 window.ftafm = {
   stats,
   app,
-  panels: { spectrum, harmonics, contrast, scope, status, controls, force, image, sweeper },
+  panels: { spectrum, harmonics, contrast, scope, status, controls, force, image, sweeper, pids },
   /** 0.2 s mean amplitude (m) at harmonic k, or null. */
   amplitude(k) {
     const i = app.history.indexOf(k);
@@ -323,6 +329,8 @@ window.ftafm = {
   contrastResolved: () => contrast.resolved(),
   /** 0.5 s means of the FT-AFM estimates: { E (Pa), F (N), tau, latest message }. */
   force: () => force.values(),
+  /** The PID units as the newest status gave them: { unit (chosen), t, pids }. */
+  pids: () => pids.values(),
   /** The scan image: channel, frame, line, colour range, the region's statistics. */
   image: () => image.values(),
   /** The sweep shown: its points, final message, whether one runs, and the CSV export. */

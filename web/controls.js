@@ -54,8 +54,9 @@ function esc(s) {
   return String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
 }
 
-/** One control bound to one node path. */
-class Control {
+/** One control bound to one node path; `panel` gives `app` and `refresh(control)` (a re-read
+ * of its node after a refusal). */
+export class Control {
   constructor(panel, spec, path) {
     this.panel = panel;
     this.spec = spec;

@@ -133,3 +133,48 @@ def test_the_names_of_earlier_versions_reach_the_same_parameters(afm: FTAFM) -> 
     assert afm.force_max_force is afm.force.max_force
     with pytest.raises(AttributeError):
         afm.no_such_parameter
+
+
+def test_pid_units_as_a_channel_list_reading_their_latest_update(afm: FTAFM) -> None:
+    from ftafm.qcodes import PidChannel
+
+    assert isinstance(afm.pids, ChannelList) and len(afm.pids) == 4
+    unit = afm.pids[0]
+    assert isinstance(unit, PidChannel)
+    assert unit.setpoint is afm.by_path["/pids/0/setpoint"]
+    assert (unit.i.label, unit.i.unit) == ("PID 0 i", "1/s")
+    assert unit.input.vals is not None and "phase" in repr(unit.input.vals)
+    # Its nodes set through the client's path; the same values read back.
+    afm.surface.distance(20e-9)
+    unit.setpoint(17e-9)
+    unit.i(1200.0)
+    unit.output_max(100e-9)
+    unit.enable(True)
+    epoch = afm.client.epoch
+    assert afm.client.get("/pids/0/setpoint") == 17e-9 == unit.setpoint()
+    # The update's parameters come from one status message, the same as the client reads.
+    status = afm.client.pids[0].wait()
+    assert status.latest is not None and status.latest.epoch >= epoch
+    read = unit.read_status()
+    latest = read.latest
+    assert latest is not None and latest.updates >= status.latest.updates
+    assert unit.error.cache.get() == latest.error
+    assert unit.measurement.cache.get() == latest.measurement
+    assert unit.value.cache.get() == latest.output
+    assert unit.limited.cache.get() is latest.limited
+    assert unit.updates.cache.get() == latest.updates
+    assert unit.update_epoch.cache.get() == latest.epoch
+    assert unit.error.unit == "m" and unit.value.unit == "m"
+    assert latest.measurement + latest.error == pytest.approx(17e-9, rel=1e-12)
+    # A get reads a newer message: the count only grows while the unit runs.
+    assert unit.updates() >= latest.updates
+    # A gain of the wrong sign is the daemon's error, naming the node.
+    with pytest.raises(ftafm.InstrumentError, match="/pids/0/p"):
+        unit.p(-0.5)
+    assert unit.p() == 0.0
+    # Before a read of its own, a unit's update parameters hold NaN (in a snapshot too).
+    assert math.isnan(afm.pids[3].error.cache.get())
+    # Off, and the surface released from the distance the unit held (until the node
+    # changes), so that the restore of the settings after the test moves it back.
+    unit.enable(False)
+    afm.surface.distance(21e-9)

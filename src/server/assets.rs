@@ -104,6 +104,11 @@ pub(crate) const ASSETS: &[Asset] = &[
         content_type: JS,
         body: include_str!("../../web/sweeper.js"),
     },
+    Asset {
+        path: "/pids.js",
+        content_type: JS,
+        body: include_str!("../../web/pids.js"),
+    },
 ];
 
 /// The asset at `path`, if any.

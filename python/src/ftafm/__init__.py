@@ -11,6 +11,7 @@
   presets, stream_samples (a real signal into the chain); the synchronous one also the node tree as attributes
   (``inst.sample.youngs_modulus(116.1e9)``, :mod:`ftafm.tree`) and ``set_transaction``.
 - :mod:`ftafm.data`: stream messages as numpy arrays.
+- :mod:`ftafm.pids`: the live PID units (``inst.pids[0].configure(...)``, ``pid_status()``).
 - :mod:`ftafm.qcodes`: the QCoDeS driver (``pip install ftafm[qcodes]``).
 - :mod:`ftafm.testing`: a daemon on port 0 for test suites, and pytest fixtures.
 """
@@ -29,6 +30,7 @@ from .data import (
     SweepResult,
 )
 from .errors import ConnectionLost, InstrumentError, NoDaemon
+from .pids import PidStatus, PidUnit, PidUpdate, Pids
 
 __version__ = "0.1.0"
 
@@ -45,6 +47,10 @@ __all__ = [
     "InstrumentError",
     "NoDaemon",
     "Node",
+    "PidStatus",
+    "PidUnit",
+    "PidUpdate",
+    "Pids",
     "ScopeData",
     "SpectrumData",
     "StreamReceipt",

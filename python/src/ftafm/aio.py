@@ -32,7 +32,7 @@ from typing import (
 import websockets
 from websockets.asyncio.client import ClientConnection
 
-from . import data, tree
+from . import data, pids, tree
 from .errors import ConnectionLost, InstrumentError, NoDaemon
 
 #: The requests that change the settings (their replies carry the change's epoch).
@@ -353,6 +353,13 @@ class Instrument:
         info["warnings"] = status.get("warnings", [])
         info["realtime_factor"] = status.get("realtime_factor")
         return info
+
+    async def pid_status(self, *, timeout: float | None = None) -> list[pids.PidStatus]:
+        """The PID units ``/pids/0`` … ``/pids/3`` in the next ``status`` message (every
+        0.5 s of wall time): each one's settings in force and latest update
+        (:class:`ftafm.pids.PidStatus`); ``timeout`` (s, default: the client's) bounds the
+        wait."""
+        return pids.from_status(await self.next("status", timeout=timeout))
 
     async def nodes(self, path: str | None = None) -> list[Node]:
         """Every node (or those under ``path``) with its value, unit, type and range."""

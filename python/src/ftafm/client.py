@@ -16,6 +16,7 @@ from contextlib import contextmanager
 from typing import Any, Coroutine, Iterable, Iterator, Mapping, Sequence, TypeVar
 
 from . import aio, data, tree
+from .pids import PidStatus, Pids
 
 T = TypeVar("T")
 
@@ -157,6 +158,19 @@ class Instrument:
         return tree.SampleBranch(
             lambda demod: self._run(self._async.read_sample(demod)), lambda: self.root
         )
+
+    @property
+    def pids(self) -> Pids:
+        """The PID units ``/pids/0`` … ``/pids/3``: ``inst.pids[0].configure(...)``,
+        ``.enable()``, ``.disable()``, ``.status()``, ``.wait(...)``
+        (:mod:`ftafm.pids`); their nodes as on the node tree (``inst.pids[0].p()``)."""
+        return Pids(self)
+
+    def pid_status(self, *, timeout: float | None = None) -> list[PidStatus]:
+        """Every PID unit in the next ``status`` message: settings in force and latest
+        update (:class:`ftafm.pids.PidStatus`, ``latest`` a
+        :class:`ftafm.pids.PidUpdate` or ``None`` before the first)."""
+        return self._run(self._async.pid_status(timeout=timeout))
 
     def wait_until(self, t: float, *, timeout: float | None = None) -> float:
         """Waits until the signal is processed up to simulated time ``t`` (s)."""

@@ -21,7 +21,9 @@ Measured parameters: per demodulator ``x``, ``y``, ``r`` (m), ``phase`` (rad) an
 (s) of its newest output, and ``sample``, all four from one frame (a
 :class:`MultiParameter`); ``afm.force.max_force`` (N), ``contact_time_ratio`` (1),
 ``youngs_modulus`` (Pa), ``pulse_phase`` (rad) of the next FT-AFM force estimate
-(``/inversion/enable``), all four from one estimate.
+(``/inversion/enable``), all four from one estimate; per PID unit (``afm.pids[0]``,
+:class:`PidChannel`) beside its nodes, its latest update from ``status``:
+``measurement``, ``error``, ``value`` (the output's value), ``limited``, ``updates``.
 
 ``snapshot(update=True)`` reads every node and every demodulator in one request (a
 ``get`` of many paths), and the force in one more when the inversion runs, instead of a
@@ -49,6 +51,7 @@ from .aio import Node
 from .client import Instrument as Client
 from .data import DEMODULATORS
 from .errors import InstrumentError
+from .pids import PidStatus
 
 #: Labels of node names where the name alone does not read well.
 _WORDS = {
@@ -75,6 +78,7 @@ _GROUPS = {
     "synth": "Synthesiser",
     "demods": "Demodulator",
     "inclusions": "Inclusion",
+    "pids": "PID",
 }
 
 #: The force estimate's parameters: unit, label.
@@ -92,6 +96,19 @@ _DEMOD_PARTS = {
     "r": ("m", "amplitude"),
     "phase": ("rad", "phase"),
     "t": ("s", "time of the newest sample"),
+}
+
+
+#: A PID unit's latest update, read from ``status``: parameter → (field of
+#: :class:`ftafm.pids.PidUpdate`, unit (``None``: the input's, m or rad), label).
+_PID_PARTS: dict[str, tuple[str, str | None, str]] = {
+    "measurement": ("measurement", None, "measurement"),
+    "error": ("error", None, "error (set-point − measurement)"),
+    "value": ("output", "m", "output value"),
+    "limited": ("limited", "", "held by a limit"),
+    "updates": ("updates", "", "updates"),
+    "update_epoch": ("epoch", "", "settings epoch of the latest update"),
+    "update_sample": ("sample", "", "sample the latest output took effect from"),
 }
 
 
@@ -273,6 +290,61 @@ class DemodChannel(InstrumentChannel):
         return float(value[part])
 
 
+class PidChannel(InstrumentChannel):
+    """PID unit N (``/pids/N``): its nodes (``setpoint``, ``p``, ``enable``, ``output``,
+    ...) and its latest update from the ``status`` stream, read-only: ``measurement`` and
+    ``error`` (the input's unit: m, or rad for the phase), ``value`` (the output's value,
+    m for the surface distance; LabOne's ``pids/N/value``: ``output`` is the node naming
+    what it drives), ``limited``, ``updates``, ``update_epoch`` and ``update_sample``.
+    Every get of one reads one status message (within 0.5 s) and fills the others'
+    caches from it (:meth:`read_status`); NaN (``None`` for ``limited``) before the
+    unit's first update."""
+
+    def __init__(self, driver: "FTAFM", index: int):
+        super().__init__(driver, f"pid{index}")
+        self.driver = driver
+        self.index = index
+        for name, (key, unit, text) in _PID_PARTS.items():
+            self.add_parameter(
+                name,
+                parameter_class=Parameter,
+                label=f"PID {index} {text}",
+                unit=unit or "",
+                docstring=f"{text.capitalize()} of the latest update of PID {index} (the "
+                "status stream's pids).",
+                get_cmd=lambda key=key: getattr(self._latest(), key),
+                set_cmd=False,
+            )
+            self.parameters[name].cache._set_from_raw_value(
+                None if key == "limited" else math.nan
+            )
+
+    def read_status(self, timeout: float | None = None) -> PidStatus:
+        """The unit in the next ``status`` message; the update's parameters' caches filled
+        from it (their units follow the input: rad for the phase, else m)."""
+        status = self.driver.client.pid_status(timeout=timeout)[self.index]
+        unit = "rad" if status.input == "phase" else "m"
+        for name, (key, fixed, _) in _PID_PARTS.items():
+            param = self.parameters[name]
+            assert isinstance(param, Parameter)
+            if fixed is None:
+                param.unit = unit
+            latest = status.latest
+            if latest is None:
+                param.cache._set_from_raw_value(None if key == "limited" else math.nan)
+            else:
+                param.cache._set_from_raw_value(getattr(latest, key))
+        return status
+
+    def _latest(self) -> Any:
+        latest = self.read_status().latest
+        if latest is None:
+            raise InstrumentError(
+                "no_data", f"/pids/{self.index} has made no update yet (enable it first)"
+            )
+        return latest
+
+
 class ForceModule(InstrumentModule):
     """The next FT-AFM force estimate (``/inversion/enable``): every parameter's get reads
     one estimate and fills the others' caches from it."""
@@ -359,7 +431,7 @@ class FTAFM(Instrument):
         for group, module in modules.items():
             self.add_submodule(group, module)
         for group, channels in lists.items():
-            kind = DemodChannel if group == "demods" else InstrumentChannel
+            kind = {"demods": DemodChannel, "pids": PidChannel}.get(group, InstrumentChannel)
             channel_list = ChannelList(self, group, kind, channels)
             self.add_submodule(group, channel_list)
         for channel in lists.get("demods", []):
@@ -375,6 +447,8 @@ class FTAFM(Instrument):
     def _channel(self, group: str, index: int) -> InstrumentChannel:
         if group == "demods":
             return DemodChannel(self, index)
+        if group == "pids":
+            return PidChannel(self, index)
         return InstrumentChannel(self, f"{group.rstrip('s')}{index}")
 
     def _set(self, path: str, value: Any) -> None:

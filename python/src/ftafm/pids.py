@@ -1,0 +1,258 @@
+"""The live PID units ``/pids/0`` … ``/pids/3`` (docs/loops.md, "Live PID units").
+
+>>> unit = afm.pids[0]                                                  # doctest: +SKIP
+>>> unit.configure(input="r", harmonic=1, setpoint=16.7e-9, p=0.0, i=1200.0,
+...                output_min=0.0, output_max=100e-9, enable=True)      # doctest: +SKIP
+>>> unit.wait(lambda s: abs(s.latest.error) < 1e-11)                    # doctest: +SKIP
+>>> unit.disable()                                                      # doctest: +SKIP
+
+Each unit reads its own demodulator once per drive period and drives the surface distance
+(the z piezo) on the coupled engine. Its settings are nodes (``configure`` sets any of
+them in one ``set_many``, all or nothing); its updates reach a client through the
+``status`` stream (every 0.5 s of wall time), each stamped with the settings epoch it ran
+under and a running count, so a caller waits on those, not on the clock
+(:meth:`PidUnit.wait`). The daemon refuses bad settings (a gain of the wrong sign, a
+derivative bandwidth above the PID's Nyquist frequency, limits outside the output's
+range) with :class:`ftafm.InstrumentError`, whose message names the node and the range.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping, Sequence
+
+from .errors import InstrumentError
+from .tree import NodeBranch, NodeLeaf
+
+if TYPE_CHECKING:
+    from .client import Instrument
+
+#: PID units of the daemon: ``/pids/0`` … ``/pids/3``.
+PID_COUNT = 4
+
+#: The settings of one unit (node names under ``/pids/N``).
+SETTINGS = (
+    "enable",
+    "input",
+    "harmonic",
+    "setpoint",
+    "p",
+    "i",
+    "d",
+    "d_bandwidth",
+    "output_min",
+    "output_max",
+    "rate",
+    "output",
+)
+
+#: Longest wait (s) of :meth:`PidUnit.wait` unless told: the status stream comes every
+#: 0.5 s of wall time, so this is many messages, for a daemon slower than real time.
+WAIT_TIMEOUT = 60.0
+
+
+@dataclass(frozen=True)
+class PidUpdate:
+    """One update of a unit, as the synthesiser made it (the ``latest`` of ``status``).
+
+    ``sample``: index of the sample from which the output took effect (its simulated time
+    is ``sample / sample_rate`` s); ``epoch``: the settings epoch the synthesiser ran
+    under; ``measurement`` and ``error`` (set-point minus measurement): the input's unit,
+    m for ``r``, ``x``, ``y`` and rad for ``phase``; ``output``: m for the surface
+    distance; ``limited``: whether ``output_min``, ``output_max`` or ``rate`` held the
+    output; ``updates``: the unit's updates since the daemon started.
+    """
+
+    sample: int
+    epoch: int
+    measurement: float
+    error: float
+    output: float
+    limited: bool
+    updates: int
+
+    @classmethod
+    def from_json(cls, m: Mapping[str, Any]) -> "PidUpdate":
+        nan = float("nan")
+        return cls(
+            sample=int(m["sample"]),
+            epoch=int(m["epoch"]),
+            # JSON null: a NaN on the daemon's side.
+            measurement=nan if m["measurement"] is None else float(m["measurement"]),
+            error=nan if m["error"] is None else float(m["error"]),
+            output=nan if m["output"] is None else float(m["output"]),
+            limited=bool(m["limited"]),
+            updates=int(m["updates"]),
+        )
+
+
+@dataclass(frozen=True)
+class PidStatus:
+    """One unit in one ``status`` message: the settings in force (``enable``, ``input``,
+    ``harmonic``, ``output``, ``setpoint`` in the input's unit) and ``latest``, its
+    latest update (``None`` before its first; a disabled unit keeps its last). ``t`` is
+    the status message's simulated time (s)."""
+
+    index: int
+    enable: bool
+    input: str
+    harmonic: int
+    output: str
+    setpoint: float
+    latest: PidUpdate | None
+    t: float
+
+    @classmethod
+    def from_json(cls, m: Mapping[str, Any], t: float) -> "PidStatus":
+        latest = m.get("latest")
+        return cls(
+            index=int(m["index"]),
+            enable=bool(m["enable"]),
+            input=str(m["input"]),
+            harmonic=int(m["harmonic"]),
+            output=str(m["output"]),
+            setpoint=float(m["setpoint"]),
+            latest=None if latest is None else PidUpdate.from_json(latest),
+            t=t,
+        )
+
+
+def from_status(message: Mapping[str, Any]) -> list[PidStatus]:
+    """The PID units of one ``status`` message, by index (``[]`` from a daemon without
+    them)."""
+    t = float(message.get("t", float("nan")))
+    return [PidStatus.from_json(u, t) for u in message.get("pids", [])]
+
+
+def _check_keys(settings: Mapping[str, Any], index: int) -> None:
+    unknown = sorted(set(settings) - set(SETTINGS))
+    if unknown:
+        raise TypeError(
+            f"/pids/{index} has no setting {', '.join(unknown)}: it has {', '.join(SETTINGS)}"
+        )
+
+
+class PidUnit:
+    """PID unit ``index`` (``/pids/N``) of a synchronous :class:`ftafm.Instrument`.
+
+    Its nodes are reachable as on the node tree (``unit.setpoint()``, ``unit.p(0.1)``),
+    except ``enable``, which here is the action (``unit.enable()``, ``unit.disable()``);
+    ``unit.nodes.enable()`` reads the node.
+    """
+
+    def __init__(self, client: "Instrument", index: int):
+        if not 0 <= index < PID_COUNT:
+            raise IndexError(f"no PID unit /pids/{index}: /pids/0 … /pids/{PID_COUNT - 1}")
+        self._client = client
+        self.index = index
+        self.path = f"/pids/{index}"
+
+    @property
+    def nodes(self) -> NodeBranch:
+        """The unit's branch of the node tree (``unit.nodes.enable()`` reads the node)."""
+        pids = self._client.root.pids
+        assert isinstance(pids, NodeBranch), "the daemon has no /pids"
+        branch = pids[self.index]
+        assert isinstance(branch, NodeBranch)
+        return branch
+
+    def __getattr__(self, name: str) -> NodeBranch | NodeLeaf:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self.nodes, name)  # type: ignore[no-any-return]
+
+    def configure(self, **settings: Any) -> float | None:
+        """Sets any of the unit's nodes (``input``, ``harmonic``, ``setpoint``, ``p``,
+        ``i``, ``d``, ``d_bandwidth``, ``output_min``, ``output_max``, ``rate``,
+        ``output``, ``enable``; units in docs/configuration.md) in one ``set_many``: one
+        change at one sample boundary, all or nothing. Returns the simulated time (s) it
+        took effect (``None`` inside ``set_transaction``). A refused value raises
+        :class:`ftafm.InstrumentError` naming the node and its range; an unknown name
+        :class:`TypeError` before anything is sent."""
+        _check_keys(settings, self.index)
+        return self._client.set_many({f"{self.path}/{k}": v for k, v in settings.items()})
+
+    def enable(self, on: bool = True) -> float | None:
+        """Starts the unit (bumpless: its first output is the output's present value);
+        ``enable(False)`` is :meth:`disable`. Returns the simulated time (s) it took
+        effect."""
+        return self._client.set(f"{self.path}/enable", bool(on))
+
+    def disable(self) -> float | None:
+        """Stops the unit; its output stays where the unit left it. Returns the simulated
+        time (s) it took effect."""
+        return self.enable(False)
+
+    def status(self, *, timeout: float | None = None) -> PidStatus:
+        """The unit in the next ``status`` message (settings in force, latest update);
+        ``timeout`` (s, default: the client's) bounds the wait for it."""
+        return self._client.pid_status(timeout=timeout)[self.index]
+
+    def wait(
+        self,
+        until: Callable[[PidStatus], bool] | None = None,
+        *,
+        updates: int = 1,
+        epoch: int | None = None,
+        timeout: float = WAIT_TIMEOUT,
+    ) -> PidStatus:
+        """Waits, message by message of ``status``, until the unit's latest update was made
+        under settings epoch ``epoch`` or later (default: this client's last change,
+        :attr:`ftafm.Instrument.epoch`), counts at least ``updates`` (since the daemon
+        started), and ``until(status)`` holds (``status.latest`` is then never ``None``);
+        returns that status. Raises :class:`ftafm.InstrumentError` (``timeout``) with the
+        last status seen if none comes within ``timeout`` s."""
+        want = self._client.epoch if epoch is None else epoch
+        deadline = time.monotonic() + timeout
+        last: PidStatus | None = None
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise InstrumentError(
+                    "timeout",
+                    f"{self.path}: no update of epoch ≥ {want} with ≥ {updates} updates "
+                    f"satisfying the condition within {timeout} s; last: {last}",
+                )
+            last = self.status(timeout=left)
+            latest = last.latest
+            if (
+                latest is not None
+                and latest.epoch >= want
+                and latest.updates >= updates
+                and (until is None or until(last))
+            ):
+                return last
+
+    def __repr__(self) -> str:
+        return f"<ftafm PID unit {self.path}>"
+
+
+class Pids(Sequence[PidUnit]):
+    """The PID units of a synchronous :class:`ftafm.Instrument`: ``afm.pids[0]``,
+    ``len(afm.pids)``, iteration, and :meth:`status` of all four from one message."""
+
+    def __init__(self, client: "Instrument"):
+        self._client = client
+        self._units = [PidUnit(client, n) for n in range(PID_COUNT)]
+
+    def __getitem__(self, index: int) -> PidUnit:  # type: ignore[override]
+        try:
+            return self._units[index]
+        except IndexError:
+            raise IndexError(
+                f"no PID unit /pids/{index}: /pids/0 … /pids/{PID_COUNT - 1}"
+            ) from None
+
+    def __len__(self) -> int:
+        return len(self._units)
+
+    def __iter__(self) -> Iterator[PidUnit]:
+        return iter(self._units)
+
+    def status(self, *, timeout: float | None = None) -> list[PidStatus]:
+        """Every unit in the next ``status`` message (:meth:`ftafm.Instrument.pid_status`)."""
+        return self._client.pid_status(timeout=timeout)
+
+    def __repr__(self) -> str:
+        return f"<ftafm PID units /pids/0 … /pids/{PID_COUNT - 1}>"
