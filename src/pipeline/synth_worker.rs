@@ -146,13 +146,6 @@ impl SynthWorker {
                             Counters::add(&counters.topography_pixels_dropped, 1);
                         }
                     });
-                for (w, &s) in block.iter_mut().zip(&finished) {
-                    w.grid = s;
-                }
-                Counters::add(
-                    &self.counters.clipped_samples,
-                    self.state.counters.clipped - clipped_before,
-                );
                 None
             } else if self.pids.active(&self.plan) {
                 // The loops read the finished samples, so they are finished here.
@@ -161,6 +154,15 @@ impl SynthWorker {
                     .process_pids(&mut self.state, &mut self.pids, &mut finished, &mut |r| {
                         board.publish(&r, epoch)
                     });
+                None
+            } else {
+                self.pids.pause();
+                // The ADC's FIRs, detector noise and quantiser run on the DSP thread.
+                Some(self.plan.process_window(&mut self.state, &mut block))
+            };
+            if digitise.is_none() {
+                // Finished here (a scan's or the loops' samples): into the block as they
+                // are, and their clipped samples counted.
                 for (w, &s) in block.iter_mut().zip(&finished) {
                     w.grid = s;
                 }
@@ -168,12 +170,7 @@ impl SynthWorker {
                     &self.counters.clipped_samples,
                     self.state.counters.clipped - clipped_before,
                 );
-                None
-            } else {
-                self.pids.pause();
-                // The ADC's FIRs, detector noise and quantiser run on the DSP thread.
-                Some(self.plan.process_window(&mut self.state, &mut block))
-            };
+            }
             Counters::add(
                 &self.counters.synth_busy_ns,
                 busy.elapsed().as_nanos() as u64,

@@ -23,6 +23,7 @@ use rustfft::num_complex::Complex64;
 
 use super::coupled::CoupledKernel;
 use super::plan::SynthPlan;
+use super::scan::samples_until;
 use super::synthesizer::{Output, SynthState};
 use crate::config::{PID_COUNT, PidInput, PidTarget};
 use crate::control::{Pid, PidSettings};
@@ -207,12 +208,6 @@ impl PidRuntime {
     pub fn pause(&mut self) {
         self.running = false;
     }
-}
-
-/// Samples from phase word `phase` until the drive phase first passes `target` (at least 1).
-fn samples_until(phase: u64, target: u64, word: u64) -> u64 {
-    let words = target.wrapping_sub(phase).wrapping_sub(1);
-    (u128::from(words) / u128::from(word.max(1))) as u64 + 1
 }
 
 impl SynthPlan {

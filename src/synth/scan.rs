@@ -139,8 +139,9 @@ impl ScanRuntime {
     }
 }
 
-/// Samples from phase word `phase` until the drive phase first passes `target` (at least 1).
-fn samples_until(phase: u64, target: u64, word: u64) -> u64 {
+/// Samples from phase word `phase` until the drive phase first passes `target` (at least 1):
+/// where a loop run once per drive period (the scan's, the PID units') next updates.
+pub(super) fn samples_until(phase: u64, target: u64, word: u64) -> u64 {
     let words = target.wrapping_sub(phase).wrapping_sub(1);
     (u128::from(words) / u128::from(word.max(1))) as u64 + 1
 }
