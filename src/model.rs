@@ -103,6 +103,8 @@ pub fn pid_settings(s: &Settings, index: usize) -> Option<PidSettings> {
     let pid = s.pids.get(index)?;
     let present = match pid.output {
         PidTarget::SurfaceDistance => s.surface.distance,
+        PidTarget::DriveFrequency => s.drive.frequency,
+        PidTarget::DriveAmplitude => s.drive.free_amplitude,
     };
     Some(PidSettings {
         setpoint: pid.setpoint,

@@ -49,7 +49,13 @@ fn run(
     let end = state.sample_index() + (seconds * plan.sample_rate) as u64;
     while state.sample_index() < end {
         let n = ((end - state.sample_index()) as usize).min(block.len());
-        plan.process_pids(state, rt, &mut block[..n], &mut |r| readings.push(r));
+        plan.process_pids(
+            state,
+            rt,
+            &mut block[..n],
+            &mut |r| readings.push(r),
+            &mut |_| {},
+        );
     }
     readings
 }
@@ -58,16 +64,19 @@ fn run(
 fn start(settings: &Settings, seed: u64) -> (SynthPlan, SynthState, PidRuntime) {
     let plan = SynthPlan::new(settings).unwrap();
     let state = SynthState::steady(&plan, seed);
+    let mut state = state;
     let mut rt = PidRuntime::new(&plan);
-    rt.retarget(&plan, &plan, 0);
+    rt.retarget(&plan, &plan, 0, &mut state);
     (plan, state, rt)
 }
 
 /// Moves a running loop to `settings` at the next sample, as the synthesiser thread does.
 fn change(plan: &mut SynthPlan, state: &mut SynthState, rt: &mut PidRuntime, settings: &Settings) {
     let next = SynthPlan::new(settings).unwrap();
+    rt.release_drive(plan, state);
     state.retarget(plan, &next);
-    rt.retarget(plan, &next, state.sample_index());
+    let index = state.sample_index();
+    rt.retarget(plan, &next, index, state);
     *plan = next;
 }
 
@@ -263,7 +272,13 @@ fn the_phase_input_reads_as_the_lock_in_does() {
     let mut block = vec![0.0; 4096];
     let (mut readings, mut lock_in) = (Vec::new(), None);
     for _ in 0..50 {
-        plan.process_pids(&mut state, &mut rt, &mut block, &mut |r| readings.push(r));
+        plan.process_pids(
+            &mut state,
+            &mut rt,
+            &mut block,
+            &mut |r| readings.push(r),
+            &mut |_| {},
+        );
         bank.process(&block, |s| lock_in = Some(s));
     }
     let lock_in = lock_in.unwrap();

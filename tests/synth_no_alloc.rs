@@ -157,9 +157,11 @@ fn a_scan_allocates_nothing() {
 
 /// The PID units on the real-time thread allocate nothing: a loop running (its
 /// demodulator, controller and the coupled surface it moves), started, retuned, stopped
-/// and restarted by plan changes, with every noise source on.
+/// and restarted by plan changes, a PLL and an amplitude loop moving the drive (the modes
+/// re-based, the reference following), with every noise source on.
 #[test]
 fn running_pids_allocate_nothing() {
+    use ftafm::config::PidInput;
     let mut s = default_settings();
     s.pids[0].enable = true;
     s.pids[0].setpoint = 15e-9;
@@ -169,35 +171,89 @@ fn running_pids_allocate_nothing() {
     retuned.pids[0].rate = 1e-3;
     retuned.pids[0].d = 1e-6;
     retuned.pids[0].harmonic = 2;
-    retuned.pids[0].input = ftafm::config::PidInput::Phase;
+    retuned.pids[0].input = PidInput::Phase;
     retuned.pids[0].setpoint = 0.5;
     let retuned = SynthPlan::new(&retuned).unwrap();
     let mut stopped = s.clone();
     stopped.pids[0].enable = false;
     let stopped = SynthPlan::new(&stopped).unwrap();
+    // A PLL on harmonic 1's phase and an amplitude loop on the drive.
+    let mut drive = stopped_settings_with_drive_loops(&s);
+    let driven = SynthPlan::new(&drive).unwrap();
+    drive.pids[1].enable = false;
+    drive.pids[2].enable = false;
+    let released = SynthPlan::new(&drive).unwrap();
     let mut state = SynthState::steady(&plan, 1);
     let mut rt = PidRuntime::new(&plan);
     let mut block = vec![0.0; 4096];
     let mut updates = 0usize;
+    let mut references = 0usize;
     let n = allocations_in(|| {
-        rt.retarget(&plan, &plan, 0);
+        rt.retarget(&plan, &plan, 0, &mut state);
+        let mut run = |plan: &SynthPlan, state: &mut SynthState, rt: &mut PidRuntime, len| {
+            plan.process_pids(
+                state,
+                rt,
+                &mut block[..len],
+                &mut |_| updates += 1,
+                &mut |_| references += 1,
+            );
+        };
         for _ in 0..10 {
-            plan.process_pids(&mut state, &mut rt, &mut block, &mut |_| updates += 1);
+            run(&plan, &mut state, &mut rt, 4096);
         }
-        state.retarget(&plan, &retuned);
-        rt.retarget(&plan, &retuned, state.sample_index());
-        for len in [4096, 1, 777] {
-            retuned.process_pids(&mut state, &mut rt, &mut block[..len], &mut |_| {
-                updates += 1
-            });
+        let mut from = &plan;
+        for (to, lengths) in [
+            (&retuned, &[4096, 1, 777][..]),
+            (&stopped, &[4096][..]),
+            (&plan, &[4096][..]),
+            (&driven, &[4096, 4096, 3, 4096][..]),
+            (&released, &[4096][..]),
+        ] {
+            rt.release_drive(from, &mut state);
+            state.retarget(from, to);
+            let index = state.sample_index();
+            rt.retarget(from, to, index, &mut state);
+            for &len in lengths {
+                run(to, &mut state, &mut rt, len);
+            }
+            from = to;
         }
-        state.retarget(&retuned, &stopped);
-        rt.retarget(&retuned, &stopped, state.sample_index());
-        stopped.process_pids(&mut state, &mut rt, &mut block, &mut |_| updates += 1);
-        state.retarget(&stopped, &plan);
-        rt.retarget(&stopped, &plan, state.sample_index());
-        plan.process_pids(&mut state, &mut rt, &mut block, &mut |_| updates += 1);
     });
+    assert!(
+        references > 50,
+        "the PLL moved the reference ({references} times)"
+    );
     assert!(updates > 400, "the loops ran ({updates} updates)");
     assert_eq!(n, 0, "the PIDs allocated {n} times");
+}
+
+/// `s` with PID 0 off, PID 1 a PLL on harmonic 1's phase driving the drive frequency
+/// within ±1 %, and PID 2 an amplitude loop driving the drive's amplitude.
+fn stopped_settings_with_drive_loops(s: &ftafm::config::Settings) -> ftafm::config::Settings {
+    use ftafm::config::{PidInput, PidTarget};
+    let mut s = s.clone();
+    s.pids[0].enable = false;
+    let f = s.drive.frequency;
+    let pll = &mut s.pids[1];
+    pll.enable = true;
+    pll.input = PidInput::Phase;
+    pll.harmonic = 1;
+    // Held at π, the resonance (tests/pll.rs), with a 500 Hz loop.
+    pll.setpoint = std::f64::consts::PI;
+    pll.i = -1.57e6;
+    pll.p = -500.0;
+    pll.output = PidTarget::DriveFrequency;
+    pll.output_min = 0.99 * f;
+    pll.output_max = 1.01 * f;
+    let amplitude = &mut s.pids[2];
+    amplitude.enable = true;
+    amplitude.input = PidInput::R;
+    amplitude.harmonic = 1;
+    amplitude.setpoint = 10e-9;
+    amplitude.i = 1000.0;
+    amplitude.output = PidTarget::DriveAmplitude;
+    amplitude.output_min = 0.0;
+    amplitude.output_max = 100e-9;
+    s
 }

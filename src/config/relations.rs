@@ -15,8 +15,8 @@ use super::quantity::{number, quantity};
 use super::range::{Bound, Range};
 use super::registry::registry;
 use super::settings::{
-    DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, PID_COUNT, PidTarget, Settings, SourceKind,
-    SweepParameter,
+    DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, PID_COUNT, PidTarget, PidUnitSettings, Settings,
+    SourceKind, SweepParameter,
 };
 
 impl Settings {
@@ -859,18 +859,18 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
                 ),
             ));
         }
+        if s.synth.engine != Engine::Coupled {
+            return Err(invalid(
+                format!("/pids/{index}/output"),
+                format!(
+                    "/pids/{index}/output = \"{target}\" needs /synth/engine = \"coupled\": \
+                     the paper engine's tap force is the 1-DOF orbit at a fixed \
+                     /surface/distance and drive, which it cannot move sample by sample"
+                ),
+            ));
+        }
         match pid.output {
             PidTarget::SurfaceDistance => {
-                if s.synth.engine != Engine::Coupled {
-                    return Err(invalid(
-                        format!("/pids/{index}/output"),
-                        format!(
-                            "/pids/{index}/output = \"{target}\" needs /synth/engine = \
-                             \"coupled\": the paper engine's tap force is the 1-DOF orbit at a \
-                             fixed /surface/distance, which it cannot move sample by sample"
-                        ),
-                    ));
-                }
                 if s.scan.enable {
                     let why = if s.feedback.enable {
                         "the scan's amplitude feedback (/feedback/enable = true) drives it"
@@ -886,34 +886,82 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
                         ),
                     ));
                 }
-                if s.sweeper.enable && s.sweeper.parameter == SweepParameter::SurfaceDistance {
+                check_pid_range(
+                    index,
+                    pid,
+                    0.0,
+                    MAX_PID_DISTANCE,
+                    "m",
+                    "the surface distance",
+                )?;
+            }
+            PidTarget::DriveFrequency | PidTarget::DriveAmplitude => {
+                if s.scan.enable {
                     return Err(invalid(
                         format!("/pids/{index}/output"),
                         format!(
-                            "/pids/{index} drives the surface distance (/pids/{index}/output = \
-                             \"{target}\") while a sweep steps it (/sweeper/parameter = \
-                             \"/surface/distance\", /sweeper/enable = true): disable one of them"
+                            "/pids/{index} drives the drive (/pids/{index}/output = \
+                             \"{target}\") while /scan/enable = true, whose pixels read the \
+                             drive as /drive/* configure it: disable one of them"
                         ),
                     ));
                 }
-                for (key, value) in [
-                    ("output_min", pid.output_min),
-                    ("output_max", pid.output_max),
-                ] {
-                    if !(0.0..=MAX_PID_DISTANCE).contains(&value) {
-                        return Err(invalid(
-                            format!("/pids/{index}/{key}"),
-                            format!(
-                                "/pids/{index}/{key} = {} is outside the surface distance's \
-                                 range for /pids/{index}/output = \"{target}\": allowed 0 ≤ \
-                                 value ≤ {}",
-                                quantity(value, "m"),
-                                quantity(MAX_PID_DISTANCE, "m")
-                            ),
-                        ));
-                    }
+            }
+        }
+        let swept = match pid.output {
+            PidTarget::SurfaceDistance => SweepParameter::SurfaceDistance,
+            PidTarget::DriveFrequency => SweepParameter::DriveFrequency,
+            PidTarget::DriveAmplitude => SweepParameter::DriveFreeAmplitude,
+        };
+        if s.sweeper.enable && s.sweeper.parameter == swept {
+            return Err(invalid(
+                format!("/pids/{index}/output"),
+                format!(
+                    "/pids/{index} drives {} (/pids/{index}/output = \"{target}\") while a \
+                     sweep steps it (/sweeper/parameter = \"{}\", /sweeper/enable = true): \
+                     disable one of them",
+                    swept.name(),
+                    swept.name()
+                ),
+            ));
+        }
+        if pid.output == PidTarget::DriveFrequency {
+            // Every harmonic read must stay in band wherever the loop takes the drive.
+            let highest = (0..DEMODULATOR_COUNT)
+                .filter(|&i| s.demod_active(i))
+                .map(|i| s.demods[i].harmonic)
+                .chain(s.pids.iter().filter(|p| p.enable).map(|p| p.harmonic))
+                .max()
+                .unwrap_or(1);
+            let limit = nyquist(s) / f64::from(highest);
+            for (key, value) in [
+                ("output_min", pid.output_min),
+                ("output_max", pid.output_max),
+            ] {
+                if !(value > 0.0 && value < limit) {
+                    return Err(invalid(
+                        format!("/pids/{index}/{key}"),
+                        format!(
+                            "/pids/{index}/{key} = {} is outside the drive frequency's range for \
+                             /pids/{index}/output = \"{target}\": allowed 0 < value < {} \
+                             (/synth/sample_rate / 2 / {highest}, the highest harmonic an \
+                             enabled demodulator or PID reads)",
+                            quantity(value, "Hz"),
+                            quantity(limit, "Hz")
+                        ),
+                    ));
                 }
             }
+        }
+        if pid.output == PidTarget::DriveAmplitude {
+            check_pid_range(
+                index,
+                pid,
+                0.0,
+                MAX_PID_DISTANCE,
+                "m",
+                "the drive's free amplitude",
+            )?;
         }
         let slot = &mut driven[pid.output as usize];
         if let Some(first) = *slot {
@@ -926,6 +974,36 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
             ));
         }
         *slot = Some(index);
+    }
+    Ok(())
+}
+
+/// PID unit `index`'s output limits within [`low`, `high`] (in `unit`), the range of `what`.
+fn check_pid_range(
+    index: usize,
+    pid: &PidUnitSettings,
+    low: f64,
+    high: f64,
+    unit: &str,
+    what: &str,
+) -> Result<(), NodeError> {
+    let target = pid.output.name();
+    for (key, value) in [
+        ("output_min", pid.output_min),
+        ("output_max", pid.output_max),
+    ] {
+        if !(low..=high).contains(&value) {
+            return Err(invalid(
+                format!("/pids/{index}/{key}"),
+                format!(
+                    "/pids/{index}/{key} = {} is outside {what}'s range for /pids/{index}/output \
+                     = \"{target}\": allowed {} ≤ value ≤ {}",
+                    quantity(value, unit),
+                    quantity(low, unit),
+                    quantity(high, unit)
+                ),
+            ));
+        }
     }
     Ok(())
 }

@@ -604,6 +604,12 @@ named_choice! {
         /// The z piezo: the distance from the tip's rest position to the sample surface (m),
         /// `/surface/distance`'s quantity, moved as the scan's amplitude feedback moves it.
         SurfaceDistance = "surface_distance",
+        /// The drive's frequency (Hz), with the lock-in's reference: a unit on the phase
+        /// of harmonic 1 is a PLL. `/drive/frequency` is the centre it starts from.
+        DriveFrequency = "drive_frequency",
+        /// The drive's amplitude, as the free tip amplitude it gives at `/drive/frequency`
+        /// (m, `/drive/free_amplitude`'s quantity): the base amplitude in proportion.
+        DriveAmplitude = "drive_amplitude",
     }
 }
 

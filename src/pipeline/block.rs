@@ -27,6 +27,9 @@ pub struct BlockHeader {
     /// synthesiser finished them (a scan's feedback reads them), and the ring holds them in
     /// the window samples' `grid`.
     pub digitise: Option<crate::synth::DigitiserInput>,
+    /// How many changes of the lock-in's reference fall in the block (a PID unit moving the
+    /// drive frequency: a PLL), in the reference ring in order, each at its sample.
+    pub references: u32,
 }
 
 /// Unix time in ns now.

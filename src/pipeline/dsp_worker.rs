@@ -34,6 +34,8 @@ pub(crate) struct DspWorker {
     /// The block's samples, finished.
     pub finished: Vec<f64>,
     pub headers: HeapCons<BlockHeader>,
+    /// Changes of the lock-in's reference, `header.references` of them per block.
+    pub references: HeapCons<crate::synth::ReferenceChange>,
     pub plans_in: HeapCons<Box<DspPlan>>,
     pub plans_out: HeapProd<Box<DspPlan>>,
     pub demods: HeapProd<DemodFrame>,
@@ -208,8 +210,26 @@ impl DspWorker {
             let base = header.index;
             let end = base + len as u64;
             let mut pos = base;
+            let mut references = header.references;
             while pos < end {
+                // A loop moved the drive's frequency: the reference follows at the sample
+                // where the samples taken under the new frequency begin.
+                while references > 0 {
+                    match self.references.first() {
+                        Some(change) if change.index <= pos => {
+                            self.plan.align(change.phase, change.word);
+                            self.references.skip(1);
+                            references -= 1;
+                        }
+                        _ => break,
+                    }
+                }
                 let mut stop = end;
+                if references > 0
+                    && let Some(change) = self.references.first()
+                {
+                    stop = stop.min(change.index);
+                }
                 let mut finishes = None;
                 if let Some(r) = header.raster {
                     let delay = self.plan.group_delay();
@@ -268,6 +288,9 @@ impl DspWorker {
                 }
                 pos = stop;
             }
+            // Each of the block's changes falls inside it; none is left over, but the
+            // ring's order must not depend on that.
+            self.references.skip(references as usize);
             if header.raster.is_none() {
                 // Keep the integrators from growing without a scan.
                 self.plan.take_pixel(&mut self.pixel_frame);

@@ -62,8 +62,8 @@ pub use synth_worker::BLOCK_SAMPLES;
 use crate::config::{MAX_SPECTRUM_SIZE, Settings};
 use crate::dsp::DspError;
 use crate::synth::{
-    Digitiser, PidRuntime, PixelTopography, PlanError, ScanRuntime, SynthPlan, SynthState,
-    TapTables, WindowSample,
+    Digitiser, PENDING_REFERENCES, PidRuntime, PixelTopography, PlanError, ReferenceChange,
+    ScanRuntime, SynthPlan, SynthState, TapTables, WindowSample,
 };
 use dsp_worker::DspWorker;
 use synth_worker::SynthWorker;
@@ -340,6 +340,10 @@ impl Pipeline {
         let (headers_in, headers_out) =
             HeapRb::<BlockHeader>::new(ring / BLOCK_SAMPLES + 1).split();
         let (demods_in, demods_out) = HeapRb::<DemodFrame>::new(DEMOD_QUEUE).split();
+        // One change of the reference per drive period at most, for drives up to a
+        // sixteenth of the sample rate, for the whole sample ring.
+        let (references_in, references_out) =
+            HeapRb::<ReferenceChange>::new(ring / 16 + PENDING_REFERENCES).split();
         // Pools sized for the largest spectrum and trace the settings allow, so a live change
         // of /spectrum/size or /scope/length never needs a bigger buffer on the DSP thread.
         let (spectra_in, spectra_out, free_in, free_out) = pool(|| SpectrumBuffer {
@@ -380,6 +384,8 @@ impl Pipeline {
             topography: topography_in,
             samples: samples_in,
             headers: headers_in,
+            references: references_in,
+            reference_changes: Vec::with_capacity(BLOCK_SAMPLES + PENDING_REFERENCES),
             plans_in: synth_plans_in,
             plans_out: synth_plans_out,
             counters: counters.clone(),
@@ -394,6 +400,7 @@ impl Pipeline {
             plan: dsp_plan,
             samples: samples_out,
             headers: headers_out,
+            references: references_out,
             plans_in: dsp_plans_in,
             plans_out: dsp_plans_out,
             demods: demods_in,

@@ -134,6 +134,7 @@ mod tests {
                 raster: None,
                 epoch: 0,
                 digitise: None,
+                references: 0,
             };
             capture.feed(
                 &header,

@@ -14,7 +14,9 @@ use super::counters::Counters;
 use super::epochs::Epochs;
 use super::feed::{FeedReader, Piece};
 use crate::config::SourceKind;
-use crate::synth::{PidRuntime, PixelTopography, ScanRuntime, SynthPlan, SynthState, WindowSample};
+use crate::synth::{
+    PidRuntime, PixelTopography, ReferenceChange, ScanRuntime, SynthPlan, SynthState, WindowSample,
+};
 
 /// Samples per block: 0.41 ms at 10 MS/s, short against the 1 ms output period.
 pub const BLOCK_SAMPLES: usize = 4096;
@@ -33,6 +35,12 @@ pub(crate) struct SynthWorker {
     /// The signal through the ADC's window, which the DSP thread finishes.
     pub samples: HeapProd<WindowSample>,
     pub headers: HeapProd<BlockHeader>,
+    /// Changes of the lock-in's reference (a loop moving the drive frequency), each
+    /// counted in the header of the block it falls in.
+    pub references: HeapProd<ReferenceChange>,
+    /// Changes made and not yet handed on, in order (capacity for a block's and those
+    /// pending past it, reserved off the real-time path).
+    pub reference_changes: Vec<ReferenceChange>,
     pub plans_in: HeapCons<Box<SynthPlan>>,
     pub plans_out: HeapProd<Box<SynthPlan>>,
     pub counters: Arc<Counters>,
@@ -62,8 +70,9 @@ impl SynthWorker {
         // A scan configured from the start begins at the first sample.
         self.scan
             .retarget(&self.plan, &self.plan, self.state.sample_index());
+        let index = self.state.sample_index();
         self.pids
-            .retarget(&self.plan, &self.plan, self.state.sample_index());
+            .retarget(&self.plan, &self.plan, index, &mut self.state);
         // The epoch the starting plan reflects, not the newest published: a change applied
         // before this thread got here is then stamped with its first block like any other.
         let mut stamped = self.plan.epoch;
@@ -89,11 +98,16 @@ impl SynthWorker {
                     // source's: gone, and counted.
                     Counters::add(&self.counters.stream_discarded_samples, self.feed.discard());
                 }
+                // The modes under the plan's own drive first, which the change moves
+                // from; the loops then take up theirs again.
+                self.pids.release_drive(&self.plan, &mut self.state);
                 self.state.retarget(&self.plan, &next);
-                self.scan
-                    .retarget(&self.plan, &next, self.state.sample_index());
+                let index = self.state.sample_index();
+                self.scan.retarget(&self.plan, &next, index);
                 self.pids
-                    .retarget(&self.plan, &next, self.state.sample_index());
+                    .retarget(&self.plan, &next, index, &mut self.state);
+                // Changes the old drive made and the stream has not reached are void.
+                self.reference_changes.clear();
                 let old = std::mem::replace(&mut self.plan, next);
                 // The control side keeps plans in flight (a held one included) within the
                 // return queue's capacity, so this has room; the old plan is freed there.
@@ -128,8 +142,17 @@ impl SynthWorker {
                 stamped = epoch;
             }
             // The drive phase at which the block's first sample was taken: behind the
-            // synthesis by the ADC filter's delay, so the lock-in sees no shift from it.
-            let phase = self.plan.output_phase(self.state.phase());
+            // synthesis by the ADC filter's delay, so the lock-in sees no shift from it;
+            // under the loops, their drive's (a PLL moves it).
+            let loops = self.plan.scan.is_none() && self.pids.active(&self.plan);
+            let (phase, frequency_word) = if loops {
+                self.pids.begin(&self.plan, &self.state)
+            } else {
+                (
+                    self.plan.output_phase(self.state.phase()),
+                    self.plan.frequency_word,
+                )
+            };
             let clipped_before = self.state.counters.clipped;
             let (refined_before, over_before) =
                 (self.state.counters.refined, self.state.counters.over_budget);
@@ -147,13 +170,27 @@ impl SynthWorker {
                         }
                     });
                 None
-            } else if self.pids.active(&self.plan) {
+            } else if loops {
                 // The loops read the finished samples, so they are finished here.
                 let board = &self.counters.pids;
-                self.plan
-                    .process_pids(&mut self.state, &mut self.pids, &mut finished, &mut |r| {
-                        board.publish(&r, epoch)
-                    });
+                let (changes, counters) = (&mut self.reference_changes, &self.counters);
+                self.plan.process_pids(
+                    &mut self.state,
+                    &mut self.pids,
+                    &mut finished,
+                    &mut |r| board.publish(&r, epoch),
+                    &mut |c| {
+                        // A change per update, the updates a period (at least two
+                        // samples) apart: a block's and the ⌈D⌉ samples' past it fit the
+                        // capacity reserved, so this never grows the vector. Were one
+                        // lost, the DSP's reference would jump: counted as such.
+                        if changes.len() < changes.capacity() {
+                            changes.push(c);
+                        } else {
+                            Counters::add(&counters.discontinuities, 1);
+                        }
+                    },
+                );
                 None
             } else {
                 self.pids.pause();
@@ -200,17 +237,28 @@ impl SynthWorker {
             self.counters
                 .synth_beat_ns
                 .store(super::counters::monotonic_ns(), Ordering::Relaxed);
+            let end = header_index + BLOCK_SAMPLES as u64;
+            let references = self
+                .reference_changes
+                .iter()
+                .take_while(|c| c.index < end)
+                .count();
             let header = BlockHeader {
                 index: header_index,
                 len: BLOCK_SAMPLES as u32,
                 phase,
-                frequency_word: self.plan.frequency_word,
+                frequency_word,
                 t_synth_ns: unix_ns(),
                 raster: self.plan.scan.as_ref().and(self.scan.raster),
                 epoch,
                 digitise,
+                references: references as u32,
             };
-            if !self.push(&block, header, realtime) {
+            let pushed = self.push(&block, header, realtime);
+            // The block's changes went with it, or are gone with it (the DSP restarts on
+            // the next block's header, which carries the reference there).
+            self.reference_changes.drain(..references);
+            if !pushed {
                 Counters::add(&self.counters.overrun_samples, BLOCK_SAMPLES as u64);
                 Counters::add(&self.counters.overrun_blocks, 1);
             }
@@ -267,6 +315,7 @@ impl SynthWorker {
             raster: None,
             epoch,
             digitise: None,
+            references: 0,
         };
         let realtime = self.realtime.load(Ordering::Relaxed);
         if !self.push(&block[..n], header, realtime) {
@@ -280,8 +329,14 @@ impl SynthWorker {
     /// it); free-running waits for room, since nothing is due by the clock.
     fn push(&mut self, block: &[WindowSample], header: BlockHeader, realtime: bool) -> bool {
         loop {
-            if self.samples.vacant_len() >= block.len() && self.headers.vacant_len() >= 1 {
+            let references = header.references as usize;
+            if self.samples.vacant_len() >= block.len()
+                && self.headers.vacant_len() >= 1
+                && self.references.vacant_len() >= references
+            {
                 self.samples.push_slice(block);
+                self.references
+                    .push_slice(&self.reference_changes[..references]);
                 let _ = self.headers.try_push(header);
                 if let Some(consumer) = &self.consumer {
                     consumer.unpark();

@@ -39,6 +39,7 @@ use std::f64::consts::PI;
 
 use rustfft::num_complex::Complex64;
 
+use super::drive::Drive;
 use super::lanes::{Lanes, Portable};
 use super::modal::ModalKernel;
 use super::window::Moments;
@@ -362,25 +363,18 @@ impl CoupledKernel {
         let mut kick = [0.0; MAX_MODES];
         // u = U sin θ = Re[−iU e^{iθ}].
         let mut free_tip = Complex64::new(0.0, -base_amplitude);
-        // Curvature bound of the tip's path: Ω²|z⁰| for the drive, ω_n² per mode for the
-        // modes' own motion at their drive amplitude (the tap response is caught by the
-        // ends of the sample: contact starts at one of them).
-        let mut curvature = omega * omega * base_amplitude;
         for (m, (mode, y)) in modes.iter().zip(drive_response).enumerate() {
             let kernel = ModalKernel::new(mode, h);
             tip[m] = kernel.tip_gain;
             kick[m] = kernel.force_gain;
             free_tip += y * mode.tip_value;
-            curvature += omega * omega * (y * mode.tip_value).norm();
         }
-        // Twice the chord bound a·h²/8, and never below 1 pm.
-        let mut margin = (curvature * h * h / 4.0).max(1e-12);
+        let margin = free_margin(modes, h, omega, drive_response, base_amplitude, adhesion);
         let (mut strength, mut a0, mut pull_off) = (0.0, 1.0, 0.0);
         if let Some(a) = adhesion {
             strength = a.strength(contact.radius);
             a0 = a.distance;
             pull_off = a.pull_off(contact.radius);
-            margin = margin.max(ADHESION_REACH * a.distance);
         }
         // Σ φ_n(L)²/M_n: the tip's inverse mass on a point force, which sets the frequency
         // of the tip on the contact's stiffness.
@@ -423,6 +417,29 @@ impl CoupledKernel {
             base_amplitude,
             omega,
             contact: *contact,
+        }
+    }
+
+    /// Takes up a new drive (a PLL's frequency, an amplitude loop's excitation) for the
+    /// lever's `modes` sampled every `h` (s): the free tip motion, the sub-steps' drive
+    /// phasors and the margin follow it; the stepping constants do not depend on it.
+    /// Allocation-free, so the real-time thread may call it.
+    pub(crate) fn set_drive(&mut self, modes: &[Mode], h: f64, drive: &Drive) {
+        let omega = drive.omega();
+        let response = &drive.response[..modes.len()];
+        self.free_tip = drive.free_tip(modes);
+        self.margin = free_margin(
+            modes,
+            h,
+            omega,
+            response,
+            drive.base_amplitude,
+            self.adhesion,
+        );
+        self.base_amplitude = drive.base_amplitude;
+        self.omega = omega;
+        for level in std::iter::once(&mut self.base).chain(&mut self.finer) {
+            level.sub_rotation = Complex64::from_polar(1.0, omega * 2.0 * level.half_dt);
         }
     }
 
@@ -933,6 +950,30 @@ impl CoupledKernel {
         re.store(&mut re_out);
         im.store(&mut im_out);
         (re_out, im_out, refinement)
+    }
+}
+
+/// How far from the surface (m) a sample's ends must keep the tip for the whole sample to
+/// be clear of it: twice the chord bound a·h²/8 of the tip's free path (its curvature
+/// bounded by Ω²|z⁰| for the drive and ω_n² per mode at its drive amplitude; the tap
+/// response is caught by the ends of the sample, where contact starts), never below 1 pm,
+/// and adhesion's reach.
+fn free_margin(
+    modes: &[Mode],
+    h: f64,
+    omega: f64,
+    drive_response: &[Complex64],
+    base_amplitude: f64,
+    adhesion: Option<Adhesion>,
+) -> f64 {
+    let mut curvature = omega * omega * base_amplitude;
+    for (mode, y) in modes.iter().zip(drive_response) {
+        curvature += omega * omega * (y * mode.tip_value).norm();
+    }
+    let margin = (curvature * h * h / 4.0).max(1e-12);
+    match adhesion {
+        Some(a) => margin.max(ADHESION_REACH * a.distance),
+        None => margin,
     }
 }
 

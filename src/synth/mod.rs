@@ -6,6 +6,7 @@
 pub mod adc;
 pub mod coupled;
 pub mod digitiser;
+pub mod drive;
 mod lanes;
 pub mod modal;
 pub mod noise_pages;
@@ -23,8 +24,9 @@ pub mod window;
 pub use adc::{Adc, AdcHistory, WindowSample};
 pub use coupled::{CoupledKernel, CoupledTrace, DEFAULT_SUBSTEP_BUDGET, DEFAULT_SUBSTEPS};
 pub use digitiser::{Digitiser, DigitiserInput};
+pub use drive::Drive;
 pub use pid_plan::{PidPlan, PidUnitPlan};
-pub use pids::{PidReading, PidRuntime};
+pub use pids::{PENDING_REFERENCES, PidReading, PidRuntime, ReferenceChange};
 pub use plan::{BOLTZMANN, PlanError, SynthPlan, TapForce};
 pub use pulse::PulseTrain;
 pub use raster::{PixelId, Raster};

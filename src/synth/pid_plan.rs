@@ -35,6 +35,12 @@ pub struct PidPlan {
     /// Drive phase word at which the loops update: where the free tip is highest, half a
     /// period from the tap, so that a move of the surface never cuts a contact.
     pub update_phase: u64,
+    /// `/drive/free_amplitude` (m): a unit on `drive_amplitude` drives the excitation in
+    /// these terms, the free amplitude it gives at `/drive/frequency`.
+    pub free_amplitude: f64,
+    /// The base amplitude per metre of that free amplitude (1; set by the plan, which
+    /// knows the drive).
+    pub base_per_free: f64,
 }
 
 impl PidPlan {
@@ -61,13 +67,12 @@ impl PidPlan {
                 output: unit.output,
             });
         }
-        // The tip is highest where Re[free_tip·e^{iθ}] is largest: θ = −arg(free_tip).
-        let highest = free_tip.map_or(0.0, |z| -z.arg());
-        let update_phase = ((highest / TAU).rem_euclid(1.0) * TWO_POW_64) as u64;
         Ok(Self {
             units,
             surface_distance: settings.surface.distance,
-            update_phase,
+            update_phase: free_tip.map_or(0, highest_phase),
+            free_amplitude: settings.drive.free_amplitude,
+            base_per_free: 1.0,
         })
     }
 
@@ -75,4 +80,10 @@ impl PidPlan {
     pub fn any_enabled(&self) -> bool {
         self.units.iter().any(Option::is_some)
     }
+}
+
+/// The drive phase word where the free tip z⁰ = Re[free_tip·e^{iθ}] (m) is highest:
+/// θ = −arg(free_tip).
+pub(crate) fn highest_phase(free_tip: rustfft::num_complex::Complex64) -> u64 {
+    ((-free_tip.arg() / TAU).rem_euclid(1.0) * TWO_POW_64) as u64
 }

@@ -15,19 +15,46 @@
 //! delay (21.5 samples with `/synth/anti_alias`), and the output held for one period from
 //! the update's sample boundary (a zero-order hold, mean delay T/2): about T + 21.5 h.
 //!
+//! On the drive (`drive_frequency`: a PLL; `drive_amplitude`): the excitation changes from
+//! the update's sample on, phase-continuous, and the modes keep their displacement and
+//! velocity ([`SynthState::redrive`]). The lock-in's reference follows the drive exactly:
+//! a sample is demodulated against the drive phase at which it was taken, so the reference
+//! changes its frequency the ADC filter's delay after the drive does
+//! ([`ReferenceChange`]); the units' own demodulators and the DSP thread's bank read the
+//! same changes.
+//!
 //! Nothing here allocates, locks, logs or blocks (`tests/synth_no_alloc.rs`).
 
-use std::f64::consts::TAU;
+use std::f64::consts::{PI, TAU};
 
 use rustfft::num_complex::Complex64;
 
 use super::coupled::CoupledKernel;
+use super::drive::Drive;
 use super::plan::SynthPlan;
 use super::scan::samples_until;
 use super::synthesizer::{Output, SynthState};
 use crate::config::{PID_COUNT, PidInput, PidTarget};
 use crate::control::{Pid, PidSettings};
-use crate::timebase::{TWO_POW_64, harmonic_phase, phase_to_radians};
+use crate::timebase::{TWO_POW_64, frequency_word, harmonic_phase, phase_to_radians};
+
+/// A change of the lock-in's reference: from output sample `index` on, the reference is
+/// at drive phase `phase` (2^64 = one period) and steps `word` per sample. A loop that
+/// moves the drive's frequency at sample i makes one at i + ⌈D⌉ (D the ADC filter's delay,
+/// 21.5 samples; 0 without it), where the samples taken under the new frequency begin.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ReferenceChange {
+    /// Index of the first output sample of the new reference.
+    pub index: u64,
+    /// The drive phase at which that sample was taken.
+    pub phase: u64,
+    /// Drive phase words per sample from there on.
+    pub word: u64,
+}
+
+/// Reference changes made and not yet reached: at most one per update, and the updates
+/// are at least two samples apart, so ⌈D⌉ = 22 samples hold at most 11.
+pub const PENDING_REFERENCES: usize = 16;
 
 /// One update of one unit, handed out of the synthesiser as it happens.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -82,6 +109,28 @@ pub struct PidRuntime {
     /// Samples per drive period, 2^64/word: a period shorter than this less one (after a
     /// restart) is not a whole period, and the loops skip it.
     period: f64,
+    /// The drive in force: the plan's, unless a loop moved it.
+    drive: Drive,
+    /// The drive phase word a loop set: kept (held) until `/drive/frequency` changes while
+    /// no loop drives it; `None`: the plan's.
+    word_held: Option<u64>,
+    /// The base amplitude a loop set (m), held alike; `None`: the plan's.
+    base_held: Option<f64>,
+    /// Drive phase word at which the loops update ([`super::PidPlan::update_phase`],
+    /// moved with the drive).
+    update_phase: u64,
+    /// The lock-in's reference at output sample `reference_index`: the drive phase it was
+    /// taken at and the word per sample.
+    reference_index: u64,
+    reference_phase: u64,
+    reference_word: u64,
+    /// Reference changes ahead of `reference_index`, oldest first (a ring).
+    pending: [ReferenceChange; PENDING_REFERENCES],
+    pending_head: usize,
+    pending_len: usize,
+    /// Whether the reference must be taken afresh from the drive (after a change of plan,
+    /// whose block header carries it).
+    reference_stale: bool,
 }
 
 impl PidRuntime {
@@ -106,13 +155,68 @@ impl PidRuntime {
             acc_count: 0,
             next_update: 0,
             period: TWO_POW_64 / plan.frequency_word.max(1) as f64,
+            drive: plan.drive,
+            word_held: None,
+            base_held: None,
+            update_phase: plan.pids.update_phase,
+            reference_index: 0,
+            reference_phase: 0,
+            reference_word: plan.frequency_word,
+            pending: [ReferenceChange::default(); PENDING_REFERENCES],
+            pending_head: 0,
+            pending_len: 0,
+            reference_stale: true,
         }
     }
 
     /// Whether the synthesiser must run [`SynthPlan::process_pids`] for `plan`: a unit is
     /// enabled, or a loop left the surface where the plan's engine would not put it.
     pub fn active(&self, plan: &SynthPlan) -> bool {
-        plan.coupled.is_some() && (plan.pids.any_enabled() || self.held)
+        plan.coupled.is_some() && (plan.pids.any_enabled() || self.held || self.drive_held())
+    }
+
+    /// Whether a loop holds the drive away from the plan's `/drive/*`.
+    fn drive_held(&self) -> bool {
+        self.word_held.is_some() || self.base_held.is_some()
+    }
+
+    /// The drive in force.
+    pub fn drive(&self) -> &Drive {
+        &self.drive
+    }
+
+    /// Whether a loop holds the surface distance away from `/surface/distance` (a unit on
+    /// it runs, or one that ran left it there).
+    pub fn surface_held(&self) -> bool {
+        self.held
+    }
+
+    /// Readies the loops for the next block of `plan` from `state`'s next sample, and
+    /// returns the lock-in's reference there: the drive phase word at which that sample is
+    /// taken and the word per sample (what the block's header carries).
+    pub fn begin(&mut self, plan: &SynthPlan, state: &SynthState) -> (u64, u64) {
+        if !self.running || self.reference_stale {
+            if !self.running {
+                self.restart(state.sample_index());
+            }
+            self.reference_stale = false;
+            self.reference_index = state.sample_index();
+            self.reference_phase = plan.output_phase_at(state.phase(), self.drive.word);
+            self.reference_word = self.drive.word;
+            self.pending_len = 0;
+            self.running = true;
+        }
+        (self.reference_phase, self.reference_word)
+    }
+
+    /// Puts the modes back under `plan`'s own drive before a change of plan, which moves
+    /// them from that drive to the next plan's ([`SynthState::retarget`]); the loops' drive
+    /// is taken up again by [`retarget`](Self::retarget). Allocation-free.
+    pub fn release_drive(&mut self, plan: &SynthPlan, state: &mut SynthState) {
+        if self.drive != plan.drive {
+            state.redrive(&plan.modes, &self.drive, &plan.drive);
+            self.drive = plan.drive;
+        }
     }
 
     /// The surface distance in force (m): where the loops put it, else the plan's.
@@ -120,26 +224,43 @@ impl PidRuntime {
         self.distance
     }
 
-    /// Follows a change of plan at sample `index`. A unit that starts takes the plan's
-    /// controller and starts from the output's present value (bumpless); one that keeps
-    /// running takes the new gains, limits and set-point and keeps its integrator; one that
-    /// stops holds its output. A new `/surface/distance` takes over the surface from the
-    /// loops that no longer run. Allocation-free.
-    pub fn retarget(&mut self, old: &SynthPlan, new: &SynthPlan, index: u64) {
+    /// Follows a change of plan at sample `index`, `state` already moved to `new`'s own
+    /// drive ([`release_drive`](Self::release_drive), then [`SynthState::retarget`]). A
+    /// unit that starts takes the plan's controller and starts from the output's present
+    /// value (bumpless); one that keeps running takes the new gains, limits and set-point
+    /// and keeps its integrator; one that stops holds its output. A new `/surface/distance`
+    /// (`/drive/frequency`, `/drive/free_amplitude`) takes over the surface (the drive's
+    /// frequency, its amplitude) from the loops that no longer run. Allocation-free.
+    pub fn retarget(
+        &mut self,
+        old: &SynthPlan,
+        new: &SynthPlan,
+        index: u64,
+        state: &mut SynthState,
+    ) {
         // A copy: fixed-size lanes, no allocation.
         self.coupled.clone_from(&new.coupled);
-        // A new `/surface/distance` moves the surface unless a loop that keeps running
-        // holds it (one that starts with the change starts from the new value).
-        let continuing = self.units.iter().zip(&new.pids.units).any(|(u, plan)| {
-            u.enabled
-                && u.output == PidTarget::SurfaceDistance
-                && plan
-                    .as_ref()
-                    .is_some_and(|p| p.output == PidTarget::SurfaceDistance)
-        });
-        if new.pids.surface_distance != old.pids.surface_distance && !continuing {
+        self.drive = new.drive;
+        // A loop that keeps running on an output holds it through the change (one that
+        // starts with it starts from the new value).
+        let continuing = |target: PidTarget| {
+            self.units.iter().zip(&new.pids.units).any(|(u, plan)| {
+                u.enabled && u.output == target && plan.as_ref().is_some_and(|p| p.output == target)
+            })
+        };
+        if new.pids.surface_distance != old.pids.surface_distance
+            && !continuing(PidTarget::SurfaceDistance)
+        {
             self.distance = new.pids.surface_distance;
             self.held = false;
+        }
+        if new.drive.word != old.drive.word && !continuing(PidTarget::DriveFrequency) {
+            self.word_held = None;
+        }
+        if new.pids.free_amplitude != old.pids.free_amplitude
+            && !continuing(PidTarget::DriveAmplitude)
+        {
+            self.base_held = None;
         }
         for (unit, plan) in self.units.iter_mut().zip(&new.pids.units) {
             match plan {
@@ -151,6 +272,14 @@ impl PidRuntime {
                         unit.enabled = true;
                         let present = match plan.output {
                             PidTarget::SurfaceDistance => self.distance,
+                            PidTarget::DriveFrequency => {
+                                let word = self.word_held.unwrap_or(new.drive.word);
+                                word as f64 / TWO_POW_64 * new.sample_rate
+                            }
+                            PidTarget::DriveAmplitude => {
+                                let base = self.base_held.unwrap_or(new.drive.base_amplitude);
+                                base / new.pids.base_per_free
+                            }
                         };
                         unit.pid.enable(present);
                         unit.partial = true;
@@ -168,29 +297,78 @@ impl PidRuntime {
                 }
             }
         }
-        if self
-            .units
-            .iter()
-            .any(|u| u.enabled && u.output == PidTarget::SurfaceDistance)
-        {
-            self.held = true;
+        for unit in self.units.iter().filter(|u| u.enabled) {
+            match unit.output {
+                PidTarget::SurfaceDistance => self.held = true,
+                PidTarget::DriveFrequency => {
+                    self.word_held.get_or_insert(new.drive.word);
+                }
+                PidTarget::DriveAmplitude => {
+                    self.base_held.get_or_insert(new.drive.base_amplitude);
+                }
+            }
         }
-        // Another engine, or a scan (which sets the surface itself), takes the surface
-        // back to `/surface/distance`.
-        if !self.held || new.coupled.is_none() || new.scan.is_some() {
-            self.held = false;
+        // Another engine, or a scan (which sets the surface itself and reads the drive
+        // as configured), takes the outputs back to the plan's.
+        if new.coupled.is_none() || new.scan.is_some() {
+            (self.held, self.word_held, self.base_held) = (false, None, None);
+        }
+        if !self.held {
             self.distance = new.pids.surface_distance;
         }
         if let Some(coupled) = &mut self.coupled {
             coupled.distance = self.distance;
         }
+        self.update_phase = new.pids.update_phase;
+        // The loops' drive, from the next sample on; the block's header carries its
+        // reference, so no change is recorded for it.
+        self.take_drive(new, state, index, &mut |_| {});
+        self.pending_len = 0;
         // A change of the drive frequency or a start restarts the boxcars; any other
         // change leaves the period in progress running (its samples are the chain's).
-        let period = TWO_POW_64 / new.frequency_word.max(1) as f64;
         if !self.running || new.frequency_word != old.frequency_word {
             self.restart(index);
         }
-        self.period = period;
+        self.reference_stale = true;
+        self.period = TWO_POW_64 / self.drive.word.max(1) as f64;
+    }
+
+    /// Moves the modes, the contact's kernel and the update phase to the drive the loops
+    /// hold (the plan's where they hold none), from `state`'s next sample (index `index`)
+    /// on; a new frequency records the lock-in's [`ReferenceChange`] in the pending ring and
+    /// hands it to `reference`. Allocation-free.
+    fn take_drive(
+        &mut self,
+        plan: &SynthPlan,
+        state: &mut SynthState,
+        index: u64,
+        reference: &mut impl FnMut(ReferenceChange),
+    ) {
+        let word = self.word_held.unwrap_or(plan.drive.word);
+        let base = self.base_held.unwrap_or(plan.drive.base_amplitude);
+        if word == self.drive.word && base == self.drive.base_amplitude {
+            return;
+        }
+        let to = if word == plan.drive.word && base == plan.drive.base_amplitude {
+            plan.drive
+        } else {
+            Drive::new(&plan.cantilever, plan.sample_rate, word, base)
+        };
+        state.redrive(&plan.modes, &self.drive, &to);
+        if let Some(coupled) = &mut self.coupled {
+            coupled.set_drive(&plan.cantilever.modes, plan.h, &to);
+            self.update_phase = super::pid_plan::highest_phase(coupled.free_tip);
+        }
+        if to.word != self.drive.word {
+            let change = plan.reference_change(state.phase(), index, to.word);
+            if self.pending_len < PENDING_REFERENCES {
+                self.pending[(self.pending_head + self.pending_len) % PENDING_REFERENCES] = change;
+                self.pending_len += 1;
+            }
+            reference(change);
+            self.period = TWO_POW_64 / to.word.max(1) as f64;
+        }
+        self.drive = to;
     }
 
     /// The boxcars start afresh at `index`; the first, partial period is not fed to the
@@ -208,12 +386,58 @@ impl PidRuntime {
     pub fn pause(&mut self) {
         self.running = false;
     }
+
+    /// Mixes `segment` (output samples from index `index` on, the reference's next) into
+    /// the enabled units' boxcars, against the reference and its pending changes.
+    fn demodulate(&mut self, segment: &[f64], index: u64) {
+        debug_assert_eq!(index, self.reference_index);
+        let mut done = 0;
+        while done < segment.len() {
+            let at = index + done as u64;
+            while self.pending_len > 0 && self.pending[self.pending_head].index <= at {
+                let change = self.pending[self.pending_head];
+                self.reference_phase = change.phase;
+                self.reference_word = change.word;
+                self.pending_head = (self.pending_head + 1) % PENDING_REFERENCES;
+                self.pending_len -= 1;
+            }
+            let until = if self.pending_len > 0 {
+                ((self.pending[self.pending_head].index - index) as usize).min(segment.len())
+            } else {
+                segment.len()
+            };
+            let piece = &segment[done..until];
+            let word = self.reference_word;
+            for unit in self.units.iter_mut().filter(|u| u.enabled) {
+                let k = u64::from(unit.harmonic);
+                let mut rho = Complex64::from_polar(
+                    1.0,
+                    -phase_to_radians(harmonic_phase(self.reference_phase, unit.harmonic)),
+                );
+                let step =
+                    Complex64::from_polar(1.0, -(word.wrapping_mul(k) as f64) / TWO_POW_64 * TAU);
+                let mut acc = unit.acc;
+                for &s in piece {
+                    acc += rho * s;
+                    rho *= step;
+                }
+                unit.acc = acc;
+            }
+            self.reference_phase = self
+                .reference_phase
+                .wrapping_add(word.wrapping_mul(piece.len() as u64));
+            done = until;
+        }
+        self.reference_index = index + segment.len() as u64;
+        self.acc_count += segment.len() as u32;
+    }
 }
 
 impl SynthPlan {
     /// Fills `out` with the next finished samples (the ADC's FIRs, detector noise and
     /// quantisation done here, as [`process`](Self::process) does) under the PID units (see
-    /// the module docs), handing each unit's update to `reading`. Allocation-free,
+    /// the module docs), handing each unit's update to `reading` and each change of the
+    /// lock-in's reference to `reference`. Call [`PidRuntime::begin`] first. Allocation-free,
     /// lock-free.
     pub fn process_pids(
         &self,
@@ -221,57 +445,38 @@ impl SynthPlan {
         rt: &mut PidRuntime,
         out: &mut [f64],
         reading: &mut impl FnMut(PidReading),
+        reference: &mut impl FnMut(ReferenceChange),
     ) {
-        if !rt.running {
-            rt.restart(state.sample_index());
-            rt.running = true;
-        }
-        let word = self.frequency_word;
+        rt.begin(self, state);
         let mut done = 0;
         while done < out.len() {
             let index = state.sample_index();
             if index >= rt.next_update {
-                self.update_pids(state.phase(), index, rt, reading);
+                self.update_pids(state, index, rt, reading, reference);
             }
             let n = ((rt.next_update - index) as usize).min(out.len() - done);
             let segment = &mut out[done..done + n];
-            // The drive phase at which the segment's first sample was taken (behind the
-            // synthesis by the ADC filter's delay), as the lock-in takes it.
-            let taken = self.output_phase(state.phase());
             self.process_with(
+                &rt.drive,
                 self.pulse.as_ref(),
                 rt.coupled.as_ref(),
                 state,
                 Output::Samples(segment),
             );
-            for unit in rt.units.iter_mut().filter(|u| u.enabled) {
-                let k = u64::from(unit.harmonic);
-                let mut rho = Complex64::from_polar(
-                    1.0,
-                    -phase_to_radians(harmonic_phase(taken, unit.harmonic)),
-                );
-                let step =
-                    Complex64::from_polar(1.0, -(word.wrapping_mul(k) as f64) / TWO_POW_64 * TAU);
-                let mut acc = unit.acc;
-                for &s in segment.iter() {
-                    acc += rho * s;
-                    rho *= step;
-                }
-                unit.acc = acc;
-            }
-            rt.acc_count += n as u32;
+            rt.demodulate(segment, index);
             done += n;
         }
     }
 
     /// Once per drive period: each enabled unit reads its demodulator and updates; the
-    /// output moves the surface from sample `index` on.
+    /// outputs take effect from sample `index` (`state`'s next) on.
     fn update_pids(
         &self,
-        phase: u64,
+        state: &mut SynthState,
         index: u64,
         rt: &mut PidRuntime,
         reading: &mut impl FnMut(PidReading),
+        reference: &mut impl FnMut(ReferenceChange),
     ) {
         // A whole period has ⌊2^64/word⌋ or ⌈2^64/word⌉ samples; fewer after a restart.
         let whole = rt.acc_count > 0 && f64::from(rt.acc_count) >= rt.period - 1.0;
@@ -288,9 +493,29 @@ impl SynthPlan {
                     PidInput::X => z.re,
                     PidInput::Y => z.im,
                 };
-                let output = unit.pid.update(measurement);
+                // A phase is read on the circle: the controller sees it within half a
+                // turn of its set-point, so the error never jumps by 2π where the phase
+                // wraps (a PLL's set-point near ±π is common).
+                let fed = match unit.input {
+                    PidInput::Phase => {
+                        let setpoint = unit.pid.settings().setpoint;
+                        setpoint - (setpoint - measurement + PI).rem_euclid(TAU) + PI
+                    }
+                    _ => measurement,
+                };
+                let output = unit.pid.update(fed);
                 match unit.output {
                     PidTarget::SurfaceDistance => rt.distance = output,
+                    PidTarget::DriveFrequency => {
+                        // The limits keep it a valid frequency; should one not be, the
+                        // drive keeps its word.
+                        if let Ok(word) = frequency_word(output, self.sample_rate) {
+                            rt.word_held = Some(word);
+                        }
+                    }
+                    PidTarget::DriveAmplitude => {
+                        rt.base_held = Some(output * self.pids.base_per_free);
+                    }
                 }
                 reading(PidReading {
                     unit: unit_index,
@@ -307,9 +532,10 @@ impl SynthPlan {
             unit.partial = false;
         }
         rt.acc_count = 0;
-        rt.next_update = index + samples_until(phase, self.pids.update_phase, self.frequency_word);
         if let Some(coupled) = &mut rt.coupled {
             coupled.distance = rt.distance;
         }
+        rt.take_drive(self, state, index, reference);
+        rt.next_update = index + samples_until(state.phase(), rt.update_phase, rt.drive.word);
     }
 }

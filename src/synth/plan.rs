@@ -8,8 +8,10 @@ use rustfft::num_complex::Complex64;
 
 use super::adc::{self, Adc};
 use super::coupled::{CoupledKernel, Refinement};
+use super::drive::Drive;
 use super::modal::ModalKernel;
 use super::pid_plan::PidPlan;
+use super::pids::ReferenceChange;
 use super::pulse::{PulseKernel, PulseTrain};
 use super::scan_plan::{ScanBase, ScanPlan, TapTables};
 use super::window::{ModeWindow, Moments};
@@ -84,10 +86,8 @@ pub struct SynthPlan {
     /// The cantilever.
     pub cantilever: Cantilever,
     pub(crate) modes: Vec<ModalKernel>,
-    /// Steady drive response of each mode: Y_n = Re[Ŷ_n e^{iθ}] (m).
-    pub(crate) drive_response: Vec<Complex64>,
-    /// Steady drive response of the photodiode: Re[Ŝ e^{iθ}] (m).
-    pub(crate) drive_signal: Complex64,
+    /// The drive `/drive/*` configure: its steady responses, and the loop's constants.
+    pub drive: Drive,
     pub(crate) pulse: Option<PulseKernel>,
     /// The engine (`/synth/engine`).
     pub engine: Engine,
@@ -104,10 +104,6 @@ pub struct SynthPlan {
     pub adc: Option<Adc>,
     /// The ADC's anti-alias filter ([`adc`]): its grid taps, or none to sample directly.
     pub(crate) anti_alias: Option<[f64; adc::GRID_TAPS]>,
-    /// The drive's photodiode response through the ADC's window ([`super::window`]) at a
-    /// grid sample, Ŝ·W(Ω): Re[drive_grid·e^{iθ_n}]; and half a sample on, Ŝ·W(Ω)·e^{iΩh/2}.
-    pub(crate) drive_grid: Complex64,
-    pub(crate) drive_mid: Complex64,
     /// The window's weights of the tap force's moments (α, β summed over the modes).
     pub(crate) force_window: (f64, f64),
     /// Per-mode constants laid out for the hot loop.
@@ -254,9 +250,14 @@ impl SynthPlan {
             .map(|m| ModalKernel::new(m, h))
             .collect();
 
-        let (drive_response, gain) =
-            free_drive_response(&cantilever, omega, settings.drive.free_amplitude);
-        let drive_signal = photodiode_of(&cantilever, &drive_response);
+        let drive = Drive::with_free_amplitude(
+            &cantilever,
+            sample_rate,
+            word,
+            settings.drive.free_amplitude,
+        );
+        let drive_response = &drive.response[..cantilever.modes.len()];
+        let drive_signal = drive.signal;
 
         let tap = match engine {
             Engine::Paper => {
@@ -307,9 +308,8 @@ impl SynthPlan {
                 &cantilever.modes,
                 h,
                 omega,
-                &drive_response,
-                // The modes' drive is the base acceleration G·sin θ = −ü, so U = G/Ω².
-                gain / (omega * omega),
+                drive_response,
+                drive.base_amplitude,
                 settings.surface.distance,
                 &contact,
                 model::adhesion(settings),
@@ -323,7 +323,7 @@ impl SynthPlan {
                 Some(kernel) => {
                     let (amplitude, force_phase) = kernel.orbit_reading(
                         &cantilever.modes,
-                        &drive_response,
+                        drive_response,
                         h,
                         &lanes.lever,
                         drive_signal,
@@ -341,7 +341,8 @@ impl SynthPlan {
             };
             ScanPlan::new(settings, &cantilever, base, tables)
         });
-        let pids = PidPlan::new(settings, coupled.as_ref().map(|c| c.free_tip))?;
+        let mut pids = PidPlan::new(settings, coupled.as_ref().map(|c| c.free_tip))?;
+        pids.base_per_free = drive.base_amplitude / settings.drive.free_amplitude;
         Ok(Self {
             scan,
             pids,
@@ -353,8 +354,7 @@ impl SynthPlan {
             drive_frequency,
             cantilever,
             modes,
-            drive_response,
-            drive_signal,
+            drive,
             pulse,
             engine,
             coupled,
@@ -363,10 +363,6 @@ impl SynthPlan {
             detector_sigma,
             adc,
             anti_alias: settings.synth.anti_alias.then(adc::grid_taps),
-            drive_grid: drive_signal * super::window::gain(drive_frequency / sample_rate),
-            drive_mid: drive_signal
-                * super::window::gain(drive_frequency / sample_rate)
-                * Complex64::from_polar(1.0, 0.5 * word as f64 / TWO_POW_64 * 2.0 * PI),
             force_window,
             source: settings.source.kind,
             epoch: 0,
@@ -376,10 +372,32 @@ impl SynthPlan {
     /// Drive phase word at which the sample synthesised at drive phase `phase` was taken:
     /// `phase` itself, or the ADC filter's delay before it ([`adc::delayed_phase`]).
     pub fn output_phase(&self, phase: u64) -> u64 {
+        self.output_phase_at(phase, self.frequency_word)
+    }
+
+    /// [`output_phase`](Self::output_phase) for a drive of `word` words per sample.
+    pub fn output_phase_at(&self, phase: u64, word: u64) -> u64 {
         if self.anti_alias.is_some() {
-            adc::delayed_phase(phase, self.frequency_word)
+            adc::delayed_phase(phase, word)
         } else {
             phase
+        }
+    }
+
+    /// The lock-in's reference after the drive changes to `word` words per sample at
+    /// sample `index`, drive phase `phase`: the samples taken under the new frequency
+    /// begin ⌈D⌉ samples on (D the ADC filter's delay; 0 without it), at the phase the
+    /// drive had D samples before.
+    pub(crate) fn reference_change(&self, phase: u64, index: u64, word: u64) -> ReferenceChange {
+        let lag = if self.anti_alias.is_some() {
+            adc::DELAY_HALF_SAMPLES.div_ceil(2)
+        } else {
+            0
+        };
+        ReferenceChange {
+            index: index + lag,
+            phase: self.output_phase_at(phase.wrapping_add(word.wrapping_mul(lag)), word),
+            word,
         }
     }
 
@@ -394,7 +412,12 @@ impl SynthPlan {
     /// The photodiode's free (no contact) steady drive response: Re[Ŝ·e^{iθ}] at drive
     /// phase θ (m).
     pub fn free_signal(&self) -> Complex64 {
-        self.drive_signal
+        self.drive.signal
+    }
+
+    /// Each mode's steady drive response, Y_n = Re[Ŷ_n e^{iθ}] (m).
+    pub(crate) fn drive_response(&self) -> &[Complex64] {
+        &self.drive.response[..self.modes.len()]
     }
 
     /// Number of modes synthesised.
@@ -410,7 +433,7 @@ impl SynthPlan {
     pub(crate) fn tap_steady_state(&self, theta: f64) -> (Vec<Complex64>, Refinement) {
         if let Some(coupled) = &self.coupled {
             let (q, refinement) =
-                coupled.steady_state(&self.cantilever.modes, &self.drive_response, self.h, theta);
+                coupled.steady_state(&self.cantilever.modes, self.drive_response(), self.h, theta);
             return (q[..self.modes.len()].to_vec(), refinement);
         }
         let Some(tap) = self.tap else {
@@ -458,41 +481,6 @@ impl SynthPlan {
     }
 }
 
-/// Each mode's free steady response to the base excitation at `omega` (rad/s): a uniform
-/// inertial load G·Pn·sin θ on mode n (Pn = ∫φn dξ), with G such that the free tip
-/// deflection amplitude is `free_amplitude` (m). Peak phasors (m) of Re[Y·e^{iθ}], and G
-/// (m/s²).
-fn free_drive_response(
-    cantilever: &Cantilever,
-    omega: f64,
-    free_amplitude: f64,
-) -> (Vec<Complex64>, f64) {
-    let unit: Vec<Complex64> = cantilever
-        .modes
-        .iter()
-        .map(|m| Complex64::new(0.0, -m.participation) * m.transfer(omega) / (m.omega * m.omega))
-        .collect();
-    let tip: Complex64 = cantilever
-        .modes
-        .iter()
-        .zip(&unit)
-        .map(|(m, u)| u * m.tip_value)
-        .sum();
-    let gain = free_amplitude / tip.norm();
-    (unit.iter().map(|u| u * gain).collect(), gain)
-}
-
-/// The photodiode's phasor (nominal m) of modal phasors `modes`: the light lever reads the
-/// tip slope, 2/3·φn′(L) per mode.
-fn photodiode_of(cantilever: &Cantilever, modes: &[Complex64]) -> Complex64 {
-    cantilever
-        .modes
-        .iter()
-        .zip(modes)
-        .map(|(m, y)| y * (2.0 / 3.0 * m.tip_slope))
-        .sum()
-}
-
 /// What a demodulator at harmonic 1 reads (X + iY, m) of the free lever at `settings`' drive:
 /// [`SynthPlan::free_signal`] through the ADC's front end, without building a plan (no
 /// orbit, no tables: cheap enough for every `status`). `None` for settings no plan accepts.
@@ -500,13 +488,16 @@ pub fn free_reading(settings: &Settings) -> Option<Complex64> {
     let cantilever = model::cantilever(settings).ok()?;
     let sample_rate = settings.synth.sample_rate;
     let word = frequency_word(settings.drive.frequency, sample_rate).ok()?;
-    let drive_frequency = word as f64 / TWO_POW_64 * sample_rate;
-    let omega = 2.0 * PI * drive_frequency;
-    let (response, _) = free_drive_response(&cantilever, omega, settings.drive.free_amplitude);
+    let drive = Drive::with_free_amplitude(
+        &cantilever,
+        sample_rate,
+        word,
+        settings.drive.free_amplitude,
+    );
     let gain = if settings.synth.anti_alias {
-        adc::gain(&adc::grid_taps(), drive_frequency / sample_rate)
+        adc::gain(&adc::grid_taps(), drive.frequency / sample_rate)
     } else {
         1.0
     };
-    Some(photodiode_of(&cantilever, &response) * gain)
+    Some(drive.signal * gain)
 }

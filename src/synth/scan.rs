@@ -173,10 +173,20 @@ impl SynthPlan {
             let segment = &mut out[done..done + n];
             let phase = state.phase();
             match &rt.coupled {
-                Some(coupled) => {
-                    self.process_with(None, Some(coupled), state, Output::Samples(segment))
-                }
-                None => self.process_with(Some(&rt.pulse), None, state, Output::Samples(segment)),
+                Some(coupled) => self.process_with(
+                    &self.drive,
+                    None,
+                    Some(coupled),
+                    state,
+                    Output::Samples(segment),
+                ),
+                None => self.process_with(
+                    &self.drive,
+                    Some(&rt.pulse),
+                    None,
+                    state,
+                    Output::Samples(segment),
+                ),
             }
             // The feedback's demodulator: Σ s·e^{−iθ} over the period.
             let mut rho = Complex64::from_polar(1.0, -phase_to_radians(phase));

@@ -12,12 +12,14 @@ use rustfft::num_complex::Complex64;
 use super::adc::{AdcFilter, COMPENSATOR_HISTORY, GRID_HISTORY, WindowSample};
 use super::coupled::{CoupledKernel, CoupledTrace, Refinement};
 use super::digitiser::{DigitiserInput, detect_and_quantise};
+use super::drive::Drive;
 #[cfg(target_arch = "x86_64")]
 use super::lanes::{Avx8, Avx512x8};
 use super::lanes::{Lanes, Portable};
 use super::noise_pages::{NoisePages, PAGE, PageCounts, PageKey, PageSupply};
 use super::normals::NormalSource;
 
+use super::modal::ModalKernel;
 use super::plan::SynthPlan;
 use super::pulse::PulseKernel;
 use super::window::Moments;
@@ -242,6 +244,26 @@ impl SynthState {
         self.window.valid = false;
     }
 
+    /// Moves the modes from drive `from` to drive `to` at the next sample without a jump:
+    /// each mode's displacement and velocity stay what they are, and its free motion takes
+    /// up the difference of the two steady responses, as a physical transient. What a PLL
+    /// or an amplitude loop does to the excitation. `modes` are the plan's kernels.
+    /// Allocation-free.
+    pub(crate) fn redrive(&mut self, modes: &[ModalKernel], from: &Drive, to: &Drive) {
+        let rho = self.rho;
+        for (m, kernel) in modes.iter().enumerate() {
+            let (yh, vh) = kernel.displacement_velocity(self.q(m));
+            let (y0, v0) = from.particular(m, rho);
+            let (y1, v1) = to.particular(m, rho);
+            self.set_q(m, kernel.state_of(yh + y0 - y1, vh + v0 - v1));
+        }
+        // A carried tap's midpoint knot holds the old basis' lanes (the loops move the
+        // drive where the tip is highest, so this is rare): its window starts afresh.
+        if self.window.forced {
+            self.window.valid = false;
+        }
+    }
+
     /// Moves from `old` to `new` without a jump: the modal displacements and velocities
     /// stay continuous, so a change of drive, sample or cantilever shows as a physical
     /// transient. Modes that `new` adds start at rest; modes it drops are gone. A new seed
@@ -256,11 +278,7 @@ impl SynthState {
         }
         let theta = phase_to_radians(self.phase);
         let rho = Complex64::from_polar(1.0, theta);
-        let particular = |plan: &SynthPlan, m: usize| -> (f64, f64) {
-            let y = plan.drive_response[m] * rho;
-            let omega = 2.0 * std::f64::consts::PI * plan.drive_frequency;
-            (y.re, (y * Complex64::new(0.0, omega)).re)
-        };
+        let particular = |plan: &SynthPlan, m: usize| plan.drive.particular(m, rho);
         for m in 0..new.modes.len() {
             let (y, v) = if m < old.modes.len() {
                 let (yh, vh) = old.modes[m].displacement_velocity(self.q(m));
@@ -284,6 +302,7 @@ impl SynthPlan {
     /// [`process_scan`](Self::process_scan).
     pub fn process(&self, state: &mut SynthState, out: &mut [f64]) {
         self.process_with(
+            &self.drive,
             self.pulse.as_ref(),
             self.coupled.as_ref(),
             state,
@@ -308,6 +327,7 @@ impl SynthPlan {
             history: state.adc.history(),
         };
         self.process_with(
+            &self.drive,
             self.pulse.as_ref(),
             self.coupled.as_ref(),
             state,
@@ -320,6 +340,7 @@ impl SynthPlan {
     /// the contact of `coupled` (which takes precedence); neither: free oscillation.
     pub(crate) fn process_with(
         &self,
+        drive: &Drive,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
@@ -328,10 +349,10 @@ impl SynthPlan {
         match state.build {
             // SAFETY: `build` names an instruction set only where the CPU has it.
             #[cfg(target_arch = "x86_64")]
-            Build::Avx512 => unsafe { self.process_avx512(pulse, coupled, state, out) },
+            Build::Avx512 => unsafe { self.process_avx512(drive, pulse, coupled, state, out) },
             #[cfg(target_arch = "x86_64")]
-            Build::Avx2 => unsafe { self.process_avx2(pulse, coupled, state, out) },
-            _ => self.process_modes::<Portable<8>>(pulse, coupled, state, out),
+            Build::Avx2 => unsafe { self.process_avx2(drive, pulse, coupled, state, out) },
+            _ => self.process_modes::<Portable<8>>(drive, pulse, coupled, state, out),
         }
     }
 
@@ -342,13 +363,14 @@ impl SynthPlan {
     #[target_feature(enable = "avx512f,avx2")]
     unsafe fn process_avx512(
         &self,
+        drive: &Drive,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
         out: Output<'_>,
     ) {
         crate::cpu::align_frame();
-        self.process_modes::<Avx512x8>(pulse, coupled, state, out);
+        self.process_modes::<Avx512x8>(drive, pulse, coupled, state, out);
     }
 
     /// [`process_with`](Self::process_with) compiled for AVX2 and FMA: the same operations
@@ -360,28 +382,30 @@ impl SynthPlan {
     #[target_feature(enable = "avx2,fma")]
     unsafe fn process_avx2(
         &self,
+        drive: &Drive,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
         out: Output<'_>,
     ) {
         crate::cpu::align_frame();
-        self.process_modes::<Avx8>(pulse, coupled, state, out);
+        self.process_modes::<Avx8>(drive, pulse, coupled, state, out);
     }
 
     /// Up to eight modes: the loop on eight lanes of `V`; more: on an array of all lanes.
     #[inline(always)]
     fn process_modes<V: Lanes>(
         &self,
+        drive: &Drive,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
         out: Output<'_>,
     ) {
         if self.modes.len() <= 8 {
-            self.process_engines::<V>(pulse, coupled, state, out);
+            self.process_engines::<V>(drive, pulse, coupled, state, out);
         } else {
-            self.process_engines::<Portable<MAX_MODES>>(pulse, coupled, state, out);
+            self.process_engines::<Portable<MAX_MODES>>(drive, pulse, coupled, state, out);
         }
     }
 
@@ -391,16 +415,21 @@ impl SynthPlan {
     #[inline(always)]
     fn process_engines<V: Lanes>(
         &self,
+        drive: &Drive,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
         out: Output<'_>,
     ) {
         match (coupled, self.anti_alias.is_some()) {
-            (Some(c), true) => self.process_lanes::<V, true, true>(None, Some(c), state, out),
-            (Some(c), false) => self.process_lanes::<V, false, true>(None, Some(c), state, out),
-            (None, true) => self.process_lanes::<V, true, false>(pulse, None, state, out),
-            (None, false) => self.process_lanes::<V, false, false>(pulse, None, state, out),
+            (Some(c), true) => {
+                self.process_lanes::<V, true, true>(drive, None, Some(c), state, out)
+            }
+            (Some(c), false) => {
+                self.process_lanes::<V, false, true>(drive, None, Some(c), state, out)
+            }
+            (None, true) => self.process_lanes::<V, true, false>(drive, pulse, None, state, out),
+            (None, false) => self.process_lanes::<V, false, false>(drive, pulse, None, state, out),
         }
     }
 
@@ -420,16 +449,15 @@ impl SynthPlan {
     #[inline(always)]
     fn process_lanes<V: Lanes, const MID: bool, const COUPLED: bool>(
         &self,
+        drive: &Drive,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
         out: Output<'_>,
     ) {
         let k = &self.lanes;
-        let step = Complex64::from_polar(
-            1.0,
-            self.frequency_word as f64 / TWO_POW_64 * std::f64::consts::TAU,
-        );
+        let step =
+            Complex64::from_polar(1.0, drive.word as f64 / TWO_POW_64 * std::f64::consts::TAU);
         let (a_re, a_im) = (V::load(&k.a_re), V::load(&k.a_im));
         let (noise_re, noise_im) = (V::load(&k.noise_re), V::load(&k.noise_im));
         let lever = V::load(&k.lever);
@@ -500,8 +528,8 @@ impl SynthPlan {
                             (re0, im0),
                             z,
                             z_before,
-                            (self.drive_grid * rho).re,
-                            (self.drive_mid * rho).re,
+                            (drive.grid * rho).re,
+                            (drive.mid * rho).re,
                         );
                         z_before = z;
                         // The run of clear samples after it, in a loop of its own: its few
@@ -526,8 +554,8 @@ impl SynthPlan {
                                 (re, im),
                                 z,
                                 z_before,
-                                (self.drive_grid * rho_run).re,
-                                (self.drive_mid * rho_run).re,
+                                (drive.grid * rho_run).re,
+                                (drive.mid * rho_run).re,
                             );
                             (re, im, tip) = clear;
                             z_before = z;
@@ -536,7 +564,7 @@ impl SynthPlan {
                         }
                         // Samples i + 1 … j − 1; the common tail below adds sample i's step.
                         let more = (j - i - 1) as u64;
-                        phase = phase.wrapping_add(self.frequency_word.wrapping_mul(more));
+                        phase = phase.wrapping_add(drive.word.wrapping_mul(more));
                         next = rho_run;
                         index += more;
                         i += more as usize;
@@ -586,9 +614,7 @@ impl SynthPlan {
                                     .mul_add(V::splat(moments.s1), self.free_knot_mid(re0, im0, z));
                             }
                         }
-                    } else if let Some(overlap) =
-                        pulse.and_then(|p| p.overlap(phase, self.frequency_word))
-                    {
+                    } else if let Some(overlap) = pulse.and_then(|p| p.overlap(phase, drive.word)) {
                         // A pulse falls in this sample: its exact integrals, mode by mode.
                         let pulse = pulse.expect("an overlap has a pulse");
                         let phasors = pulse.phasors(&overlap);
@@ -623,8 +649,8 @@ impl SynthPlan {
                         re = r1;
                     }
                     if MID {
-                        let drive_grid = (self.drive_grid * rho).re;
-                        let drive_mid = (self.drive_mid * rho).re;
+                        let drive_grid = (drive.grid * rho).re;
+                        let drive_mid = (drive.mid * rho).re;
                         if !forced && !forced_before {
                             (*out, mids[i]) =
                                 self.free_windows((re0, im0), z, z_before, drive_grid, drive_mid);
@@ -653,10 +679,10 @@ impl SynthPlan {
                         forced_before = forced;
                         z_before = z;
                     } else {
-                        *out = (self.drive_signal * rho).re + lever.mul(im0).sum();
+                        *out = (drive.signal * rho).re + lever.mul(im0).sum();
                     }
                 }
-                phase = phase.wrapping_add(self.frequency_word);
+                phase = phase.wrapping_add(drive.word);
                 rho = next;
                 index += 1;
                 i += 1;
@@ -900,6 +926,7 @@ impl SynthPlan {
         }
         let mut scratch = [0.0; BEFORE];
         quiet.process_with(
+            &quiet.drive,
             quiet.pulse.as_ref(),
             quiet.coupled.as_ref(),
             &mut temp,
@@ -958,6 +985,7 @@ mod tests {
             let (mut a, mut b) = (vec![0.0; 20_000], vec![0.0; 20_000]);
             plan.process(&mut eight, &mut a);
             plan.process_engines::<Portable<MAX_MODES>>(
+                &plan.drive,
                 plan.pulse.as_ref(),
                 plan.coupled.as_ref(),
                 &mut sixteen,
