@@ -194,6 +194,13 @@ impl Control {
         std::array::from_fn(|unit| self.counters.as_ref().and_then(|c| c.pids().latest(unit)))
     }
 
+    /// The outputs a PID unit holds away from their nodes (empty without a pipeline).
+    pub fn pid_held(&self) -> Vec<crate::config::PidTarget> {
+        self.counters
+            .as_ref()
+            .map_or_else(Vec::new, |c| c.pids().held())
+    }
+
     /// The plans the real-time threads handed back, to be freed here; empty while a change
     /// holds the pipeline (they wait for the next call).
     pub fn take_retired(&self) -> Option<RetiredPlans> {

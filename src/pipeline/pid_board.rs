@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicU64, Ordering, fence};
 
 use serde::Serialize;
 
-use crate::config::PID_COUNT;
+use crate::config::{PID_COUNT, PidTarget};
 use crate::synth::PidReading;
 
 /// How often a reader retries a unit being written before it gives up on it for now (the
@@ -33,6 +33,8 @@ struct Slot {
 #[derive(Debug, Default)]
 pub struct PidBoard {
     slots: [Slot; PID_COUNT],
+    /// The outputs a loop holds away from their nodes, bit `PidTarget as usize` each.
+    held: AtomicU64,
 }
 
 /// A unit's latest update as the board holds it.
@@ -81,6 +83,24 @@ impl PidBoard {
         slot.updates.store(updates + 1, Ordering::Relaxed);
         slot.sequence
             .store(sequence.wrapping_add(2), Ordering::Release);
+    }
+
+    /// Records which outputs the loops hold ([`crate::synth::PidRuntime::held_outputs`]).
+    /// For the synthesiser thread: lock-free, allocation-free.
+    #[inline]
+    pub(crate) fn set_held(&self, mask: u64) {
+        self.held.store(mask, Ordering::Relaxed);
+    }
+
+    /// The outputs a loop holds away from their nodes: one running on it, or one that
+    /// ran and left it where it put it.
+    pub fn held(&self) -> Vec<PidTarget> {
+        let mask = self.held.load(Ordering::Relaxed);
+        PidTarget::ALL
+            .iter()
+            .copied()
+            .filter(|t| mask & (1 << *t as u64) != 0)
+            .collect()
     }
 
     /// Unit `unit`'s latest update; `None` before its first, for an index past the units,

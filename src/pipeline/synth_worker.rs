@@ -73,6 +73,7 @@ impl SynthWorker {
         let index = self.state.sample_index();
         self.pids
             .retarget(&self.plan, &self.plan, index, &mut self.state);
+        self.counters.pids.set_held(self.pids.held_outputs());
         // The epoch the starting plan reflects, not the newest published: a change applied
         // before this thread got here is then stamped with its first block like any other.
         let mut stamped = self.plan.epoch;
@@ -106,6 +107,7 @@ impl SynthWorker {
                 self.scan.retarget(&self.plan, &next, index);
                 self.pids
                     .retarget(&self.plan, &next, index, &mut self.state);
+                self.counters.pids.set_held(self.pids.held_outputs());
                 // Changes the old drive made and the stream has not reached are void.
                 self.reference_changes.clear();
                 let old = std::mem::replace(&mut self.plan, next);

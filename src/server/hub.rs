@@ -465,6 +465,7 @@ pub(crate) async fn run(
                 warnings,
                 regime: regime.map(crate::sweep::Regime::name),
                 pids: pid_reports(c, state.control.pid_updates()),
+                pid_held: state.control.pid_held().iter().map(|t| t.name()).collect(),
                 epoch: current.epoch,
                 ..state.status_fields()
             };
@@ -603,14 +604,24 @@ fn pid_reports(
         .iter()
         .zip(updates)
         .enumerate()
-        .map(|(index, (pid, latest))| super::status::PidReport {
-            index,
-            enable: pid.enable,
-            input: pid.input.name(),
-            harmonic: pid.harmonic,
-            output: pid.output.name(),
-            setpoint: pid.setpoint,
-            latest,
+        .map(|(index, (pid, latest))| {
+            let on_frequency = pid.output == crate::config::PidTarget::DriveFrequency;
+            let pll = on_frequency && pid.input == crate::config::PidInput::Phase;
+            super::status::PidReport {
+                index,
+                enable: pid.enable,
+                input: pid.input.name(),
+                harmonic: pid.harmonic,
+                output: pid.output.name(),
+                setpoint: pid.setpoint,
+                latest,
+                locked: latest
+                    .filter(|_| pll)
+                    .map(|u| !u.limited && u.error.abs() < super::status::PLL_LOCK_PHASE),
+                frequency_shift: latest
+                    .filter(|_| on_frequency)
+                    .map(|u| u.output - settings.drive.frequency),
+            }
         })
         .collect()
 }

@@ -166,7 +166,16 @@ pub struct StatusReport {
     pub clients_detail: Vec<ClientReport>,
     /// The PID units (`/pids/N`), by index: what each runs on and its latest update.
     pub pids: Vec<PidReport>,
+    /// The outputs a PID unit holds away from their nodes (`"surface_distance"`,
+    /// `"drive_frequency"`, `"drive_amplitude"`): one runs on it, or one ran and left it
+    /// where it put it, as a z piezo or an oscillator holds. A new value of the node
+    /// (`/surface/distance`, `/drive/frequency`, `/drive/free_amplitude`) takes it back.
+    pub pid_held: Vec<&'static str>,
 }
+
+/// The largest phase error (rad) at which a PLL counts as locked (and its output within
+/// its limits).
+pub const PLL_LOCK_PHASE: f64 = 0.1;
 
 /// One PID unit in `status`: its settings in force and its latest update.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
@@ -179,13 +188,20 @@ pub struct PidReport {
     pub input: &'static str,
     /// `/pids/N/harmonic`.
     pub harmonic: u32,
-    /// `/pids/N/output`: `"surface_distance"`.
+    /// `/pids/N/output`: `"surface_distance"`, `"drive_frequency"` or `"drive_amplitude"`.
     pub output: &'static str,
     /// `/pids/N/setpoint` in force (the input's unit).
     pub setpoint: f64,
     /// The latest update the synthesiser made (its epoch says under which settings);
     /// `None` before the unit's first. A disabled unit keeps its last.
     pub latest: Option<crate::pipeline::PidUpdate>,
+    /// A PLL's lock (a unit on the phase driving the drive frequency): its latest update
+    /// within [`PLL_LOCK_PHASE`] of the set-point and not limited. `None` for other units
+    /// and before the first update.
+    pub locked: Option<bool>,
+    /// A unit on the drive frequency: its latest output less `/drive/frequency` (Hz), the
+    /// frequency shift Δf. `None` for other units and before the first update.
+    pub frequency_shift: Option<f64>,
 }
 
 #[cfg(test)]

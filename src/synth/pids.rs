@@ -191,6 +191,15 @@ impl PidRuntime {
         self.held
     }
 
+    /// The outputs the loops hold away from the plan's nodes, bit `PidTarget as usize`
+    /// each.
+    pub fn held_outputs(&self) -> u64 {
+        let bit = |on: bool, target: PidTarget| u64::from(on) << target as u64;
+        bit(self.held, PidTarget::SurfaceDistance)
+            | bit(self.word_held.is_some(), PidTarget::DriveFrequency)
+            | bit(self.base_held.is_some(), PidTarget::DriveAmplitude)
+    }
+
     /// Readies the loops for the next block of `plan` from `state`'s next sample, and
     /// returns the lock-in's reference there: the drive phase word at which that sample is
     /// taken and the word per sample (what the block's header carries).
