@@ -84,6 +84,9 @@ struct Unit {
     output: PidTarget,
     /// The boxcar's sum Σ s·e^{−ikθ} over the period in progress.
     acc: Complex64,
+    /// Σ e^{−2ikθ} over the same samples: the boxcar's image of −kΩ, which a period of a
+    /// whole number of samples cancels and a fractional one does not.
+    image: Complex64,
     /// Whether the unit started, or changed its harmonic, during the period in progress:
     /// its boxcar then holds part of a period (or of another harmonic), which the next
     /// update does not feed to its controller.
@@ -144,6 +147,7 @@ impl PidRuntime {
             harmonic: 1,
             output: PidTarget::SurfaceDistance,
             acc: Complex64::new(0.0, 0.0),
+            image: Complex64::new(0.0, 0.0),
             partial: false,
         };
         Self {
@@ -385,6 +389,7 @@ impl PidRuntime {
     fn restart(&mut self, index: u64) {
         for unit in &mut self.units {
             unit.acc = Complex64::new(0.0, 0.0);
+            unit.image = Complex64::new(0.0, 0.0);
         }
         self.acc_count = 0;
         self.next_update = index;
@@ -425,12 +430,13 @@ impl PidRuntime {
                 );
                 let step =
                     Complex64::from_polar(1.0, -(word.wrapping_mul(k) as f64) / TWO_POW_64 * TAU);
-                let mut acc = unit.acc;
+                let (mut acc, mut image) = (unit.acc, unit.image);
                 for &s in piece {
                     acc += rho * s;
+                    image += rho * rho;
                     rho *= step;
                 }
-                unit.acc = acc;
+                (unit.acc, unit.image) = (acc, image);
             }
             self.reference_phase = self
                 .reference_phase
@@ -495,7 +501,13 @@ impl SynthPlan {
                 if !unit.enabled || unit.partial {
                     continue;
                 }
+                // The least-squares sinusoid at kΩ over the period's samples: the boxcar
+                // z = a + ā·c, c its image's share (zero over a whole number of samples
+                // per period, up to 1/N otherwise, which would ripple a PLL's phase as
+                // the drive frequency moves), solved for a.
                 let z = unit.acc * scale;
+                let c = unit.image / f64::from(rt.acc_count);
+                let z = (z - c * z.conj()) / (1.0 - c.norm_sqr());
                 let measurement = match unit.input {
                     PidInput::R => z.norm(),
                     PidInput::Phase => z.im.atan2(z.re),
@@ -538,6 +550,7 @@ impl SynthPlan {
         }
         for unit in &mut rt.units {
             unit.acc = Complex64::new(0.0, 0.0);
+            unit.image = Complex64::new(0.0, 0.0);
             unit.partial = false;
         }
         rt.acc_count = 0;
