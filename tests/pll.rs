@@ -5,6 +5,8 @@
 //! motion stays continuous through every change of the drive; the same seed gives the same
 //! loop trace; and the settings checks refuse bad drive limits, naming the node.
 
+mod common;
+
 use std::f64::consts::PI;
 
 use ftafm::config::{PidInput, PidTarget, Settings, default_settings};
@@ -341,4 +343,64 @@ fn drive_limits_are_refused_naming_the_node_and_the_range() {
     assert!(e.to_string().contains("/sweeper/parameter"), "{e}");
     let e = refused(&[("/synth/engine", json!("paper"))]);
     assert_eq!(e.path(), "/pids/0/output");
+}
+
+/// The daemon with a PLL from the start: `status` reports it locked with its frequency
+/// shift, and the lock-in bank's own reference follows the PLL's drive: the `demods`
+/// stream's harmonic 1 holds the PLL's phase (π) instead of turning at the 1 kHz between
+/// the PLL's frequency and `/drive/frequency`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_daemon_reports_the_lock_and_its_lock_in_follows_the_drive() {
+    use serde_json::json;
+    let mut settings = common::light();
+    let pll = pll(0.01, 500.0);
+    settings.surface = pll.surface.clone();
+    settings.drive = pll.drive.clone();
+    settings.pids = pll.pids.clone();
+    let expected = phase_pi_frequency(&settings);
+    let daemon = common::Daemon::start(settings.clone()).await;
+    let mut ws = common::connect(daemon.addr).await;
+    let sub = common::call(&mut ws, json!({"op": "subscribe", "stream": "status"})).await;
+    assert_eq!(sub["ok"], true, "{sub}");
+    // 20 ms of simulated time: 2000 updates, forty loop time constants.
+    let status = common::first_of(&mut ws, "status", |s| {
+        s["pids"][0]["latest"]["updates"]
+            .as_u64()
+            .is_some_and(|n| n >= 2000)
+    })
+    .await;
+    let unit = &status["pids"][0];
+    eprintln!("status: {unit} held {}", status["pid_held"]);
+    assert_eq!(unit["output"], "drive_frequency");
+    assert_eq!(unit["locked"], true, "{unit}");
+    let shift = unit["frequency_shift"].as_f64().unwrap();
+    assert!(
+        (shift - (expected - settings.drive.frequency)).abs() < 5.0,
+        "Δf {shift} Hz, expected {} Hz",
+        expected - settings.drive.frequency
+    );
+    assert_eq!(status["pid_held"], json!(["drive_frequency"]));
+    let after = status["t"].as_f64().unwrap();
+    let sub = common::call(&mut ws, json!({"op": "subscribe", "stream": "demods"})).await;
+    assert_eq!(sub["ok"], true, "{sub}");
+    let mut phases = Vec::new();
+    while phases.len() < 20 {
+        let frame = common::next_of(&mut ws, "demods").await;
+        if frame["t"].as_f64().unwrap() < after {
+            continue;
+        }
+        let h1 = frame["demods"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|d| d["harmonic"] == 1)
+            .unwrap()
+            .clone();
+        phases.push(h1["phase"].as_f64().unwrap());
+    }
+    // Distance from π on the circle.
+    let off: Vec<f64> = phases.iter().map(|p| p.rem_euclid(2.0 * PI) - PI).collect();
+    eprintln!("demods harmonic 1, phase − π over 100 ms: {off:.4?}");
+    assert!(off.iter().all(|d| d.abs() < 0.01), "{off:?}");
+    daemon.shutdown().await;
 }
