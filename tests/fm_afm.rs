@@ -254,3 +254,57 @@ fn silicons_force_law_comes_back_until_the_tap_disturbs_the_motion() {
     );
     assert!(worst < 0.05, "worst {worst}");
 }
+
+#[test]
+fn the_higher_modes_soften_a_hard_tap() {
+    // 0.2 nm into silicon, noise off: the five-mode lever's Δf against a one-mode lever's
+    // (the same mode 1) and the single-mode theory of the law. The one-mode lever follows
+    // the theory; the five-mode lever's tap excites its higher modes and its Δf falls short.
+    let calibration = calibration();
+    let shift = |modes: Option<Vec<f64>>| {
+        let mut settings = fm_afm(calibration);
+        settings.noise.enable = false;
+        if let Some(q) = modes {
+            settings.cantilever.q = q;
+        }
+        settings.surface.distance = AMPLITUDE + 20e-9;
+        let mut plan = SynthPlan::new(&settings).unwrap();
+        let mut state = SynthState::steady(&plan, 7);
+        let mut rt = PidRuntime::new(&plan);
+        rt.retarget(&plan, &plan, 0, &mut state);
+        let _ = run(&plan, &mut state, &mut rt, 0.02);
+        let free = run(&plan, &mut state, &mut rt, 0.004);
+        let f_free = mean(free.iter().filter(|r| r.unit == 0).map(|r| r.output));
+        // An approach in steps of 10 pm from 0.5 nm above (a jump straight in lands the
+        // tip on another branch of its motion, as on an instrument).
+        for n in 0..=70 {
+            settings.surface.distance = AMPLITUDE + 0.5e-9 - 10e-12 * f64::from(n);
+            change(&mut plan, &mut state, &mut rt, &settings);
+            let _ = run(&plan, &mut state, &mut rt, 0.002);
+        }
+        let r = run(&plan, &mut state, &mut rt, 0.004);
+        let df = mean(r.iter().filter(|r| r.unit == 0).map(|r| r.output)) - f_free;
+        let cantilever = ftafm::model::cantilever(&settings).unwrap();
+        let mode = &cantilever.modes[0];
+        let lever = FmLever::new(mode.stiffness / mode.tip_value.powi(2), f_free, AMPLITUDE);
+        let contact =
+            ftafm::model::impact_oscillator(&settings, &cantilever, settings.sample).contact;
+        let adhesion = ftafm::model::adhesion(&settings).unwrap();
+        let law = |d: f64| contact.force(-d) + adhesion.force(contact.radius, -d);
+        let theory = ftafm::physics::fm::frequency_shift(
+            &lever.unwrap(),
+            law,
+            -0.2e-9,
+            ftafm::physics::fm::DEFAULT_NODES,
+        );
+        (df, theory)
+    };
+    let (five, theory) = shift(None);
+    let (one, theory_one) = shift(Some(vec![100.0]));
+    eprintln!(
+        "0.2 nm into silicon: Δf {five:.1} Hz (five modes), {one:.1} Hz (one mode), single-mode \
+         theory {theory:.1} Hz ({theory_one:.1} Hz)"
+    );
+    assert!((one / theory_one - 1.0).abs() < 0.15, "one mode: {one} Hz");
+    assert!(five < 0.85 * theory, "five modes: {five} Hz");
+}

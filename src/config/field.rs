@@ -352,12 +352,12 @@ node_table! {
         PidDBandwidth "d_bandwidth", "Hz", Kind::Float(PID_D_BANDWIDTH), d_bandwidth,
             "Bandwidth of PID {i}'s derivative low-pass (first order), in Hz; below half the drive frequency (the PID's Nyquist frequency) while enabled.";
         PidOutputMin "output_min", "", Kind::Float(PID_OUTPUT), output_min,
-            "Lowest output of PID {i}, in its output's unit (m for surface_distance, at least 0); at most output_max.";
+            "Lowest output of PID {i}, in its output's unit (m for surface_distance and drive_amplitude, at least 0; Hz for drive_frequency, above 0); at most output_max.";
         PidOutputMax "output_max", "", Kind::Float(PID_OUTPUT), output_max,
-            "Highest output of PID {i}, in its output's unit (m for surface_distance, at most 1e-6).";
+            "Highest output of PID {i}, in its output's unit (m for surface_distance and drive_amplitude, at most 1e-6; Hz for drive_frequency, below /synth/sample_rate / 2 over the highest harmonic an enabled demodulator or PID reads).";
         PidRate "rate", "", Kind::Float(PID_RATE), rate,
             "Largest change of PID {i}'s output per second, in its output's unit per s; 0: no rate limit.";
         PidOutput "output", "", Kind::Text(PidTarget::NAMES), output,
-            "What PID {i} drives: \"surface_distance\" (the z piezo: the distance from the tip's rest position to the surface, as the scan's feedback moves it; the coupled engine only). At most one enabled PID drives an output, and none the surface distance while a scan runs.";
+            "What PID {i} drives (the coupled engine only): \"surface_distance\" (the z piezo: the distance from the tip's rest position to the surface, as the scan's feedback moves it), \"drive_frequency\" (Hz: the excitation's frequency, which the lock-in's reference follows; on the phase of harmonic 1 a PLL) or \"drive_amplitude\" (m: the excitation, as the free tip amplitude it gives at /drive/frequency). At most one enabled PID drives an output, and none while a scan runs or a sweep steps the same node.";
     }
 }
