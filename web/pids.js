@@ -229,7 +229,7 @@ export class PidsPanel {
         si(u.setpoint, unit),
         l ? si(l.measurement, unit) : "–",
         l ? si(l.error, unit) : "–",
-        // A frequency to the hundredth of a hertz (99.99963 kHz), a distance to 4 digits.
+        // A frequency to eight digits (99.999678 kHz: a millihertz), a distance to four.
         l ? si(l.output, out, out === "Hz" ? 8 : 4) : "–",
         l ? (l.limited ? "limited" : "no") : "–",
         lockText(u.locked),
