@@ -233,7 +233,7 @@ export class PidsPanel {
         l ? si(l.output, out, out === "Hz" ? 8 : 4) : "–",
         l ? (l.limited ? "limited" : "no") : "–",
         lockText(u.locked),
-        u.frequency_shift == null ? "–" : si(u.frequency_shift, "Hz"),
+        u.frequency_shift == null ? "–" : si(u.frequency_shift, "Hz", 6), // six digits: a kHz shift to 10 mHz
         l ? l.epoch : "–",
         l ? l.updates : "–",
       ];
