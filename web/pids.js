@@ -4,17 +4,23 @@
 // for one unit at a time (chosen in the select, or by clicking its row), built as the other
 // controls are (controls.js: SI units, ranges, the daemon's refusal shown under the field),
 // and the chosen unit's error and output against simulated time, one point per status
-// message (the latest update each carries), over the last TRACE points.
+// message (the latest update each carries), over the last TRACE points. A unit drives one
+// of OUTPUTS: the surface distance, or the drive (its frequency: a unit on the phase of
+// harmonic 1 is then a PLL, its lock and frequency shift Δf in the table; or its amplitude);
+// the outputs a loop holds away from their nodes (status's `pid_held`) are named in the foot.
 
 import { Control } from "./controls.js";
 import { Plot, StickyRange } from "./plot.js";
 import { si } from "./units.js";
 
 export const PID_COUNT = 4;
+/** What a unit can drive (/pids/N/output), and the unit of each one's values. */
+export const OUTPUTS = { surface_distance: "m", drive_frequency: "Hz", drive_amplitude: "m" };
 const ITEMS = [
   { key: "enable", label: "Enabled" },
   { key: "input", label: "Input", options: ["r", "phase", "x", "y"] },
   { key: "harmonic", label: "Harmonic k" },
+  { key: "output", label: "Output", options: Object.keys(OUTPUTS) },
   { key: "setpoint", label: "Set-point" },
   { key: "p", label: "Proportional gain P" },
   { key: "i", label: "Integral gain I" },
@@ -35,17 +41,24 @@ function esc(s) {
 /** The input's unit: rad for the phase, else m (peak). */
 const inputUnit = (input) => (input === "phase" ? "rad" : "m");
 
+/** The output's unit: Hz for the drive frequency, else m. */
+const outputUnit = (output) => OUTPUTS[output] ?? "m";
+
 /** The unit a unit's node is in where `list` gives none (it depends on the input, or on the
- * output: m for the surface distance, its only output yet): values typed and shown with SI
- * prefixes ("16.7 nm"). */
+ * output: m for the surface distance and the drive amplitude, Hz for the drive frequency):
+ * values typed and shown with SI prefixes ("16.7 nm", "99.5 kHz"). */
 function unitOf(node, nodes) {
   if (node.unit) return node.unit;
   const [, , n, key] = node.path.split("/");
   if (key === "setpoint") return inputUnit(nodes.get(`/pids/${n}/input`)?.value);
-  if (key === "output_min" || key === "output_max") return "m";
-  if (key === "rate") return "m/s";
+  const out = outputUnit(nodes.get(`/pids/${n}/output`)?.value);
+  if (key === "output_min" || key === "output_max") return out;
+  if (key === "rate") return `${out}/s`;
   return node.unit;
 }
+
+/** A PLL's lock as the table shows it ("–" for a unit that is no PLL, or before its first update). */
+const lockText = (locked) => (locked === true ? "locked" : locked === false ? "unlocked" : "–");
 
 export class PidsPanel {
   constructor(app) {
@@ -57,10 +70,13 @@ export class PidsPanel {
     this.controls = [];
     this.built = false;
     this.pids = null; // the newest status message's `pids`
+    this.held = []; // its `pid_held`: the outputs a loop holds away from their nodes
+    this.shownUnits = ""; // the chosen unit's input and output its controls' units were set for
     this.t = null; // its simulated time (s)
     this.dirty = false;
     // Per unit, its latest updates as the status messages carried them, oldest first:
-    // { t: the update's simulated time (s), error, output }, a new point per new update.
+    // { t: the update's simulated time (s), route: its input and output, error, output },
+    // a new point per new update.
     this.traces = Array.from({ length: PID_COUNT }, () => []);
     const redraw = () => { this.dirty = true; };
     this.ePlot = new Plot(document.getElementById("pids-error"), {
@@ -85,6 +101,7 @@ export class PidsPanel {
   onData(m) {
     if (!Array.isArray(m.pids)) return;
     this.pids = m.pids;
+    this.held = Array.isArray(m.pid_held) ? m.pid_held : [];
     this.t = m.t;
     const rate = m.sample_rate || this.app.hello?.sample_rate || 0;
     for (const u of m.pids) {
@@ -92,7 +109,13 @@ export class PidsPanel {
       if (!l || !trace || !(rate > 0)) continue;
       const t = l.sample / rate;
       if (trace.length && trace[trace.length - 1].t >= t) continue; // no update since
-      trace.push({ t, error: l.error, output: l.output });
+      // A unit moved to another output (or input) starts a new trace: no metres beside hertz.
+      const route = `${u.input}|${u.output}`;
+      if (trace.length && trace[trace.length - 1].route !== route) {
+        trace.length = 0;
+        if (u.index === this.unit) { this.eRange.reset(); this.oRange.reset(); }
+      }
+      trace.push({ t, route, error: l.error, output: l.output });
       if (trace.length > TRACE) trace.shift();
     }
     this.dirty = true;
@@ -101,6 +124,7 @@ export class PidsPanel {
   /** Builds (first time) or refreshes the controls from a full `list`. */
   setNodes(nodes) {
     if (!this.built) this.build();
+    this.shownUnits = this.unitsKey();
     for (const c of this.controls) {
       c.errEl.textContent = "";
       c.el.classList.remove("rejected");
@@ -127,10 +151,29 @@ export class PidsPanel {
     this.root.append(fs);
   }
 
+  /** The chosen unit's input and output as the node list has them (what its controls' units follow). */
+  unitsKey() {
+    const get = (key) => this.app.nodes.get(`/pids/${this.unit}/${key}`)?.value;
+    return `${get("input")}|${get("output")}`;
+  }
+
+  /** Re-applies the controls' units after the chosen unit's input or output changed (a set
+   * from the panel or a script): the set-point follows the input, the limits the output. */
+  reunit() {
+    const key = this.unitsKey();
+    if (!this.built || key === this.shownUnits) return;
+    this.shownUnits = key;
+    for (const c of this.controls) {
+      const n = this.app.nodes.get(c.path);
+      if (n && !n.unit && !c.editing && !c.pending) c.setNode({ ...n, unit: unitOf(n, this.app.nodes) });
+    }
+  }
+
   /** Shows unit `i`'s controls. */
   choose(i) {
     if (!this.built || i === this.unit) return;
     this.unit = i;
+    this.shownUnits = this.unitsKey();
     this.eRange.reset();
     this.oRange.reset();
     this.select.value = String(i);
@@ -172,10 +215,13 @@ export class PidsPanel {
     this.dirty = false;
     const pids = this.pids;
     if (!pids) return;
-    const head = `<tr><th>N</th><th>on</th><th>input → output</th><th>set-point</th><th>measured</th><th>error</th><th>output</th><th>limited</th><th>epoch</th><th>updates</th></tr>`;
+    this.reunit();
+    const head = `<tr><th>N</th><th>on</th><th>input → output</th><th>set-point</th><th>measured</th><th>error</th><th>output</th><th>limited</th><th title="a PLL (phase → drive_frequency): its phase error within 0.1 rad and not limited">lock</th><th title="a unit on the drive frequency: its output less /drive/frequency">Δf</th><th>epoch</th><th>updates</th></tr>`;
+    const keys = ["index", "enable", "route", "setpoint", "measurement", "error", "output", "limited", "locked", "frequency_shift", "epoch", "updates"];
     const rows = pids.map((u) => {
       const l = u.latest;
       const unit = inputUnit(u.input);
+      const out = outputUnit(u.output);
       const cells = [
         u.index,
         u.enable ? "on" : "off",
@@ -183,22 +229,29 @@ export class PidsPanel {
         si(u.setpoint, unit),
         l ? si(l.measurement, unit) : "–",
         l ? si(l.error, unit) : "–",
-        l ? si(l.output, "m") : "–",
+        // A frequency to eight digits (99.999678 kHz: a millihertz), a distance to four.
+        l ? si(l.output, out, out === "Hz" ? 8 : 4) : "–",
         l ? (l.limited ? "limited" : "no") : "–",
+        lockText(u.locked),
+        u.frequency_shift == null ? "–" : si(u.frequency_shift, "Hz", 6), // six digits: a kHz shift to 10 mHz
         l ? l.epoch : "–",
         l ? l.updates : "–",
       ];
-      const keys = ["index", "enable", "route", "setpoint", "measurement", "error", "output", "limited", "epoch", "updates"];
+      const warn = { limited: l?.limited, locked: u.locked === false };
       const cls = [u.index === this.unit ? "chosen" : "", u.enable ? "on" : "", l?.limited ? "limited" : ""].filter(Boolean).join(" ");
       return `<tr data-unit="${u.index}" class="${cls}" title="click to change /pids/${u.index}">` +
-        cells.map((c, k) => `<td data-key="${keys[k]}"${k === 7 && l?.limited ? ' class="warn"' : ""}>${c}</td>`).join("") + "</tr>";
+        cells.map((c, k) => `<td data-key="${keys[k]}"${warn[keys[k]] ? ' class="warn"' : ""}>${c}</td>`).join("") + "</tr>";
     });
     this.table.innerHTML = head + rows.join("");
     const on = pids.filter((u) => u.enable).length;
-    this.foot.textContent = `${on} of ${pids.length} running · status at t = ${this.t == null ? "–" : this.t.toFixed(2) + " s"}`;
+    const held = this.held.length
+      ? ` · <span id="pids-held" title="outputs a loop holds away from their nodes until the node is set again">held by a loop: ${this.held.map(esc).join(", ")}</span>`
+      : "";
+    this.foot.innerHTML = `${on} of ${pids.length} running${held} · status at t = ${this.t == null ? "–" : this.t.toFixed(2) + " s"}`;
     const unit = pids[this.unit];
     const y = inputUnit(unit?.input);
     this.ePlot.opts.y.unit = y;
+    this.oPlot.opts.y.unit = outputUnit(unit?.output);
     this.drawTrace(this.ePlot, this.eRange, "error", "#0b62a4", `/pids/${this.unit} error (${y})`);
     this.drawTrace(this.oPlot, this.oRange, "output", "#d55e00", `/pids/${this.unit} output`);
     this.app.stats.draws.pids++;
@@ -229,6 +282,6 @@ export class PidsPanel {
 
   /** For tests and the console: the units as the last status message gave them. */
   values() {
-    return { unit: this.unit, t: this.t, pids: this.pids, trace: this.traces[this.unit].length };
+    return { unit: this.unit, t: this.t, pids: this.pids, held: this.held, trace: this.traces[this.unit].length };
   }
 }

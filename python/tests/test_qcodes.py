@@ -144,6 +144,13 @@ def test_pid_units_as_a_channel_list_reading_their_latest_update(afm: FTAFM) -> 
     assert unit.setpoint is afm.by_path["/pids/0/setpoint"]
     assert (unit.i.label, unit.i.unit) == ("PID 0 i", "1/s")
     assert unit.input.vals is not None and "phase" in repr(unit.input.vals)
+    # The outputs the daemon offers: the surface distance and the drive (a PLL).
+    assert unit.output.vals is not None
+    for output in ("surface_distance", "drive_frequency", "drive_amplitude"):
+        unit.output.vals.validate(output)
+    with pytest.raises(ValueError):
+        unit.output.vals.validate("z")
+    assert (unit.frequency_shift.unit, unit.locked.cache.get()) == ("Hz", None)
     # Its nodes set through the client's path; the same values read back.
     afm.surface.distance(20e-9)
     unit.setpoint(17e-9)
@@ -165,6 +172,9 @@ def test_pid_units_as_a_channel_list_reading_their_latest_update(afm: FTAFM) -> 
     assert unit.updates.cache.get() == latest.updates
     assert unit.update_epoch.cache.get() == latest.epoch
     assert unit.error.unit == "m" and unit.value.unit == "m"
+    # No PLL: the lock and the frequency shift do not apply.
+    assert read.locked is None and read.frequency_shift is None
+    assert unit.locked.cache.get() is None and unit.frequency_shift() is None
     assert latest.measurement + latest.error == pytest.approx(17e-9, rel=1e-12)
     # A get reads a newer message: the count only grows while the unit runs.
     assert unit.updates() >= latest.updates

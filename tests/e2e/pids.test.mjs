@@ -4,11 +4,23 @@
 // amplitude at a set-point the physics reaches (the amplitude the daemon reads 2 nm closer
 // to the surface), its updates arrive in the table with the new epoch and its output moves;
 // a gain of the wrong sign shows the daemon's refusal under the field and changes nothing.
+// A PLL set up and enabled from the panel (unit 1 on the phase of harmonic 1, its output
+// the drive frequency chosen in the selector, its limits typed in Hz) locks the drive to
+// the free lever's resonance from 1 % off it: the table shows it locked, its frequency
+// shift Δf and its output in kHz, the foot names the drive frequency as held by a loop,
+// and an upper limit beyond the drive frequency's range is refused under its field.
 //
 //   cargo build --release && (cd tests/e2e && npm ci) && node --test tests/e2e/pids.test.mjs
+//
+// FTAFM_E2E_WEB=<dir> (e.g. ../../web) serves the page's modules and style from that
+// directory instead of the daemon's embedded copies (index.html stays the daemon's): for a
+// change of web/ tested against a daemon built before it. By default the test runs the
+// dashboard the binary carries.
 
 import { after, before, test } from "node:test";
 import assert from "node:assert/strict";
+import { existsSync, readFileSync } from "node:fs";
+import path from "node:path";
 import { launchBrowser } from "./browser.mjs";
 import { daemons, startDaemon, stopDaemon } from "./daemon.mjs";
 
@@ -36,6 +48,18 @@ before(async () => {
   ({ context, page, close: closeBrowser } = await launchBrowser());
   context.setDefaultTimeout(WAIT);
   page.on("pageerror", (e) => pageErrors.push(String(e)));
+  const web = process.env.FTAFM_E2E_WEB;
+  if (web) {
+    const origin = new URL(daemon.url).origin;
+    const types = { ".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8", ".css": "text/css; charset=utf-8", ".svg": "image/svg+xml" };
+    // The page itself (/) stays the daemon's: Chromium lets only a page it loaded from the
+    // loopback address open the loopback WebSocket (its local network access checks).
+    await page.route((url) => url.origin === origin && url.pathname !== "/" && !url.pathname.startsWith("/ws"), (route) => {
+      const file = path.join(web, new URL(route.request().url()).pathname);
+      if (!existsSync(file)) return route.continue();
+      return route.fulfill({ status: 200, contentType: types[path.extname(file)] ?? "application/octet-stream", body: readFileSync(file) });
+    });
+  }
   await page.goto(daemon.url);
   await page.waitForSelector('#conn[data-state="open"]', { timeout: WAIT });
 });
@@ -45,11 +69,29 @@ after(async () => {
   for (const d of [...daemons]) await stopDaemon({ proc: d });
 });
 
-/** Types `text` into the PID control of node `key` and presses Enter. */
-async function type(key, text) {
-  const field = page.locator(`#pid-controls input[data-path="/pids/0/${key}"]`);
+/** Types `text` into the PID control of node `key` of unit `unit` and presses Enter. */
+async function type(key, text, unit = 0) {
+  const field = page.locator(`#pid-controls input[data-path="/pids/${unit}/${key}"]`);
   await field.fill(text);
   await field.press("Enter");
+}
+
+/** Types `text` into unit `unit`'s field `key` and waits for the daemon's reply: the node
+ * list holding `value` (to a part in 1e9: the field's decimal text). */
+async function typeAndWait(key, text, value, unit) {
+  await type(key, text, unit);
+  const p = `/pids/${unit}/${key}`;
+  await until(([p, v]) => {
+    const x = window.ftafm.app.nodes.get(p)?.value;
+    return typeof x === "number" && Math.abs(x - v) <= 1e-9 * Math.abs(v);
+  }, [p, value], `the reply to ${p} = ${text}`);
+}
+
+/** Chooses `value` in unit `unit`'s select `key` and waits for the daemon's reply. */
+async function choose(key, value, unit) {
+  const p = `/pids/${unit}/${key}`;
+  await page.selectOption(`#pid-controls select[data-path="${p}"]`, value);
+  await until(([p, v]) => window.ftafm.app.nodes.get(p)?.value === v, [p, value], `the reply to ${p} = ${value}`);
 }
 
 test("a unit enabled from the panel runs, shows its updates, and a bad gain is refused", TEST, async (t) => {
@@ -116,5 +158,81 @@ test("a unit enabled from the panel runs, shows its updates, and a bad gain is r
   }, null, "the unit reported off").then((h) => h.jsonValue());
   await until((t0) => window.ftafm.pids().t > t0, off.t, "a later status");
   assert.equal(await page.evaluate(() => window.ftafm.pids().pids[0].latest.updates), off.updates);
+  assert.deepEqual(pageErrors, []);
+});
+
+test("a PLL set up and enabled from the panel locks to the resonance, and the panel shows it", TEST, async (t) => {
+  await page.locator("#p-pids").scrollIntoViewIfNeeded();
+  await until(() => window.ftafm.pids().pids?.length === 4, null, "the four units from status");
+  const f1 = (await request("get", { path: "/cantilever/f1" })).value;
+  const q = (await request("get", { path: "/cantilever/q" })).value[0];
+  const drive = 1.01 * f1;
+  // The free lever driven 1 % above its resonance (what a script beside the dashboard sets).
+  await request("set", { values: { "/surface/distance": 1e-6, "/drive/free_amplitude": 10e-9, "/drive/follow_f1": false, "/drive/frequency": drive } });
+
+  // Unit 1 from the select; its output selector offers the three outputs.
+  await page.selectOption("#pid-select", "1");
+  await until(() => window.ftafm.pids().unit === 1 && document.querySelector('#pid-controls select[data-path="/pids/1/output"]'), null, "unit 1's controls");
+  const outputs = await page.$$eval('#pid-controls select[data-path="/pids/1/output"] option', (os) => os.map((o) => o.value));
+  assert.deepEqual([...outputs].sort(), ["drive_amplitude", "drive_frequency", "surface_distance"]);
+  await choose("output", "drive_frequency", 1);
+  await choose("input", "phase", 1);
+  // The limits and the rate follow the output: hertz now, the set-point radians.
+  await until(() => ["output_min", "output_max"].every((k) => document.querySelector(`#pid-controls input[data-path="/pids/1/${k}"]`)?.value.endsWith("Hz")) &&
+    document.querySelector('#pid-controls input[data-path="/pids/1/rate"]')?.value.endsWith("Hz/s") &&
+    document.querySelector('#pid-controls input[data-path="/pids/1/setpoint"]')?.value.endsWith("rad"), null, "the fields in Hz, Hz/s and rad");
+
+  // PI gains for a 500 Hz crossover on the lever's phase response (tests/pll.rs).
+  const i = (-2 * Math.PI * 500) / ((2 * q) / f1);
+  const p = (i * q) / (Math.PI * f1);
+  await typeAndWait("setpoint", `${Math.PI}`, Math.PI, 1);
+  await typeAndWait("i", `${i}`, i, 1);
+  await typeAndWait("p", `${p}`, p, 1);
+  await typeAndWait("output_min", `${(0.98 * f1) / 1e3} kHz`, 0.98 * f1, 1);
+  await typeAndWait("output_max", `${(1.02 * f1) / 1e3} kHz`, 1.02 * f1, 1);
+  await page.locator('#pid-controls input[type="checkbox"][data-path="/pids/1/enable"]').check();
+  await until(() => window.ftafm.app.nodes.get("/pids/1/enable")?.value === true, null, "the enable's reply");
+
+  // Locked: the table says so after 2000 updates (20 ms at 100 kHz, a few times the lock's).
+  const first = await until(() => {
+    const u = window.ftafm.pids().pids?.[1];
+    return u?.enable && u.output === "drive_frequency" && u.latest ? u.latest : null;
+  }, null, "the PLL's first update").then((h) => h.jsonValue());
+  const locked = await until((n) => {
+    const u = window.ftafm.pids().pids?.[1];
+    return u?.latest && u.latest.updates >= n + 2000 && u.locked === true ? u : null;
+  }, first.updates, "the PLL locked, 2000 updates on").then((h) => h.jsonValue());
+  t.diagnostic(`locked: ${JSON.stringify(locked)}`);
+  assert.ok(Math.abs(locked.latest.output - f1) < 20, `the PLL at ${locked.latest.output} Hz, f1 = ${f1} Hz`);
+  assert.ok(Math.abs(locked.frequency_shift - (locked.latest.output - drive)) < 1e-6, `Δf ${locked.frequency_shift} Hz`);
+  await until((n) => Number(document.querySelector('#pids-table tr[data-unit="1"] td[data-key="updates"]')?.textContent) >= n &&
+    document.querySelector('#pids-table tr[data-unit="1"] td[data-key="locked"]')?.textContent === "locked", locked.latest.updates, "the table's row drawn locked");
+  const cell = (key) => page.textContent(`#pids-table tr[data-unit="1"] td[data-key="${key}"]`);
+  const shown = { route: await cell("route"), output: await cell("output"), shift: await cell("frequency_shift") };
+  t.diagnostic(JSON.stringify(shown));
+  assert.equal(shown.route, "phase H1 → drive_frequency");
+  assert.match(shown.output, /^(99\.9\d+|100\.0\d+) kHz$/);
+  assert.match(shown.shift, /^−(99\d\.\d+ |1\.00\d+ k)Hz$/);
+  assert.equal(await page.textContent('#pids-table tr[data-unit="0"] td[data-key="locked"]'), "–", "unit 0 is no PLL");
+  // The foot names the output the loop holds.
+  await until(() => document.querySelector("#pids-held")?.textContent.includes("drive_frequency"), null, "the held output named");
+  assert.match(await page.textContent("#pids-held"), /held by a loop: drive_frequency/);
+  assert.equal((await request("get", { path: "/drive/frequency" })).value, drive, "the node is left alone");
+
+  // An upper limit beyond the drive frequency's range (below sample_rate / 2 / 32): refused
+  // under its field, naming the node; the limit unchanged.
+  const rejects = await page.evaluate(() => window.ftafm.stats.rejects);
+  await type("output_max", "1 MHz", 1);
+  await until((n) => window.ftafm.stats.rejects > n, rejects, "the refusal");
+  const error = await page.textContent('#pid-controls .error[data-for="/pids/1/output_max"]');
+  t.diagnostic(error);
+  assert.match(error, /\/pids\/1\/output_max/);
+  assert.equal((await request("get", { path: "/pids/1/output_max" })).value, 1.02 * f1);
+
+  // Off from the panel, and the drive frequency's node set: the loop no longer holds it.
+  await page.locator('#pid-controls input[type="checkbox"][data-path="/pids/1/enable"]').uncheck();
+  await until(() => window.ftafm.pids().pids?.[1]?.enable === false, null, "the unit reported off");
+  await request("set", { path: "/drive/frequency", value: f1 });
+  await until(() => window.ftafm.pids().held?.length === 0 && !document.querySelector("#pids-held"), null, "no output held");
   assert.deepEqual(pageErrors, []);
 });

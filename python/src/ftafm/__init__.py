@@ -30,7 +30,7 @@ from .data import (
     SweepResult,
 )
 from .errors import ConnectionLost, InstrumentError, NoDaemon
-from .pids import PidStatus, PidUnit, PidUpdate, Pids
+from .pids import AsyncPids, AsyncPidUnit, PidStatus, PidUnit, PidUpdate, Pids
 
 __version__ = "0.1.0"
 
@@ -38,6 +38,8 @@ __all__ = [
     "Analysis",
     "AnalysisError",
     "analyse",
+    "AsyncPids",
+    "AsyncPidUnit",
     "DEFAULT_URL",
     "ConnectionLost",
     "DemodData",

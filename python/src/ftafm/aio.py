@@ -361,6 +361,22 @@ class Instrument:
         wait."""
         return pids.from_status(await self.next("status", timeout=timeout))
 
+    async def pid_held(self, *, timeout: float | None = None) -> list[str]:
+        """The outputs a PID unit holds away from their nodes in the next ``status``
+        message (``"surface_distance"``, ``"drive_frequency"``, ``"drive_amplitude"``):
+        one runs on it, or one ran and left it where it put it; a new value of the node
+        (``/surface/distance``, ``/drive/frequency``, ``/drive/free_amplitude``) takes it
+        back."""
+        return pids.held_from_status(await self.next("status", timeout=timeout))
+
+    @property
+    def pids(self) -> pids.AsyncPids:
+        """The PID units ``/pids/0`` … ``/pids/3``: ``await inst.pids[0].configure(...)``,
+        ``.enable()``, ``.disable()``, ``.status()``, ``.wait(...)``
+        (:class:`ftafm.pids.AsyncPidUnit`); their nodes as on the node tree
+        (``await inst.pids[0].p()``)."""
+        return pids.AsyncPids(self)
+
     async def nodes(self, path: str | None = None) -> list[Node]:
         """Every node (or those under ``path``) with its value, unit, type and range."""
         fields = {"path": path} if path else {}

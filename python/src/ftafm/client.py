@@ -172,6 +172,12 @@ class Instrument:
         :class:`ftafm.pids.PidUpdate` or ``None`` before the first)."""
         return self._run(self._async.pid_status(timeout=timeout))
 
+    def pid_held(self, *, timeout: float | None = None) -> list[str]:
+        """The outputs a PID unit holds away from their nodes in the next ``status``
+        message (``["drive_frequency"]`` while a PLL runs; see
+        :meth:`ftafm.aio.Instrument.pid_held`)."""
+        return self._run(self._async.pid_held(timeout=timeout))
+
     def wait_until(self, t: float, *, timeout: float | None = None) -> float:
         """Waits until the signal is processed up to simulated time ``t`` (s)."""
         return self._run(self._async.wait_until(t, timeout=timeout))

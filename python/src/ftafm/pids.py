@@ -6,26 +6,31 @@
 >>> unit.wait(lambda s: abs(s.latest.error) < 1e-11)                    # doctest: +SKIP
 >>> unit.disable()                                                      # doctest: +SKIP
 
-Each unit reads its own demodulator once per drive period and drives the surface distance
-(the z piezo) on the coupled engine. Its settings are nodes (``configure`` sets any of
+Each unit reads its own demodulator once per drive period and drives one output
+(``/pids/N/output``, :data:`OUTPUTS`): the surface distance (the z piezo, on the coupled
+engine), the drive frequency (a unit on the phase of harmonic 1 with this output is a
+PLL: the drive and the lock-in's reference follow it; :attr:`PidStatus.locked`,
+:attr:`PidStatus.frequency_shift`) or the drive amplitude (as the free amplitude it gives
+at ``/drive/frequency``). Its settings are nodes (``configure`` sets any of
 them in one ``set_many``, all or nothing); its updates reach a client through the
 ``status`` stream (every 0.5 s of wall time), each stamped with the settings epoch it ran
 under and a running count, so a caller waits on those, not on the clock
 (:meth:`PidUnit.wait`). The daemon refuses bad settings (a gain of the wrong sign, a
 derivative bandwidth above the PID's Nyquist frequency, limits outside the output's
-range) with :class:`ftafm.InstrumentError`, whose message names the node and the range.
+range, a drive output during a scan) with :class:`ftafm.InstrumentError`, whose message names the node and the range.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Literal, Mapping, Sequence
 
 from .errors import InstrumentError
 from .tree import NodeBranch, NodeLeaf
 
 if TYPE_CHECKING:
+    from . import aio
     from .client import Instrument
 
 #: PID units of the daemon: ``/pids/0`` … ``/pids/3``.
@@ -47,6 +52,30 @@ SETTINGS = (
     "output",
 )
 
+#: What a unit can drive (``/pids/N/output``).
+PidOutput = Literal["surface_distance", "drive_frequency", "drive_amplitude"]
+
+#: The outputs, and the unit each one's value is in (``output``, ``output_min``,
+#: ``output_max``; ``rate`` is in this unit per second).
+OUTPUT_UNITS: dict[str, str] = {
+    "surface_distance": "m",
+    "drive_frequency": "Hz",
+    "drive_amplitude": "m",
+}
+OUTPUTS: tuple[str, ...] = tuple(OUTPUT_UNITS)
+
+
+def output_unit(output: str) -> str:
+    """The unit of ``output``'s values (``"m"`` or ``"Hz"``); raises :class:`ValueError`
+    naming the outputs for a name that is none of them."""
+    try:
+        return OUTPUT_UNITS[output]
+    except KeyError:
+        raise ValueError(
+            f"/pids/N/output = {output!r} is no output: it is one of {', '.join(OUTPUTS)}"
+        ) from None
+
+
 #: Longest wait (s) of :meth:`PidUnit.wait` unless told: the status stream comes every
 #: 0.5 s of wall time, so this is many messages, for a daemon slower than real time.
 WAIT_TIMEOUT = 60.0
@@ -59,8 +88,9 @@ class PidUpdate:
     ``sample``: index of the sample from which the output took effect (its simulated time
     is ``sample / sample_rate`` s); ``epoch``: the settings epoch the synthesiser ran
     under; ``measurement`` and ``error`` (set-point minus measurement): the input's unit,
-    m for ``r``, ``x``, ``y`` and rad for ``phase``; ``output``: m for the surface
-    distance; ``limited``: whether ``output_min``, ``output_max`` or ``rate`` held the
+    m for ``r``, ``x``, ``y`` and rad for ``phase``; ``output``: the output's value, m for
+    the surface distance and the drive amplitude, Hz for the drive frequency
+    (:data:`OUTPUT_UNITS`); ``limited``: whether ``output_min``, ``output_max`` or ``rate`` held the
     output; ``updates``: the unit's updates since the daemon started.
     """
 
@@ -92,7 +122,13 @@ class PidStatus:
     """One unit in one ``status`` message: the settings in force (``enable``, ``input``,
     ``harmonic``, ``output``, ``setpoint`` in the input's unit) and ``latest``, its
     latest update (``None`` before its first; a disabled unit keeps its last). ``t`` is
-    the status message's simulated time (s)."""
+    the status message's simulated time (s).
+
+    ``locked``: for a PLL (a unit on the phase driving the drive frequency), whether its
+    latest update was within 0.1 rad of the set-point and not held by a limit; ``None``
+    for other units and before the first update. ``frequency_shift``: for a unit on the
+    drive frequency, its latest output less ``/drive/frequency`` (Hz, the frequency shift
+    Δf); ``None`` otherwise."""
 
     index: int
     enable: bool
@@ -102,10 +138,19 @@ class PidStatus:
     setpoint: float
     latest: PidUpdate | None
     t: float
+    locked: bool | None = None
+    frequency_shift: float | None = None
+
+    @property
+    def output_unit(self) -> str:
+        """The unit of the output's values: m, or Hz for the drive frequency."""
+        return OUTPUT_UNITS.get(self.output, "")
 
     @classmethod
     def from_json(cls, m: Mapping[str, Any], t: float) -> "PidStatus":
         latest = m.get("latest")
+        locked = m.get("locked")
+        shift = m.get("frequency_shift")
         return cls(
             index=int(m["index"]),
             enable=bool(m["enable"]),
@@ -115,6 +160,8 @@ class PidStatus:
             setpoint=float(m["setpoint"]),
             latest=None if latest is None else PidUpdate.from_json(latest),
             t=t,
+            locked=None if locked is None else bool(locked),
+            frequency_shift=None if shift is None else float(shift),
         )
 
 
@@ -123,6 +170,36 @@ def from_status(message: Mapping[str, Any]) -> list[PidStatus]:
     them)."""
     t = float(message.get("t", float("nan")))
     return [PidStatus.from_json(u, t) for u in message.get("pids", [])]
+
+
+def held_from_status(message: Mapping[str, Any]) -> list[str]:
+    """The outputs a PID unit holds away from their nodes in one ``status`` message
+    (``pid_held``: one runs on it, or one ran and left it there until the node is set
+    again), e.g. ``["drive_frequency"]``; ``[]`` from a daemon without them."""
+    return [str(o) for o in message.get("pid_held", [])]
+
+
+def _satisfies(
+    status: PidStatus, epoch: int, updates: int, until: Callable[[PidStatus], bool] | None
+) -> bool:
+    """Whether ``status`` ends a :meth:`PidUnit.wait`."""
+    latest = status.latest
+    return (
+        latest is not None
+        and latest.epoch >= epoch
+        and latest.updates >= updates
+        and (until is None or until(status))
+    )
+
+
+def _wait_timeout(
+    path: str, epoch: int, updates: int, timeout: float, last: PidStatus | None
+) -> InstrumentError:
+    return InstrumentError(
+        "timeout",
+        f"{path}: no update of epoch ≥ {epoch} with ≥ {updates} updates satisfying the "
+        f"condition within {timeout} s; last: {last}",
+    )
 
 
 def _check_keys(settings: Mapping[str, Any], index: int) -> None:
@@ -209,19 +286,9 @@ class PidUnit:
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
-                raise InstrumentError(
-                    "timeout",
-                    f"{self.path}: no update of epoch ≥ {want} with ≥ {updates} updates "
-                    f"satisfying the condition within {timeout} s; last: {last}",
-                )
+                raise _wait_timeout(self.path, want, updates, timeout, last)
             last = self.status(timeout=left)
-            latest = last.latest
-            if (
-                latest is not None
-                and latest.epoch >= want
-                and latest.updates >= updates
-                and (until is None or until(last))
-            ):
+            if _satisfies(last, want, updates, until):
                 return last
 
     def __repr__(self) -> str:
@@ -254,5 +321,119 @@ class Pids(Sequence[PidUnit]):
         """Every unit in the next ``status`` message (:meth:`ftafm.Instrument.pid_status`)."""
         return self._client.pid_status(timeout=timeout)
 
+    def held(self, *, timeout: float | None = None) -> list[str]:
+        """The outputs the units hold away from their nodes in the next ``status`` message
+        (:meth:`ftafm.Instrument.pid_held`)."""
+        return self._client.pid_held(timeout=timeout)
+
     def __repr__(self) -> str:
         return f"<ftafm PID units /pids/0 … /pids/{PID_COUNT - 1}>"
+
+
+class AsyncPidUnit:
+    """PID unit ``index`` (``/pids/N``) of an :class:`ftafm.aio.Instrument`: as
+    :class:`PidUnit`, its calls awaitable (``await unit.configure(...)``,
+    ``await unit.wait(...)``); its nodes as on the node tree (``await unit.p()``), except
+    ``enable``, the action (``await unit.nodes.enable()`` reads the node)."""
+
+    def __init__(self, client: "aio.Instrument", index: int):
+        if not 0 <= index < PID_COUNT:
+            raise IndexError(f"no PID unit /pids/{index}: /pids/0 … /pids/{PID_COUNT - 1}")
+        self._client = client
+        self.index = index
+        self.path = f"/pids/{index}"
+
+    @property
+    def nodes(self) -> NodeBranch:
+        """The unit's branch of the node tree (``await unit.nodes.enable()`` reads the
+        node)."""
+        pids = self._client.root.pids
+        assert isinstance(pids, NodeBranch), "the daemon has no /pids"
+        branch = pids[self.index]
+        assert isinstance(branch, NodeBranch)
+        return branch
+
+    def __getattr__(self, name: str) -> NodeBranch | NodeLeaf:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self.nodes, name)  # type: ignore[no-any-return]
+
+    async def configure(self, **settings: Any) -> float | None:
+        """:meth:`PidUnit.configure`: any of the unit's nodes in one ``set_many``, all or
+        nothing; the simulated time (s) it took effect (``None`` inside
+        ``set_transaction``)."""
+        _check_keys(settings, self.index)
+        return await self._client.set_many(
+            {f"{self.path}/{k}": v for k, v in settings.items()}
+        )
+
+    async def enable(self, on: bool = True) -> float | None:
+        """Starts the unit (bumpless); ``enable(False)`` is :meth:`disable`."""
+        return await self._client.set(f"{self.path}/enable", bool(on))
+
+    async def disable(self) -> float | None:
+        """Stops the unit; its output stays where the unit left it."""
+        return await self.enable(False)
+
+    async def status(self, *, timeout: float | None = None) -> PidStatus:
+        """The unit in the next ``status`` message."""
+        return (await self._client.pid_status(timeout=timeout))[self.index]
+
+    async def wait(
+        self,
+        until: Callable[[PidStatus], bool] | None = None,
+        *,
+        updates: int = 1,
+        epoch: int | None = None,
+        timeout: float = WAIT_TIMEOUT,
+    ) -> PidStatus:
+        """:meth:`PidUnit.wait`: message by message of ``status``, until the unit's latest
+        update was made under settings epoch ``epoch`` or later (default: this client's
+        last change), counts at least ``updates`` and ``until(status)`` holds."""
+        want = self._client.epoch if epoch is None else epoch
+        deadline = time.monotonic() + timeout
+        last: PidStatus | None = None
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise _wait_timeout(self.path, want, updates, timeout, last)
+            last = await self.status(timeout=left)
+            if _satisfies(last, want, updates, until):
+                return last
+
+    def __repr__(self) -> str:
+        return f"<ftafm PID unit {self.path} (asyncio)>"
+
+
+class AsyncPids(Sequence[AsyncPidUnit]):
+    """The PID units of an :class:`ftafm.aio.Instrument`: ``inst.pids[0]``,
+    ``len(inst.pids)``, iteration, and ``await`` :meth:`status` / :meth:`held`."""
+
+    def __init__(self, client: "aio.Instrument"):
+        self._client = client
+        self._units = [AsyncPidUnit(client, n) for n in range(PID_COUNT)]
+
+    def __getitem__(self, index: int) -> AsyncPidUnit:  # type: ignore[override]
+        try:
+            return self._units[index]
+        except IndexError:
+            raise IndexError(
+                f"no PID unit /pids/{index}: /pids/0 … /pids/{PID_COUNT - 1}"
+            ) from None
+
+    def __len__(self) -> int:
+        return len(self._units)
+
+    def __iter__(self) -> Iterator[AsyncPidUnit]:
+        return iter(self._units)
+
+    async def status(self, *, timeout: float | None = None) -> list[PidStatus]:
+        """Every unit in the next ``status`` message."""
+        return await self._client.pid_status(timeout=timeout)
+
+    async def held(self, *, timeout: float | None = None) -> list[str]:
+        """The outputs the units hold away from their nodes in the next ``status``."""
+        return await self._client.pid_held(timeout=timeout)
+
+    def __repr__(self) -> str:
+        return f"<ftafm PID units /pids/0 … /pids/{PID_COUNT - 1} (asyncio)>"

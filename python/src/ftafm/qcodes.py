@@ -23,7 +23,8 @@ Measured parameters: per demodulator ``x``, ``y``, ``r`` (m), ``phase`` (rad) an
 ``youngs_modulus`` (Pa), ``pulse_phase`` (rad) of the next FT-AFM force estimate
 (``/inversion/enable``), all four from one estimate; per PID unit (``afm.pids[0]``,
 :class:`PidChannel`) beside its nodes, its latest update from ``status``:
-``measurement``, ``error``, ``value`` (the output's value), ``limited``, ``updates``.
+``measurement``, ``error``, ``value`` (the output's value), ``limited``, ``updates``,
+and a PLL's ``locked`` and ``frequency_shift``.
 
 ``snapshot(update=True)`` reads every node and every demodulator in one request (a
 ``get`` of many paths), and the force in one more when the inversion runs, instead of a
@@ -100,15 +101,25 @@ _DEMOD_PARTS = {
 
 
 #: A PID unit's latest update, read from ``status``: parameter → (field of
-#: :class:`ftafm.pids.PidUpdate`, unit (``None``: the input's, m or rad), label).
+#: :class:`ftafm.pids.PidUpdate`, unit (``None``: the input's, m or rad; ``"output"``: the
+#: output's, m or Hz), label).
 _PID_PARTS: dict[str, tuple[str, str | None, str]] = {
     "measurement": ("measurement", None, "measurement"),
     "error": ("error", None, "error (set-point − measurement)"),
-    "value": ("output", "m", "output value"),
+    "value": ("output", "output", "output value"),
     "limited": ("limited", "", "held by a limit"),
     "updates": ("updates", "", "updates"),
     "update_epoch": ("epoch", "", "settings epoch of the latest update"),
     "update_sample": ("sample", "", "sample the latest output took effect from"),
+}
+
+
+#: A PID unit's PLL readings, read from ``status`` (fields of
+#: :class:`ftafm.pids.PidStatus`, ``None`` for a unit that is no PLL, or not on the drive
+#: frequency): parameter → (unit, label).
+_PID_PLL: dict[str, tuple[str, str]] = {
+    "locked": ("", "PLL locked"),
+    "frequency_shift": ("Hz", "frequency shift Δf (output − /drive/frequency)"),
 }
 
 
@@ -294,11 +305,14 @@ class PidChannel(InstrumentChannel):
     """PID unit N (``/pids/N``): its nodes (``setpoint``, ``p``, ``enable``, ``output``,
     ...) and its latest update from the ``status`` stream, read-only: ``measurement`` and
     ``error`` (the input's unit: m, or rad for the phase), ``value`` (the output's value,
-    m for the surface distance; LabOne's ``pids/N/value``: ``output`` is the node naming
-    what it drives), ``limited``, ``updates``, ``update_epoch`` and ``update_sample``.
-    Every get of one reads one status message (within 0.5 s) and fills the others'
-    caches from it (:meth:`read_status`); NaN (``None`` for ``limited``) before the
-    unit's first update."""
+    m for the surface distance and the drive amplitude, Hz for the drive frequency;
+    LabOne's ``pids/N/value``: ``output`` is the node naming what it drives), ``limited``,
+    ``updates``, ``update_epoch`` and ``update_sample``; and for a unit on the drive
+    frequency ``frequency_shift`` (Hz, the output less ``/drive/frequency``) and, for a
+    PLL (a unit on the phase), ``locked``. Every get of one reads one status message
+    (within 0.5 s) and fills the others' caches from it (:meth:`read_status`); NaN
+    (``None`` for ``limited``) before the unit's first update; ``locked`` and
+    ``frequency_shift`` are ``None`` for a unit they do not apply to."""
 
     def __init__(self, driver: "FTAFM", index: int):
         super().__init__(driver, f"pid{index}")
@@ -318,22 +332,36 @@ class PidChannel(InstrumentChannel):
             self.parameters[name].cache._set_from_raw_value(
                 None if key == "limited" else math.nan
             )
+        for name, (unit, text) in _PID_PLL.items():
+            self.add_parameter(
+                name,
+                parameter_class=Parameter,
+                label=f"PID {index} {text}",
+                unit=unit,
+                docstring=f"{text[0].upper()}{text[1:]} of PID {index} (the status stream's "
+                "pids; None for a unit it does not apply to).",
+                get_cmd=lambda name=name: getattr(self.read_status(), name),
+                set_cmd=False,
+            )
+            self.parameters[name].cache._set_from_raw_value(None)
 
     def read_status(self, timeout: float | None = None) -> PidStatus:
         """The unit in the next ``status`` message; the update's parameters' caches filled
         from it (their units follow the input: rad for the phase, else m)."""
         status = self.driver.client.pid_status(timeout=timeout)[self.index]
-        unit = "rad" if status.input == "phase" else "m"
+        units = {None: "rad" if status.input == "phase" else "m", "output": status.output_unit}
         for name, (key, fixed, _) in _PID_PARTS.items():
             param = self.parameters[name]
             assert isinstance(param, Parameter)
-            if fixed is None:
-                param.unit = unit
+            if fixed in units:
+                param.unit = units[fixed]
             latest = status.latest
             if latest is None:
                 param.cache._set_from_raw_value(None if key == "limited" else math.nan)
             else:
                 param.cache._set_from_raw_value(getattr(latest, key))
+        for name in _PID_PLL:
+            self.parameters[name].cache._set_from_raw_value(getattr(status, name))
         return status
 
     def _latest(self) -> Any:
