@@ -130,13 +130,24 @@ const NUM = String.raw`[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:e[+-]?\d+)?`;
 export function inUserUnits(message, unit) {
   if (!prefixable(unit)) return message;
   const u = unitSuffix(unit).replace(/[.*+?^${}()|[\]\\/]/g, "\\$&");
+  // A number as the daemon writes it: plain, or with a prefixed unit ("102.04 kHz").
+  const q = `(${NUM})(?: (${PREFIXES})?${u})?`;
+  const value = (n, prefix) => Number(n) * (prefix ? PREFIX_SCALE[prefix] : 1);
   return String(message)
-    .replace(new RegExp(`allowed (${NUM}) (<|≤) value (<|≤) (${NUM})(?: ${u})?`),
-      (_, lo, a, b, hi) => `allowed ${bound(Number(lo), unit)} ${a} value ${b} ${siShort(Number(hi), unit, 4)}`)
-    .replace(new RegExp(`allowed (${NUM}) … (${NUM})(?: ${u})?`),
-      (_, lo, hi) => `allowed ${bound(Number(lo), unit)} … ${siShort(Number(hi), unit, 4)}`)
-    .replace(new RegExp(`( = )(${NUM})(?= is |: |$)`, "g"), (_, eq, v) => `${eq}${siShort(Number(v), unit, 4)}`);
+    .replace(new RegExp(`allowed ${q} (<|≤) value (<|≤) ${q}`),
+      (_, lo, lp, a, b, hi, hp) =>
+        `allowed ${bound(value(lo, lp), unit)} ${a} value ${b} ${siShort(value(hi, hp), unit, 4)}`)
+    .replace(new RegExp(`allowed ${q} … ${q}`),
+      (_, lo, lp, hi, hp) => `allowed ${bound(value(lo, lp), unit)} … ${siShort(value(hi, hp), unit, 4)}`)
+    .replace(new RegExp(`( = )${q}(?= is |: |$)`, "g"),
+      (_, eq, v, vp) => `${eq}${siShort(value(v, vp), unit, 4)}`);
 }
+
+/** The SI prefixes a daemon's quantity may carry, and their scales. */
+const PREFIX_SCALE = {
+  f: 1e-15, p: 1e-12, n: 1e-9, "µ": 1e-6, u: 1e-6, m: 1e-3, k: 1e3, M: 1e6, G: 1e9, T: 1e12,
+};
+const PREFIXES = Object.keys(PREFIX_SCALE).join("|");
 
 /**
  * A refusal of a `set` in the user's units: the unit of the node it names first
