@@ -81,6 +81,7 @@ fn main() {
             t_dsp_ns: 0,
             len: z.len(),
             values: [DemodValue::default(); 32],
+            pids: Default::default(),
         };
         for (i, z) in z.iter().enumerate() {
             frame.values[i] = DemodValue {

@@ -4,6 +4,8 @@
 //! law the sample was configured with (DMT: van der Waals above the surface, Hertz less
 //! the pull-off in contact).
 
+mod common;
+
 use std::f64::consts::PI;
 
 use ftafm::config::{PidInput, PidTarget, Settings, default_settings};
@@ -307,4 +309,114 @@ fn the_higher_modes_soften_a_hard_tap() {
     );
     assert!((one / theory_one - 1.0).abs() < 0.15, "one mode: {one} Hz");
     assert!(five < 0.85 * theory, "five modes: {five} Hz");
+}
+
+/// Runs the sweep `sweeper` (set with the other values, `/sweeper/enable` last) on the
+/// daemon and returns its points: (the swept value, PID 0's mean frequency shift).
+async fn sweep_points(ws: &mut common::Ws, values: serde_json::Value) -> Vec<(f64, f64)> {
+    use serde_json::json;
+    let reply = common::call(ws, json!({"op": "set", "values": values})).await;
+    assert_eq!(reply["ok"], true, "{reply}");
+    let request = reply["epoch"].as_u64().unwrap();
+    let mut points = Vec::new();
+    loop {
+        let m = common::first_of(ws, "sweep", |m| m["request"].as_u64() == Some(request)).await;
+        if m["done"] == true {
+            assert_eq!(m["outcome"], "done", "{m}");
+            return points;
+        }
+        let unit = m["pids"]
+            .as_array()
+            .and_then(|u| u.iter().find(|u| u["index"] == 0))
+            .unwrap_or_else(|| panic!("no PID 0 in {m}"));
+        points.push((
+            m["value"].as_f64().unwrap(),
+            unit["frequency_shift"].as_f64().unwrap(),
+        ));
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_approach_through_the_sweeper_gives_the_frequency_shift_to_invert() {
+    // The daemon at 2 MS/s, every noise source on, the polymer sample with adhesion, a
+    // PLL and an amplitude loop from the start with the surface far away; the sweeper steps
+    // /surface/distance and each point carries the PLL's mean Δf. Inverted, it returns the
+    // configured law.
+    use serde_json::json;
+    let mut settings = common::light();
+    let pdms_free = fm_afm(calibration());
+    settings.adhesion = pdms_free.adhesion.clone();
+    settings.drive.free_amplitude = pdms_free.drive.free_amplitude;
+    settings.pids = pdms_free.pids.clone();
+    settings.sample.youngs_modulus = 3e9;
+    settings.sample.poisson = 0.35;
+    settings.surface.distance = AMPLITUDE + 20e-9;
+    for d in &mut settings.demods {
+        d.rate = 1000.0;
+    }
+    let daemon = common::Daemon::start(settings.clone()).await;
+    let mut ws = common::connect(daemon.addr).await;
+    let sub = common::call(&mut ws, json!({"op": "subscribe", "stream": "sweep"})).await;
+    assert_eq!(sub["ok"], true, "{sub}");
+    let sweep = |start: f64, stop: f64, points: u32| {
+        json!({
+            "/sweeper/parameter": "/surface/distance",
+            "/sweeper/start": start,
+            "/sweeper/stop": stop,
+            "/sweeper/points": points,
+            "/sweeper/direction": "up",
+            "/sweeper/settling": 0.004,
+            "/sweeper/averaging": 8,
+            "/sweeper/enable": true,
+        })
+    };
+    // The free lever's lock: far from the surface.
+    let far = sweep_points(&mut ws, sweep(AMPLITUDE + 20e-9, AMPLITUDE + 19e-9, 3)).await;
+    let free = far.iter().map(|p| p.1).sum::<f64>() / far.len() as f64;
+    // The approach: closest approach from 2 nm to 0.6 nm into the sample, 20 pm apart.
+    let approach = sweep_points(&mut ws, sweep(AMPLITUDE + 2e-9, AMPLITUDE - 0.6e-9, 131)).await;
+    daemon.shutdown().await;
+    let mut z: Vec<f64> = approach.iter().map(|p| p.0 - AMPLITUDE).collect();
+    let mut df: Vec<f64> = approach.iter().map(|p| p.1 - free).collect();
+    z.reverse();
+    df.reverse();
+    let cantilever = ftafm::model::cantilever(&settings).unwrap();
+    let mode = &cantilever.modes[0];
+    let k1 = mode.stiffness / (mode.tip_value * mode.tip_value);
+    let lever = FmLever::new(k1, settings.cantilever.f1, AMPLITUDE).unwrap();
+    let curve = invert(&z, &df, &lever).unwrap();
+    let contact = ftafm::model::impact_oscillator(&settings, &cantilever, settings.sample).contact;
+    let adhesion = ftafm::model::adhesion(&settings).unwrap();
+    let law = |d: f64| contact.force(-d) + adhesion.force(contact.radius, -d);
+    let limit = harmonic_limit(&settings);
+    let compared: Vec<(f64, f64, f64)> = curve
+        .z
+        .iter()
+        .zip(&curve.force)
+        .map(|(&d, &f)| (d, f, law(d)))
+        .filter(|p| p.2 <= limit)
+        .collect();
+    let (lo, hi) = compared.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
+        (lo.min(p.2), hi.max(p.2))
+    });
+    let worst = compared
+        .iter()
+        .map(|p| (p.1 - p.2).abs())
+        .fold(0.0, f64::max)
+        / (hi - lo);
+    for (d, f, l) in compared.iter().step_by(10) {
+        eprintln!(
+            "z {:+.2} nm  F {:+.3} nN  law {:+.3} nN",
+            d * 1e9,
+            f * 1e9,
+            l * 1e9
+        );
+    }
+    eprintln!(
+        "through the sweeper (2 MS/s, noise on): worst |F − law| {:.2} % of the law's range \
+         {:.3} nN; free lock {free:+.3} Hz from /drive/frequency",
+        worst * 100.0,
+        (hi - lo) * 1e9
+    );
+    assert!(worst < 0.05, "worst {worst}");
 }

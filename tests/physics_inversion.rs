@@ -1414,6 +1414,7 @@ fn noisy_frame(
         t_dsp_ns: 0,
         len: z.len(),
         values: [DemodValue::default(); 32],
+        pids: Default::default(),
     };
     for (i, z) in z.iter().enumerate() {
         let k = i as u32 + 1;

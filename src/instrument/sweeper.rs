@@ -275,6 +275,37 @@ fn point_values(
 
 /// The nodes a sweep of `w` changes, as they are before it: what it restores (with the
 /// surface distance when a tune retracts the tip).
+/// The enabled PID units' means over a point (`settings` its settings): per unit `index`,
+/// `output`, `measurement`, `error` and `updates`, and for a unit on the drive frequency
+/// `frequency_shift` (its mean output less `/drive/frequency`, Hz: FM-AFM's Δf).
+fn pid_means(
+    settings: &Settings,
+    from: &[crate::synth::PidSums],
+    to: &[crate::synth::PidSums],
+) -> Vec<Value> {
+    settings
+        .pids
+        .iter()
+        .zip(from.iter().zip(to))
+        .enumerate()
+        .filter(|(_, (pid, _))| pid.enable)
+        .filter_map(|(index, (pid, (from, to)))| {
+            let (measurement, error, output, updates) = to.since(from)?;
+            let mut unit = json!({
+                "index": index,
+                "output": output,
+                "measurement": measurement,
+                "error": error,
+                "updates": updates,
+            });
+            if pid.output == crate::config::PidTarget::DriveFrequency {
+                unit["frequency_shift"] = json!(output - settings.drive.frequency);
+            }
+            Some(unit)
+        })
+        .collect()
+}
+
 fn restore_values(s: &Settings, w: &SweeperSettings, retract: bool) -> Vec<(String, Value)> {
     let mut values: Vec<(String, Value)> = match w.parameter {
         SweepParameter::DriveFrequency => vec![
@@ -418,6 +449,10 @@ async fn run_sweep(
         let mut force_deadline = None;
         let mut sums = [(0u32, 0.0f64, 0.0f64, 0u32); DEMODULATOR_COUNT];
         let mut taken = 0;
+        // The PID units' running sums the point's first and last averaged frames carry:
+        // their means over the same stretch of the stream, to a block.
+        let mut pids_from = None;
+        let mut pids_to = None;
         while taken < w.averaging || !force_done {
             tokio::select! {
                 f = frames.recv() => {
@@ -426,11 +461,17 @@ async fn run_sweep(
                         continue;
                     }
                     if taken < w.averaging {
+                        if taken == 0 {
+                            pids_from = Some(f.pids);
+                        }
                         for v in f.values() {
                             let s = &mut sums[usize::from(v.index)];
                             *s = (v.harmonic, s.1 + v.x, s.2 + v.y, s.3 + 1);
                         }
                         taken += 1;
+                        if taken == w.averaging {
+                            pids_to = Some(f.pids);
+                        }
                         (t_last, t_synth_last) = (f.t, f.t_synth_ns);
                     } else if !force_done {
                         let deadline = *force_deadline.get_or_insert_with(|| Instant::now() + FORCE_WAIT);
@@ -515,6 +556,12 @@ async fn run_sweep(
         }
         if force_off.is_none() {
             fields.insert("force".into(), force.json());
+        }
+        if let (Some(from), Some(to)) = (&pids_from, &pids_to) {
+            let units = pid_means(&mine, from, to);
+            if !units.is_empty() {
+                fields.insert("pids".into(), Value::Array(units));
+            }
         }
         fields.insert("demods".into(), Value::Array(list));
         (links.publish)(t_last, t_synth_last, fields);

@@ -30,6 +30,10 @@ pub struct BlockHeader {
     /// How many changes of the lock-in's reference fall in the block (a PID unit moving the
     /// drive frequency: a PLL), in the reference ring in order, each at its sample.
     pub references: u32,
+    /// The PID units' running sums after the block ([`crate::synth::PidSums`]): the demod
+    /// frames of the block carry them, so a mean of the loops over frames is one of the
+    /// same stretch of the stream.
+    pub pids: [crate::synth::PidSums; crate::config::PID_COUNT],
 }
 
 /// Unix time in ns now.

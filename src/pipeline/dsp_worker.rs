@@ -429,6 +429,7 @@ impl Emitter<'_> {
         self.frame.t = self.frame.sample_index as f64 / self.sample_rate;
         self.frame.t_synth_ns = self.header.t_synth_ns;
         self.frame.t_dsp_ns = unix_ns();
+        self.frame.pids = self.header.pids;
         if self.demods.try_push(self.frame).is_ok() {
             Counters::add(&self.counters.demod_frames, 1);
         } else {

@@ -45,6 +45,9 @@ pub struct DemodFrame {
     pub len: usize,
     /// The outputs, in demodulator order.
     pub values: [DemodValue; MAX_DEMODULATORS],
+    /// The PID units' running sums after the block this frame was made in (a block's
+    /// granularity: 4096 samples).
+    pub pids: [crate::synth::PidSums; crate::config::PID_COUNT],
 }
 
 impl DemodFrame {
@@ -63,6 +66,7 @@ impl DemodFrame {
             t_dsp_ns: 0,
             len: 0,
             values: [DemodValue::default(); MAX_DEMODULATORS],
+            pids: Default::default(),
         }
     }
 }

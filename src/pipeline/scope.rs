@@ -135,6 +135,7 @@ mod tests {
                 epoch: 0,
                 digitise: None,
                 references: 0,
+                pids: Default::default(),
             };
             capture.feed(
                 &header,

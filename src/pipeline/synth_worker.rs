@@ -255,6 +255,7 @@ impl SynthWorker {
                 epoch,
                 digitise,
                 references: references as u32,
+                pids: self.pids.sums(),
             };
             let pushed = self.push(&block, header, realtime);
             // The block's changes went with it, or are gone with it (the DSP restarts on
@@ -318,6 +319,7 @@ impl SynthWorker {
             epoch,
             digitise: None,
             references: 0,
+            pids: self.pids.sums(),
         };
         let realtime = self.realtime.load(Ordering::Relaxed);
         if !self.push(&block[..n], header, realtime) {

@@ -26,7 +26,7 @@ pub use coupled::{CoupledKernel, CoupledTrace, DEFAULT_SUBSTEP_BUDGET, DEFAULT_S
 pub use digitiser::{Digitiser, DigitiserInput};
 pub use drive::Drive;
 pub use pid_plan::{PidPlan, PidUnitPlan};
-pub use pids::{PENDING_REFERENCES, PidReading, PidRuntime, ReferenceChange};
+pub use pids::{PENDING_REFERENCES, PidReading, PidRuntime, PidSums, ReferenceChange};
 pub use plan::{BOLTZMANN, PlanError, SynthPlan, TapForce};
 pub use pulse::PulseTrain;
 pub use raster::{PixelId, Raster};

@@ -73,6 +73,45 @@ pub struct PidReading {
     pub limited: bool,
 }
 
+/// A unit's running sums since the pipeline started: means over any stretch are the
+/// differences of two of them over the difference of `updates` ([`PidSums::since`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PidSums {
+    /// Updates so far.
+    pub updates: u64,
+    /// Σ measurement (the input's unit).
+    pub measurement: f64,
+    /// Σ error (the input's unit).
+    pub error: f64,
+    /// Σ output (the output's unit).
+    pub output: f64,
+}
+
+impl PidSums {
+    fn add(&mut self, measurement: f64, error: f64, output: f64) {
+        self.updates += 1;
+        self.measurement += measurement;
+        self.error += error;
+        self.output += output;
+    }
+
+    /// The means of the updates since `earlier` (measurement, error, output) and their
+    /// count; `None` when there were none.
+    pub fn since(&self, earlier: &PidSums) -> Option<(f64, f64, f64, u64)> {
+        let n = self
+            .updates
+            .checked_sub(earlier.updates)
+            .filter(|&n| n > 0)?;
+        let mean = |a: f64, b: f64| (a - b) / n as f64;
+        Some((
+            mean(self.measurement, earlier.measurement),
+            mean(self.error, earlier.error),
+            mean(self.output, earlier.output),
+            n,
+        ))
+    }
+}
+
 /// One unit's state on the real-time thread.
 #[derive(Clone, Debug)]
 struct Unit {
@@ -87,6 +126,8 @@ struct Unit {
     /// Σ e^{−2ikθ} over the same samples: the boxcar's image of −kΩ, which a period of a
     /// whole number of samples cancels and a fractional one does not.
     image: Complex64,
+    /// Every update's sums.
+    sums: PidSums,
     /// Whether the unit started, or changed its harmonic, during the period in progress:
     /// its boxcar then holds part of a period (or of another harmonic), which the next
     /// update does not feed to its controller.
@@ -148,6 +189,7 @@ impl PidRuntime {
             output: PidTarget::SurfaceDistance,
             acc: Complex64::new(0.0, 0.0),
             image: Complex64::new(0.0, 0.0),
+            sums: PidSums::default(),
             partial: false,
         };
         Self {
@@ -182,6 +224,11 @@ impl PidRuntime {
     /// Whether a loop holds the drive away from the plan's `/drive/*`.
     fn drive_held(&self) -> bool {
         self.word_held.is_some() || self.base_held.is_some()
+    }
+
+    /// Each unit's running sums (by index).
+    pub fn sums(&self) -> [PidSums; PID_COUNT] {
+        std::array::from_fn(|i| self.units[i].sums)
     }
 
     /// The drive in force.
@@ -538,11 +585,13 @@ impl SynthPlan {
                         rt.base_held = Some(output * self.pids.base_per_free);
                     }
                 }
+                let error = unit.pid.error();
+                unit.sums.add(measurement, error, output);
                 reading(PidReading {
                     unit: unit_index,
                     sample: index,
                     measurement,
-                    error: unit.pid.error(),
+                    error,
                     output,
                     limited: unit.pid.is_limited(),
                 });
