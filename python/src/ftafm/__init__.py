@@ -11,6 +11,8 @@
   presets, stream_samples (a real signal into the chain); the synchronous one also the node tree as attributes
   (``inst.sample.youngs_modulus(116.1e9)``, :mod:`ftafm.tree`) and ``set_transaction``.
 - :mod:`ftafm.data`: stream messages as numpy arrays.
+- :mod:`ftafm.fm`: FM-AFM offline: the Sader–Jarvis inversion of a Δf(z) curve to the force
+  (``fm.invert``, ``ftafm fm-invert``'s numbers) and the forward model (``fm.frequency_shift``).
 - :mod:`ftafm.pids`: the live PID units (``inst.pids[0].configure(...)``, ``pid_status()``).
 - :mod:`ftafm.qcodes`: the QCoDeS driver (``pip install ftafm[qcodes]``).
 - :mod:`ftafm.testing`: a daemon on port 0 for test suites, and pytest fixtures.
@@ -30,6 +32,8 @@ from .data import (
     SweepResult,
 )
 from .errors import ConnectionLost, InstrumentError, NoDaemon
+from . import fm
+from .fm import FmError, ForceCurve
 from .pids import AsyncPids, AsyncPidUnit, PidStatus, PidUnit, PidUpdate, Pids
 
 __version__ = "0.1.0"
@@ -43,6 +47,9 @@ __all__ = [
     "DEFAULT_URL",
     "ConnectionLost",
     "DemodData",
+    "fm",
+    "FmError",
+    "ForceCurve",
     "ForceData",
     "ImageData",
     "Instrument",
