@@ -410,7 +410,8 @@ fn op_names_match_parsing() {
             "presets",
             "preset",
             "subscribe",
-            "unsubscribe"
+            "unsubscribe",
+            "pid_advise"
         ]
     );
     let ops = [
@@ -424,6 +425,7 @@ fn op_names_match_parsing() {
         r#"{"op":"preset","name":"tap300"}"#,
         r#"{"op":"subscribe","stream":"demods"}"#,
         r#"{"op":"unsubscribe","stream":"demods"}"#,
+        r#"{"op":"pid_advise","unit":0,"bandwidth":500}"#,
     ];
     for (text, name) in ops.iter().zip(Op::NAMES) {
         assert_eq!(parse_ok(text).op.name(), name);
