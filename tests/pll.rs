@@ -10,6 +10,8 @@ mod common;
 use std::f64::consts::PI;
 
 use ftafm::config::{PidInput, PidTarget, Settings, default_settings};
+use ftafm::control::loop_model::ADC_DELAY_SAMPLES;
+use ftafm::control::{Demodulator, Kind, LoopModel, Plant, advise};
 use ftafm::synth::{PidReading, PidRuntime, ReferenceChange, SynthPlan, SynthState};
 
 /// The free lever (surface out of reach) at the default drive, `detuning` (1) off its
@@ -499,4 +501,336 @@ fn the_pll_frequency_noise_is_the_thermal_and_detector_limit() {
         (1.0 / 1.5..=1.5).contains(&ratio),
         "measured/predicted {ratio}"
     );
+
+/// The advisor's model of the live PLL at `settings`: the driven lever's phase
+/// (−(2Q/f1)/(1 + s·τ_c), taken positive) through the unit's demodulator (no filter, one
+/// update a period, T + 21.5/f_s of delay), as the op `pid_advise` builds it.
+fn advised_pll(settings: &Settings) -> LoopModel {
+    LoopModel {
+        plant: Plant::resonator(settings.cantilever.q[0], settings.cantilever.f1).unwrap(),
+        demodulator: Demodulator::pid_unit(
+            settings.drive.frequency,
+            settings.synth.sample_rate,
+            ADC_DELAY_SAMPLES,
+        )
+        .unwrap(),
+    }
+}
+
+/// The measured overshoot (a fraction of the step) and 2 % settling time (s) of the
+/// frequency after a step of the resonance at sample `from`, from `start` to `end` (Hz): the
+/// settling time is that of the first update after the last one outside ±2 % of the step.
+fn measured_step(
+    readings: &[PidReading],
+    from: u64,
+    rate: f64,
+    start: f64,
+    end: f64,
+) -> (f64, f64) {
+    let step = end - start;
+    let peak = readings
+        .iter()
+        .map(|r| (r.output - start) / step)
+        .fold(f64::MIN, f64::max);
+    let last_out = readings
+        .iter()
+        .rposition(|r| ((r.output - start) / step - 1.0).abs() > 0.02)
+        .expect("the step leaves the band");
+    let settled = readings[last_out + 1].sample;
+    ((peak - 1.0).max(0.0), (settled - from) as f64 / rate)
+}
+
+#[test]
+fn the_advised_pll_steps_as_the_advisor_predicts() {
+    // The advisor's gains for the default lever's PLL (negated: the phase falls as the
+    // frequency rises), then the resonance steps by 50 Hz (a fifth of its half width): the
+    // live loop's overshoot and 2 % settling time against the advice's, from its linear
+    // model. Noise off, so the loop's own response is measured.
+    let base = pll(0.0, 500.0);
+    let update = 1.0 / base.drive.frequency;
+    for (target, kind) in [
+        (500.0, Kind::Pi),
+        (2000.0, Kind::Pi),
+        (2000.0, Kind::Pid),
+        (10e3, Kind::Pi),
+    ] {
+        let mut settings = base.clone();
+        settings.noise.enable = false;
+        // Locked from the start: the drive (the PLL's centre) where the phase is π.
+        let before = phase_pi_frequency(&settings);
+        settings.drive.frequency = before;
+        let advice = advise(&advised_pll(&settings), target, kind).unwrap();
+        let pid = &mut settings.pids[0];
+        pid.p = -advice.gains.p;
+        pid.i = -advice.gains.i;
+        pid.d = -advice.gains.d;
+        pid.d_bandwidth = advice.gains.d_bandwidth;
+        let (mut plan, mut state, mut rt) = start(&settings, 9);
+        let _ = run(&plan, &mut state, &mut rt, 0.005);
+        settings.cantilever.f1 += 50.0;
+        let after = phase_pi_frequency(&settings);
+        change(&mut plan, &mut state, &mut rt, &settings);
+        let from = state.sample_index();
+        // Ten predicted settling times, and at least 5 ms.
+        let (readings, _, _) = run(
+            &plan,
+            &mut state,
+            &mut rt,
+            (10.0 * advice.step.settling_time).max(0.005),
+        );
+        let (overshoot, settling) = measured_step(&readings, from, plan.sample_rate, before, after);
+        let tail = &readings[readings.len() - 100..];
+        let (last, _) = mean_and_spread(&tail.iter().map(|r| r.output).collect::<Vec<_>>());
+        eprintln!(
+            "advised PLL {kind:?} {target} Hz: P {:.2} Hz/rad I {:.4e} Hz/(rad·s) D {:.3e}; \
+             bandwidth {:.1} Hz, margin {:.1}°; overshoot measured {:.2} % predicted {:.2} %; \
+             settling measured {:.1} µs predicted {:.1} µs; settles {:+.4} Hz from the phase-π \
+             frequency",
+            -advice.gains.p,
+            -advice.gains.i,
+            -advice.gains.d,
+            advice.bandwidth,
+            advice.phase_margin,
+            100.0 * overshoot,
+            100.0 * advice.step.overshoot,
+            1e6 * settling,
+            1e6 * advice.step.settling_time,
+            last - after
+        );
+        assert!(
+            (last - after).abs() < 0.01,
+            "settles at {last} Hz, not {after} Hz"
+        );
+        // Within 10 % of the prediction, or 1 % of the step where it predicts under 10 %.
+        assert!(
+            (overshoot - advice.step.overshoot).abs() <= 0.1 * advice.step.overshoot.max(0.1),
+            "{kind:?} {target} Hz: overshoot {overshoot}, predicted {}",
+            advice.step.overshoot
+        );
+        // Within 10 %, or two update periods (the loop's output moves once a period).
+        assert!(
+            (settling - advice.step.settling_time).abs()
+                <= (0.1 * advice.step.settling_time).max(2.0 * update),
+            "{kind:?} {target} Hz: settling {settling} s, predicted {}",
+            advice.step.settling_time
+        );
+    }
+}
+
+#[test]
+fn the_advised_amplitude_loop_steps_as_the_advisor_predicts() {
+    // An amplitude loop on the drive of the free lever (at resonance, noise off) with the
+    // advisor's gains for the plant `pid_advise` models (the photodiode amplitude per metre
+    // of drive amplitude, through the envelope's τ_c): its set-point steps by 10 %, and the
+    // amplitude it reads is followed.
+    let mut base = default_settings();
+    base.surface.distance = 1e-6;
+    base.drive.free_amplitude = 10e-9;
+    base.noise.enable = false;
+    let free = ftafm::synth::plan::free_reading(&base).unwrap().norm();
+    let update = 1.0 / base.drive.frequency;
+    for (target, kind) in [(500.0, Kind::Pi), (3000.0, Kind::Pi)] {
+        let mut settings = base.clone();
+        let model = LoopModel {
+            plant: Plant::amplitude(
+                free / settings.drive.free_amplitude,
+                settings.cantilever.q[0],
+                settings.cantilever.f1,
+            )
+            .unwrap(),
+            demodulator: Demodulator::pid_unit(
+                settings.drive.frequency,
+                settings.synth.sample_rate,
+                ADC_DELAY_SAMPLES,
+            )
+            .unwrap(),
+        };
+        let advice = advise(&model, target, kind).unwrap();
+        let pid = &mut settings.pids[1];
+        pid.enable = true;
+        pid.input = PidInput::R;
+        pid.harmonic = 1;
+        pid.setpoint = free;
+        pid.p = advice.gains.p;
+        pid.i = advice.gains.i;
+        pid.d = advice.gains.d;
+        pid.d_bandwidth = advice.gains.d_bandwidth;
+        pid.output = PidTarget::DriveAmplitude;
+        pid.output_min = 0.0;
+        pid.output_max = 50e-9;
+        let (mut plan, mut state, mut rt) = start(&settings, 3);
+        let _ = run(&plan, &mut state, &mut rt, 0.005);
+        settings.pids[1].setpoint = 1.1 * free;
+        change(&mut plan, &mut state, &mut rt, &settings);
+        let from = state.sample_index();
+        let (readings, _, _) = run(
+            &plan,
+            &mut state,
+            &mut rt,
+            (10.0 * advice.step.settling_time).max(0.005),
+        );
+        // The amplitude read, as the step's output.
+        let read: Vec<PidReading> = readings
+            .iter()
+            .map(|r| PidReading {
+                output: r.measurement,
+                ..*r
+            })
+            .collect();
+        let (overshoot, settling) = measured_step(&read, from, plan.sample_rate, free, 1.1 * free);
+        eprintln!(
+            "advised amplitude loop {kind:?} {target} Hz: P {:.4e} I {:.4e} /s; bandwidth \
+             {:.1} Hz, margin {:.1}°; overshoot measured {:.2} % predicted {:.2} %; settling \
+             measured {:.1} µs predicted {:.1} µs",
+            advice.gains.p,
+            advice.gains.i,
+            advice.bandwidth,
+            advice.phase_margin,
+            100.0 * overshoot,
+            100.0 * advice.step.overshoot,
+            1e6 * settling,
+            1e6 * advice.step.settling_time,
+        );
+        assert!(
+            (overshoot - advice.step.overshoot).abs() <= 0.1 * advice.step.overshoot.max(0.1),
+            "{kind:?} {target} Hz: overshoot {overshoot}, predicted {}",
+            advice.step.overshoot
+        );
+        assert!(
+            (settling - advice.step.settling_time).abs()
+                <= (0.1 * advice.step.settling_time).max(2.0 * update),
+            "{kind:?} {target} Hz: settling {settling} s, predicted {}",
+            advice.step.settling_time
+        );
+    }
+}
+
+/// `pid_advise` over a WebSocket: the advice for a unit set up as a PLL is the advisor's on
+/// the settings in force, signed for the unit, and `set` takes it; a bad unit, bandwidth or
+/// kind, an unreachable bandwidth and a unit the advisor does not model are refused naming
+/// the key and what is allowed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn pid_advise_replies_with_the_gains_and_refuses_naming_the_key() {
+    use serde_json::json;
+    let settings = common::light();
+    let daemon = common::Daemon::start(settings.clone()).await;
+    let mut ws = common::connect(daemon.addr).await;
+    let f1 = settings.cantilever.f1;
+    let reply = common::call(
+        &mut ws,
+        json!({"op": "set", "values": {
+            "/pids/0/input": "phase",
+            "/pids/0/output": "drive_frequency",
+            "/pids/0/setpoint": PI,
+            "/pids/0/output_min": 0.98 * f1,
+            "/pids/0/output_max": 1.02 * f1,
+        }}),
+    )
+    .await;
+    assert_eq!(reply["ok"], true, "{reply}");
+    let epoch = reply["epoch"].as_u64().unwrap();
+    let advice = common::call(
+        &mut ws,
+        json!({"op": "pid_advise", "unit": 0, "bandwidth": 500.0}),
+    )
+    .await;
+    eprintln!("{advice}");
+    assert_eq!(advice["ok"], true, "{advice}");
+    assert_eq!(advice["unit"], 0);
+    assert_eq!(advice["kind"], "pi");
+    assert_eq!(advice["epoch"].as_u64(), Some(epoch));
+    // The advisor on the same model, negated for the PLL.
+    let expected = advise(&advised_pll(&settings), 500.0, Kind::Pi).unwrap();
+    let number = |key: &str| advice[key].as_f64().unwrap();
+    assert_eq!(number("p"), -expected.gains.p);
+    assert_eq!(number("i"), -expected.gains.i);
+    assert_eq!(number("d"), 0.0);
+    assert!((number("bandwidth") / 500.0 - 1.0).abs() < 0.01);
+    assert!(number("phase_margin") >= 45.0);
+    assert_eq!(number("overshoot"), expected.step.overshoot);
+    assert_eq!(number("settling_time"), expected.step.settling_time);
+    // Near the hand formula: P = −500 Hz/rad, I = −2π·500·f1/(2Q).
+    assert!((number("p") / -500.0 - 1.0).abs() < 0.2, "{advice}");
+    // An amplitude loop on the drive: the amplitude rises with it, the gains positive.
+    let reply = common::call(
+        &mut ws,
+        json!({"op": "set", "values": {"/pids/2/output": "drive_amplitude"}}),
+    )
+    .await;
+    assert_eq!(reply["ok"], true, "{reply}");
+    let amplitude = common::call(
+        &mut ws,
+        json!({"op": "pid_advise", "unit": 2, "bandwidth": 1000.0}),
+    )
+    .await;
+    eprintln!("{amplitude}");
+    assert_eq!(amplitude["ok"], true, "{amplitude}");
+    assert!(amplitude["i"].as_f64().unwrap() > 0.0, "{amplitude}");
+    assert!(amplitude["p"].as_f64().unwrap() > 0.0, "{amplitude}");
+    let pid = common::call(
+        &mut ws,
+        json!({"op": "pid_advise", "unit": 0, "bandwidth": 2000.0, "kind": "pid"}),
+    )
+    .await;
+    assert_eq!(pid["ok"], true, "{pid}");
+    assert!(pid["d"].as_f64().unwrap() < 0.0, "{pid}");
+    // The advice is not applied; `set` takes it.
+    let set = common::call(
+        &mut ws,
+        json!({"op": "set", "values": {
+            "/pids/0/p": pid["p"],
+            "/pids/0/i": pid["i"],
+            "/pids/0/d": pid["d"],
+            "/pids/0/d_bandwidth": pid["d_bandwidth"],
+            "/pids/0/enable": true,
+        }}),
+    )
+    .await;
+    assert_eq!(set["ok"], true, "{set}");
+    for (request, code, words) in [
+        (
+            json!({"op": "pid_advise", "unit": 4, "bandwidth": 500.0}),
+            "bad_request",
+            vec!["\"unit\"", "0 … 3"],
+        ),
+        (
+            json!({"op": "pid_advise", "bandwidth": 500.0}),
+            "bad_request",
+            vec!["\"unit\"", "0 … 3"],
+        ),
+        (
+            json!({"op": "pid_advise", "unit": 0, "bandwidth": -1.0}),
+            "bad_request",
+            vec!["\"bandwidth\"", "> 0"],
+        ),
+        (
+            json!({"op": "pid_advise", "unit": 0, "bandwidth": 500.0, "kind": "pd"}),
+            "bad_request",
+            vec!["\"kind\"", "\"pi\" or \"pid\""],
+        ),
+        (
+            json!({"op": "pid_advise", "unit": 0, "bandwidth": 1e6}),
+            "invalid_value",
+            vec!["\"bandwidth\"", "allowed 0 < bandwidth ≤", "out of reach"],
+        ),
+        (
+            json!({"op": "pid_advise", "unit": 1, "bandwidth": 500.0}),
+            "invalid_value",
+            vec![
+                "/pids/1",
+                "surface_distance",
+                "drive_frequency",
+                "drive_amplitude",
+            ],
+        ),
+    ] {
+        let e = common::call(&mut ws, request.clone()).await;
+        eprintln!("{request} → {e}");
+        assert_eq!(common::code(&e), code, "{e}");
+        let message = e["error"]["message"].as_str().unwrap_or_default();
+        for w in words {
+            assert!(message.contains(w), "{w}: {message}");
+        }
+    }
+    daemon.shutdown().await;
 }

@@ -61,6 +61,7 @@ fn frame(values: &[DemodValue], t: f64, t_synth_ns: u64) -> DemodFrame {
         t_dsp_ns: t_synth_ns + 1000,
         len: values.len(),
         values: all,
+        pids: Default::default(),
     }
 }
 
@@ -410,7 +411,8 @@ fn op_names_match_parsing() {
             "presets",
             "preset",
             "subscribe",
-            "unsubscribe"
+            "unsubscribe",
+            "pid_advise"
         ]
     );
     let ops = [
@@ -424,6 +426,7 @@ fn op_names_match_parsing() {
         r#"{"op":"preset","name":"tap300"}"#,
         r#"{"op":"subscribe","stream":"demods"}"#,
         r#"{"op":"unsubscribe","stream":"demods"}"#,
+        r#"{"op":"pid_advise","unit":0,"bandwidth":500}"#,
     ];
     for (text, name) in ops.iter().zip(Op::NAMES) {
         assert_eq!(parse_ok(text).op.name(), name);

@@ -3,7 +3,10 @@
 //!
 //! Method. The gains are parametrised by the crossover ω_c they are to give: the PI zero
 //! sits at a quarter of it (I = P·ω_c/4, 14° of lag at ω_c: enough integral action to track
-//! within a few time constants, little phase), with `Kind::Pid` a derivative too
+//! within a few time constants, little phase) — on the driven lever's PLL
+//! ([`Plant::Resonator`]) at the lever's pole 1/τ_c where that is higher, cancelling it (the
+//! loop then an integrator, as a PLL on an external signal is) — with `Kind::Pid` a
+//! derivative too
 //! (D = P/(4ω_c), its low-pass at 4ω_c below the PID's Nyquist frequency), and P makes
 //! |L(iω_c)| = 1. The phase margin then falls monotonically with ω_c (every part's lag
 //! grows with frequency); the highest ω_c with 45° of margin bounds what is reachable. Below
@@ -41,7 +44,9 @@ pub enum Kind {
 pub struct Advice {
     /// The gains, for negative feedback in the model's sign convention: the PLL's
     /// measurement is the reference's phase minus the input's, the amplitude loop's plant
-    /// gain positive. A loop whose actuator acts the other way takes them all negated.
+    /// gain positive, the driven lever's phase taken to rise with the drive frequency. A
+    /// loop whose actuator acts the other way takes them all negated: the live PLL
+    /// (`/pids/N` on `drive_frequency`), whose lever's phase falls as the frequency rises.
     pub gains: Gains,
     /// The closed loop's −3 dB bandwidth (Hz).
     pub bandwidth: f64,
@@ -95,9 +100,15 @@ fn gains_at(model: &LoopModel, kind: Kind, omega: f64) -> Gains {
         // Four times the crossover, but under the discrete PID's Nyquist frequency.
         Kind::Pid => (DERIVATIVE_RATIO, (4.0 * omega / TAU).min(0.4 * f_out)),
     };
+    // The PI zero (rad/s): a quarter of the crossover, or the driven lever's pole where
+    // that is higher (cancelled: the loop an integrator around the crossover).
+    let zero = match model.plant {
+        Plant::Resonator { time_constant, .. } => (omega / INTEGRAL_RATIO).max(1.0 / time_constant),
+        _ => omega / INTEGRAL_RATIO,
+    };
     let shape = Gains {
         p: 1.0,
-        i: omega / INTEGRAL_RATIO,
+        i: zero,
         d: d_ratio / omega,
         d_bandwidth,
     };
@@ -183,8 +194,9 @@ fn limit_at(model: &LoopModel, kind: Kind, omega: f64) -> (String, String) {
     let filter = d.order() as f64 * (omega * d.time_constant()).atan();
     let hold = omega * 0.5 / d.output_rate();
     let dead = omega * (d.dead_time() - d.filter_lead());
-    let mut parts = vec![
-        (
+    let mut parts = Vec::with_capacity(4);
+    if d.order() > 0 {
+        parts.push((
             filter,
             "filter",
             format!(
@@ -192,7 +204,9 @@ fn limit_at(model: &LoopModel, kind: Kind, omega: f64) -> (String, String) {
                 d.order(),
                 time(d.time_constant())
             ),
-        ),
+        ));
+    }
+    parts.extend([
         (
             hold,
             "hold",
@@ -207,7 +221,7 @@ fn limit_at(model: &LoopModel, kind: Kind, omega: f64) -> (String, String) {
             "dead time",
             format!("the dead time ({})", time(d.dead_time())),
         ),
-    ];
+    ]);
     let plant = match model.plant {
         Plant::Pll => PI / 2.0,
         Plant::Amplitude { time_constant, .. } => {
@@ -219,14 +233,19 @@ fn limit_at(model: &LoopModel, kind: Kind, omega: f64) -> (String, String) {
             ));
             lag
         }
+        // Listed, not named as the limit: its lag is bounded by 90°, which the PI's zero
+        // takes back below 4/τ_c, as the PLL's integrator's is fixed.
+        Plant::Resonator { time_constant, .. } => (omega * time_constant).atan(),
     };
     let controller = -gains_at(model, kind, omega).response(omega).arg();
     let mut lags: Vec<String> = parts
         .iter()
         .map(|(lag, short, _)| format!("{short} {:.1}°", lag.to_degrees()))
         .collect();
-    if let Plant::Pll = model.plant {
-        lags.push(format!("integrator {:.0}°", plant.to_degrees()));
+    match model.plant {
+        Plant::Pll => lags.push(format!("integrator {:.0}°", plant.to_degrees())),
+        Plant::Resonator { .. } => lags.push(format!("lever {:.1}°", plant.to_degrees())),
+        Plant::Amplitude { .. } => {}
     }
     lags.push(format!("controller {:.1}°", controller.to_degrees()));
     let lags = format!(
@@ -364,6 +383,104 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The default lever (f1 = 100 kHz, Q = 100) driven at f1 through a live PID unit's
+    /// demodulator at 10 MS/s with the ADC filter.
+    fn lever_pll() -> LoopModel {
+        LoopModel {
+            plant: Plant::resonator(100.0, 1e5).unwrap(),
+            demodulator: Demodulator::pid_unit(1e5, SAMPLE_RATE, 21.5).unwrap(),
+        }
+    }
+
+    #[test]
+    fn the_levers_pll_at_500_hz_is_near_the_hand_formula() {
+        // By hand: the PI's zero on the lever's pole, P = I·τ_c, and an integrator loop of
+        // crossover B: I = 2π·B·f1/(2Q) = 1.571e6 Hz/(rad·s), P = 500 Hz/rad (the PLL takes
+        // them negated).
+        let model = lever_pll();
+        let (hand_i, hand_p) = (TAU * 500.0 * 1e5 / 200.0, 500.0);
+        for kind in [Kind::Pi, Kind::Pid] {
+            let a = advise(&model, 500.0, kind).unwrap();
+            eprintln!(
+                "lever PLL 500 Hz {kind:?}: P {:.2} Hz/rad ({:+.1} %), I {:.4e} Hz/(rad·s)                  ({:+.1} %), D {:.3e}, bandwidth {:.2} Hz, crossover {:.2} Hz, margin {:.1}°,                  overshoot {:.2} %, settling {:.1} µs",
+                a.gains.p,
+                100.0 * (a.gains.p / hand_p - 1.0),
+                a.gains.i,
+                100.0 * (a.gains.i / hand_i - 1.0),
+                a.gains.d,
+                a.bandwidth,
+                a.crossover,
+                a.phase_margin,
+                100.0 * a.step.overshoot,
+                1e6 * a.step.settling_time
+            );
+            assert!((a.bandwidth / 500.0 - 1.0).abs() < 0.01, "{a:?}");
+            assert!((a.gains.p / hand_p - 1.0).abs() < 0.2, "{a:?}");
+            assert!((a.gains.i / hand_i - 1.0).abs() < 0.2, "{a:?}");
+        }
+        // The reach: the hold and the dead time (a period and 21.5 samples) limit it.
+        let Err(e) = advise(&model, 1e6, Kind::Pi) else {
+            panic!("reachable")
+        };
+        eprintln!("{e}");
+        let AdvisorError::Unreachable { best, .. } = e else {
+            panic!("{e}")
+        };
+        assert!(best > 5e3 && best < 25e3, "{e}");
+        assert!(e.to_string().contains("dead time"), "{e}");
+        assert!(!e.to_string().contains("filter"), "{e}");
+    }
+
+    #[test]
+    fn the_levers_pll_advice_agrees_with_its_discrete_loop() {
+        let model = lever_pll();
+        let mut worst = (0.0f64, 0.0f64);
+        for target in [50.0, 200.0, 500.0, 1000.0, 2000.0, 5000.0, 10e3, 15e3] {
+            for kind in [Kind::Pi, Kind::Pid] {
+                let a = advise(&model, target, kind).unwrap();
+                // The units' demodulator reads every sample: the dead time at f_s.
+                let sim = discrete_step(
+                    &model,
+                    &a.gains,
+                    SAMPLE_RATE,
+                    step_duration(TAU * a.crossover),
+                )
+                .unwrap()
+                .metrics();
+                eprintln!(
+                    "lever PLL {kind:?} {target} Hz: overshoot model {:.2} % discrete {:.2} %,                      settling model {:.1} µs discrete {:.1} µs, margin {:.1}°",
+                    100.0 * a.step.overshoot,
+                    100.0 * sim.overshoot,
+                    1e6 * a.step.settling_time,
+                    1e6 * sim.settling_time,
+                    a.phase_margin
+                );
+                // Within 10 % of the predicted overshoot, or 1 % of the step below 10 %.
+                let overshoot = (sim.overshoot - a.step.overshoot).abs();
+                assert!(
+                    overshoot <= 0.1 * a.step.overshoot.max(0.1),
+                    "{target} {kind:?}"
+                );
+                // The discrete loop's settling is known to an update period (10 µs): within
+                // 10 % or two of them.
+                let settling = (sim.settling_time - a.step.settling_time).abs();
+                assert!(
+                    settling <= (0.1 * a.step.settling_time).max(2e-5),
+                    "{target} {kind:?}"
+                );
+                worst = (
+                    worst.0.max(overshoot),
+                    worst.1.max(settling / a.step.settling_time),
+                );
+            }
+        }
+        eprintln!(
+            "lever PLL, worst: overshoot {:.2} % of the step, settling {:.1} %",
+            100.0 * worst.0,
+            100.0 * worst.1
+        );
     }
 
     #[test]

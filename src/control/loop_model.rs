@@ -3,11 +3,13 @@
 //! response, crossover, phase margin and the closed loop's −3 dB bandwidth.
 //!
 //! - C(s) = P + I/s + D·s/(1 + s/ω_d): the PID in the parallel form of [`super::Pid`].
-//! - G(s): the plant. PLL: the reference phase integrates the frequency command,
-//!   2π/s (rad per Hz·s). Amplitude loop: the lever's envelope, G0/(1 + s·τ_c).
+//! - G(s): the plant. PLL on an external signal: the reference phase integrates the
+//!   frequency command, 2π/s (rad per Hz·s). PLL on the driven lever: its phase answers the
+//!   drive frequency as slope/(1 + s·τ_c) (rad/Hz). Amplitude loop: the lever's envelope,
+//!   G0/(1 + s·τ_c).
 //! - H(s) = (1 + s·τ)^{−n}: the demodulator's output filter, n identical first-order
 //!   sections of time constant τ each (restated from `dsp::lowpass`, which `control` may
-//!   not import).
+//!   not import); n = 0 for the live PID units' demodulators, which have none.
 //! - e^{−sT}: every delay in the loop as one dead time: the demodulator's output sampling
 //!   (a zero-order hold at f_out, ≈ 1/(2·f_out)) plus the fixed delays of the chain.
 
@@ -53,7 +55,8 @@ pub(crate) fn positive(parameter: &'static str, value: f64) -> Result<(), ModelE
 }
 
 /// The demodulator in the loop: its output filter and the delays between the actuator and
-/// the demodulator's output.
+/// the demodulator's output. Its filter has 1–8 sections ([`Self::new`]), or none (order 0:
+/// [`Self::unfiltered`], [`Self::pid_unit`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Demodulator {
     order: u32,
@@ -64,7 +67,7 @@ pub struct Demodulator {
 }
 
 impl Demodulator {
-    /// A filter of `order` (1–8) sections of `time_constant` τ (s) each, read out at
+    /// A filter of `order` (1–8; see [`Self::unfiltered`] for none) sections of `time_constant` τ (s) each, read out at
     /// `output_rate` f_out (Hz), behind a fixed `dead_time` (s, ≥ 0).
     pub fn new(
         order: u32,
@@ -95,6 +98,44 @@ impl Demodulator {
             dead_time,
             filter_rate: None,
         })
+    }
+
+    /// A demodulator without an output filter (order 0: H(s) = 1), read out at
+    /// `output_rate` f_out (Hz) behind a fixed `dead_time` (s, ≥ 0). Its time constant is
+    /// reported as 0 s.
+    pub fn unfiltered(output_rate: f64, dead_time: f64) -> Result<Self, ModelError> {
+        let mut d = Self::new(1, 1.0, output_rate, dead_time)?;
+        d.order = 0;
+        d.time_constant = 0.0;
+        Ok(d)
+    }
+
+    /// The demodulator of a live PID unit (`/pids/N`, `synth::pids`): the least-squares
+    /// sinusoid over the drive period just ended, read once a period, no low-pass. At drive
+    /// frequency f (Hz, T = 1/f) and input rate `sample_rate` f_s (Hz): output rate f
+    /// (the unit's update rate); dead time T/2 (the one-period boxcar's mean delay) plus
+    /// `adc_delay_samples`/f_s (the ADC filter's delay, [`ADC_DELAY_SAMPLES`] with
+    /// `/synth/anti_alias`, else 0); with the output's zero-order hold (half a period, in
+    /// [`Self::total_delay`]) the loop's delay is T + `adc_delay_samples`/f_s. The boxcar's
+    /// amplitude droop, sinc(ωT/2), is under 1 % below f/8 and is not modelled.
+    pub fn pid_unit(
+        drive_frequency: f64,
+        sample_rate: f64,
+        adc_delay_samples: f64,
+    ) -> Result<Self, ModelError> {
+        positive("drive_frequency", drive_frequency)?;
+        positive("sample_rate", sample_rate)?;
+        if !(adc_delay_samples.is_finite() && adc_delay_samples >= 0.0) {
+            return Err(ModelError {
+                parameter: "adc_delay_samples",
+                value: adc_delay_samples,
+                allowed: "a finite number of samples ≥ 0",
+            });
+        }
+        Self::unfiltered(
+            drive_frequency,
+            0.5 / drive_frequency + adc_delay_samples / sample_rate,
+        )
     }
 
     /// The same, its filter running discretely at `filter_rate` (Hz) as `dsp::lowpass`
@@ -128,12 +169,12 @@ impl Demodulator {
         .with_filter_rate(sample_rate / PREDECIMATION)
     }
 
-    /// Number of first-order sections n.
+    /// Number of first-order sections n (0: no filter).
     pub fn order(&self) -> u32 {
         self.order
     }
 
-    /// Time constant τ of each section (s).
+    /// Time constant τ of each section (s; 0 without a filter).
     pub fn time_constant(&self) -> f64 {
         self.time_constant
     }
@@ -180,9 +221,22 @@ impl Demodulator {
 /// What the loop's PID drives.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Plant {
-    /// PLL: the PID's output is the excitation's frequency offset (Hz), its input the
-    /// demodulated phase (rad); the phase integrates the frequency: 2π/s.
+    /// PLL on an external signal: the PID's output is the reference's frequency offset
+    /// (Hz), its input the demodulated phase (rad); the phase integrates the frequency:
+    /// 2π/s.
     Pll,
+    /// PLL on the driven lever: the PID's output is the drive's frequency (Hz), its input
+    /// the demodulated phase of the lever's response at harmonic 1 (rad). Near resonance
+    /// the phase answers a change of drive frequency as −slope/(1 + s·τ_c): it falls by
+    /// slope = 2Q/f0 rad per Hz, through the envelope's time constant τ_c = Q/(π·f0). The
+    /// model takes it positive, slope/(1 + s·τ_c), as the advisor's other plants; the PLL,
+    /// whose phase falls as its output rises, takes the advice's gains negated.
+    Resonator {
+        /// |∂φ/∂f| at resonance, 2Q/f0 (rad/Hz).
+        slope: f64,
+        /// τ_c = Q/(π·f0) (s): the envelope's time constant.
+        time_constant: f64,
+    },
     /// Amplitude loop: the PID's output is the drive amplitude, its input the demodulated
     /// oscillation amplitude; the envelope answers as G0/(1 + s·τ_c).
     Amplitude {
@@ -206,10 +260,35 @@ impl Plant {
         })
     }
 
+    /// The PLL on a lever of quality factor `q` and resonance `f0` (Hz), driven near its
+    /// resonance: [`Self::Resonator`] with slope 2Q/f0 and τ_c = Q/(π·f0).
+    pub fn resonator(q: f64, f0: f64) -> Result<Self, ModelError> {
+        positive("q", q)?;
+        positive("f0", f0)?;
+        Ok(Self::Resonator {
+            slope: 2.0 * q / f0,
+            time_constant: q / (PI * f0),
+        })
+    }
+
+    /// The time constant of the plant's pole (s), for the plants that have one.
+    pub fn time_constant(&self) -> Option<f64> {
+        match *self {
+            Self::Pll => None,
+            Self::Resonator { time_constant, .. } | Self::Amplitude { time_constant, .. } => {
+                Some(time_constant)
+            }
+        }
+    }
+
     /// G(iω) at ω (rad/s).
     pub fn response(&self, omega: f64) -> Complex64 {
         match *self {
             Self::Pll => Complex64::new(0.0, -TAU / omega),
+            Self::Resonator {
+                slope,
+                time_constant,
+            } => slope / Complex64::new(1.0, omega * time_constant),
             Self::Amplitude {
                 gain,
                 time_constant,
@@ -467,6 +546,76 @@ mod tests {
             d_bandwidth: 1.0,
         };
         assert!(close(m.phase_margin(&g).unwrap(), 90.0 - 360.0, 1e-5));
+    }
+
+    #[test]
+    fn the_pid_units_demodulator_has_no_filter_and_a_period_of_delay() {
+        // f = 100 kHz, f_s = 10 MS/s: the boxcar's T/2 and the ADC's 21.5 samples as dead
+        // time, the hold's T/2 on top: T + 21.5/f_s = 12.15 µs in all.
+        let d = Demodulator::pid_unit(1e5, 1e7, ADC_DELAY_SAMPLES).unwrap();
+        assert_eq!(d.order(), 0);
+        assert_eq!(d.time_constant(), 0.0);
+        assert_eq!(d.output_rate(), 1e5);
+        assert!(close(d.dead_time(), 5e-6 + 2.15e-6, 1e-18));
+        assert!(close(d.total_delay(), 12.15e-6, 1e-18));
+        assert_eq!(d.filter_lead(), 0.0);
+        // No filter: a pure delay at every frequency.
+        for w in [1.0, 1e3, 1e5] {
+            assert_eq!(d.filter(w), Complex64::new(1.0, 0.0));
+            let r = d.response(w);
+            assert!(close(r.norm(), 1.0, 1e-12));
+            assert!(close(r.arg(), -w * 12.15e-6, 1e-12));
+        }
+        // Without the ADC filter, T alone.
+        let d = Demodulator::pid_unit(1e5, 1e7, 0.0).unwrap();
+        assert!(close(d.total_delay(), 10e-6, 1e-18));
+        // The loop's unwrapped phase has no filter term: a P-only PLL's margin is 90° less
+        // the delay's lag at the crossover.
+        let m = LoopModel {
+            plant: Plant::Pll,
+            demodulator: d,
+        };
+        let g = Gains {
+            p: 100.0,
+            i: 0.0,
+            d: 0.0,
+            d_bandwidth: 1.0,
+        };
+        let wc = m.crossover(&g).unwrap();
+        assert!(close(wc, TAU * 100.0, 1e-6));
+        let margin = 90.0 - (wc * 10e-6).to_degrees();
+        assert!(close(m.phase_margin(&g).unwrap(), margin, 1e-6));
+        for (name, result) in [
+            ("drive_frequency", Demodulator::pid_unit(0.0, 1e7, 21.5)),
+            ("sample_rate", Demodulator::pid_unit(1e5, f64::NAN, 21.5)),
+            ("adc_delay_samples", Demodulator::pid_unit(1e5, 1e7, -1.0)),
+            ("output_rate", Demodulator::unfiltered(-1.0, 0.0)),
+            ("dead_time", Demodulator::unfiltered(1e5, f64::INFINITY)),
+        ] {
+            assert_eq!(result.unwrap_err().parameter, name);
+        }
+    }
+
+    #[test]
+    fn the_driven_levers_phase_is_a_pole_at_the_envelopes_rate() {
+        // Q = 100, f0 = 100 kHz: 2Q/f0 = 2e-3 rad/Hz, τ_c = Q/(π·f0) = 318 µs.
+        let plant = Plant::resonator(100.0, 1e5).unwrap();
+        let Plant::Resonator {
+            slope,
+            time_constant,
+        } = plant
+        else {
+            unreachable!()
+        };
+        assert!(close(slope, 2e-3, 1e-18));
+        assert!(close(time_constant, 100.0 / (PI * 1e5), 1e-18));
+        assert_eq!(plant.time_constant(), Some(time_constant));
+        assert!(close(plant.response(1e-3).re, slope, 1e-12));
+        let g = plant.response(1.0 / time_constant);
+        assert!(close(g.arg().to_degrees(), -45.0, 1e-12));
+        assert!(close(g.norm(), slope / 2f64.sqrt(), 1e-15));
+        assert_eq!(Plant::resonator(100.0, 0.0).unwrap_err().parameter, "f0");
+        assert_eq!(Plant::resonator(-1.0, 1e5).unwrap_err().parameter, "q");
     }
 
     #[test]

@@ -4,9 +4,9 @@
 //! sets the gains for a target bandwidth. No threads, no I/O; a layer beside `physics`,
 //! depending on nothing else in the crate.
 //!
-//! The PID runs live in the synthesiser as the `/pids/N/*` units (`synth::pids`, on the
-//! surface distance); the loop models and the advisor are library code, behind no node or
-//! op.
+//! The PID runs live in the synthesiser as the `/pids/N/*` units (`synth::pids`); the
+//! advisor advises them through the op `pid_advise` (the PLL's plant
+//! [`Plant::Resonator`], the units' demodulator [`Demodulator::pid_unit`]).
 
 pub mod advisor;
 pub mod loop_model;

@@ -9,7 +9,9 @@
 //!   the plant exact for a held input.
 //!
 //! The step, for both: the PLL tracks a 1 Hz step of the input's frequency (the output is
-//! the PID's frequency command, which T = L/(1 + L) takes to 1 Hz); the amplitude loop's
+//! the PID's frequency command, which T = L/(1 + L) takes to 1 Hz); the PLL on a driven
+//! lever ([`Plant::Resonator`]) a 1 Hz step of the lever's resonance (the output is the
+//! drive frequency, likewise); the amplitude loop's
 //! set-point steps by 1 (the output is the demodulated amplitude). The derivative acts on
 //! the measurement in both, as in [`Pid`], so for the amplitude loop with D ≠ 0 the
 //! set-point response is not T alone.
@@ -146,13 +148,15 @@ pub fn model_step(model: &LoopModel, gains: &Gains, omega_c: f64, duration: f64)
     let mut delay_line = Delay::new(delay.max(h), h);
     let mut filter = vec![RampSection::new(d.time_constant(), h); d.order() as usize];
     let (setpoint, mut integral, mut e_prev) = match model.plant {
-        Plant::Pll => (0.0, 0.0, 0.0),
+        Plant::Pll | Plant::Resonator { .. } => (0.0, 0.0, 0.0),
         Plant::Amplitude { .. } => (1.0, 0.0, 1.0),
     };
     let derivative_a = (-TAU * gains.d_bandwidth * h).exp();
     let (mut derivative, mut m_prev) = (0.0, 0.0);
     let mut plant_section = match model.plant {
-        Plant::Amplitude { time_constant, .. } => Some(RampSection::new(time_constant, h)),
+        Plant::Amplitude { time_constant, .. } | Plant::Resonator { time_constant, .. } => {
+            Some(RampSection::new(time_constant, h))
+        }
         Plant::Pll => None,
     };
     let (mut phase_ref, mut u_prev) = (0.0, 0.0);
@@ -171,6 +175,8 @@ pub fn model_step(model: &LoopModel, gains: &Gains, omega_c: f64, duration: f64)
         let u = gains.p * e + integral - gains.d * derivative;
         let (x, output) = match (model.plant, plant_section.as_mut()) {
             (Plant::Amplitude { gain, .. }, Some(section)) => (section.step(gain * u), m),
+            // The lever's phase, of the drive's offset from the resonance stepped to 1 Hz.
+            (Plant::Resonator { slope, .. }, Some(section)) => (section.step(slope * (u - 1.0)), u),
             _ => {
                 phase_ref += TAU * h * 0.5 * (u + u_prev);
                 // The input's phase ramps at the stepped frequency, 1 Hz.
@@ -212,7 +218,7 @@ pub fn discrete_step(
     let h = 1.0 / filter_rate;
     let dt = decimation as f64 * h;
     let setpoint = match model.plant {
-        Plant::Pll => 0.0,
+        Plant::Pll | Plant::Resonator { .. } => 0.0,
         Plant::Amplitude { .. } => 1.0,
     };
     let mut pid = Pid::new(PidSettings {
@@ -234,7 +240,9 @@ pub fn discrete_step(
     let mut x = 0.0;
     let mut u;
     let mut plant_a = 0.0;
-    if let Plant::Amplitude { time_constant, .. } = model.plant {
+    if let Plant::Amplitude { time_constant, .. } | Plant::Resonator { time_constant, .. } =
+        model.plant
+    {
         plant_a = (-h / time_constant).exp();
     }
     // The first update at t = 0, as the step happens: a set-point step is acted on at once,
@@ -247,6 +255,7 @@ pub fn discrete_step(
         x = match model.plant {
             Plant::Pll => x + TAU * h * (u - 1.0),
             Plant::Amplitude { gain, .. } => plant_a * x + (1.0 - plant_a) * gain * u,
+            Plant::Resonator { slope, .. } => plant_a * x + (1.0 - plant_a) * slope * (u - 1.0),
         };
         let mut m = delay_line.push_and_read(x);
         for y in &mut sections {
@@ -256,7 +265,7 @@ pub fn discrete_step(
         if n % decimation == 0 {
             u = pid.update(m);
             values.push(match model.plant {
-                Plant::Pll => u,
+                Plant::Pll | Plant::Resonator { .. } => u,
                 Plant::Amplitude { .. } => m,
             });
         }

@@ -17,6 +17,7 @@ mod get;
 mod hello;
 mod list;
 mod load_settings;
+mod pid_advise;
 mod preset;
 mod presets;
 mod set;
@@ -38,6 +39,7 @@ pub use get::{Get, MAX_PATHS};
 pub use hello::Hello;
 pub use list::List;
 pub use load_settings::LoadSettings;
+pub use pid_advise::PidAdvise;
 pub use preset::Preset;
 pub use presets::Presets;
 pub(super) use set::repeated_values;
@@ -75,11 +77,13 @@ pub enum Op {
     Subscribe(Subscribe),
     /// Stop a stream for this client.
     Unsubscribe(Unsubscribe),
+    /// Gains for a PID unit from a target bandwidth (not applied).
+    PidAdvise(PidAdvise),
 }
 
 impl Op {
     /// Every op's name, as a request spells it.
-    pub const NAMES: [&'static str; 10] = [
+    pub const NAMES: [&'static str; 11] = [
         "hello",
         "list",
         "get",
@@ -90,6 +94,7 @@ impl Op {
         "preset",
         "subscribe",
         "unsubscribe",
+        "pid_advise",
     ];
 
     /// This op's name, as a request spells it.
@@ -105,6 +110,7 @@ impl Op {
             Op::Preset(_) => "preset",
             Op::Subscribe(_) => "subscribe",
             Op::Unsubscribe(_) => "unsubscribe",
+            Op::PidAdvise(_) => "pid_advise",
         }
     }
 
@@ -124,6 +130,7 @@ impl Op {
             Op::Preset(op) => op.apply(ctx).await,
             Op::Subscribe(op) => op.apply(ctx),
             Op::Unsubscribe(op) => op.apply(ctx),
+            Op::PidAdvise(op) => op.apply(ctx).await,
         }
     }
 }
