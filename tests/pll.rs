@@ -501,6 +501,7 @@ fn the_pll_frequency_noise_is_the_thermal_and_detector_limit() {
         (1.0 / 1.5..=1.5).contains(&ratio),
         "measured/predicted {ratio}"
     );
+}
 
 /// The advisor's model of the live PLL at `settings`: the driven lever's phase
 /// (−(2Q/f1)/(1 + s·τ_c), taken positive) through the unit's demodulator (no filter, one
