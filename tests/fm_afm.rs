@@ -366,7 +366,7 @@ async fn an_approach_through_the_sweeper_gives_the_frequency_shift_to_invert() {
             "/sweeper/points": points,
             "/sweeper/direction": "up",
             "/sweeper/settling": 0.004,
-            "/sweeper/averaging": 8,
+            "/sweeper/averaging": 24,
             "/sweeper/enable": true,
         })
     };
