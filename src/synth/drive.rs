@@ -138,3 +138,17 @@ fn unit_response(cantilever: &Cantilever, omega: f64) -> [Complex64; MAX_MODES] 
     }
     unit
 }
+
+/// A change of the lock-in's reference: from output sample `index` on, the reference is
+/// at drive phase `phase` (2^64 = one period) and steps `word` per sample. A loop that
+/// moves the drive's frequency at sample i makes one at i + ⌈D⌉ (D the ADC filter's delay,
+/// 21.5 samples; 0 without it), where the samples taken under the new frequency begin.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ReferenceChange {
+    /// Index of the first output sample of the new reference.
+    pub index: u64,
+    /// The drive phase at which that sample was taken.
+    pub phase: u64,
+    /// Drive phase words per sample from there on.
+    pub word: u64,
+}

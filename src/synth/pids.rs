@@ -30,27 +30,13 @@ use std::f64::consts::{PI, TAU};
 use rustfft::num_complex::Complex64;
 
 use super::coupled::CoupledKernel;
-use super::drive::Drive;
+use super::drive::{Drive, ReferenceChange};
 use super::plan::SynthPlan;
 use super::scan::samples_until;
 use super::synthesizer::{Output, SynthState};
 use crate::config::{PID_COUNT, PidInput, PidTarget};
 use crate::control::{Pid, PidSettings};
 use crate::timebase::{TWO_POW_64, frequency_word, harmonic_phase, phase_to_radians};
-
-/// A change of the lock-in's reference: from output sample `index` on, the reference is
-/// at drive phase `phase` (2^64 = one period) and steps `word` per sample. A loop that
-/// moves the drive's frequency at sample i makes one at i + ⌈D⌉ (D the ADC filter's delay,
-/// 21.5 samples; 0 without it), where the samples taken under the new frequency begin.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct ReferenceChange {
-    /// Index of the first output sample of the new reference.
-    pub index: u64,
-    /// The drive phase at which that sample was taken.
-    pub phase: u64,
-    /// Drive phase words per sample from there on.
-    pub word: u64,
-}
 
 /// Reference changes made and not yet reached: at most one per update, and the updates
 /// are at least two samples apart, so ⌈D⌉ = 22 samples hold at most 11.

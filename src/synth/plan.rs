@@ -8,10 +8,9 @@ use rustfft::num_complex::Complex64;
 
 use super::adc::{self, Adc};
 use super::coupled::{CoupledKernel, Refinement};
-use super::drive::Drive;
+use super::drive::{Drive, ReferenceChange};
 use super::modal::ModalKernel;
 use super::pid_plan::PidPlan;
-use super::pids::ReferenceChange;
 use super::pulse::{PulseKernel, PulseTrain};
 use super::scan_plan::{ScanBase, ScanPlan, TapTables};
 use super::window::{ModeWindow, Moments};
