@@ -8,9 +8,9 @@ mod common;
 
 use std::f64::consts::PI;
 
+use common::loops::{change, run, start};
 use ftafm::config::{PidInput, PidTarget, Settings, default_settings};
 use ftafm::physics::fm::{FmLever, invert};
-use ftafm::synth::{PidReading, PidRuntime, SynthPlan, SynthState};
 
 /// Tip amplitude the amplitude loop holds (m, peak).
 const AMPLITUDE: f64 = 5e-9;
@@ -49,37 +49,6 @@ fn fm_afm(calibration: f64) -> Settings {
     s
 }
 
-fn run(
-    plan: &SynthPlan,
-    state: &mut SynthState,
-    rt: &mut PidRuntime,
-    seconds: f64,
-) -> Vec<PidReading> {
-    let mut block = vec![0.0; 4096];
-    let mut readings = Vec::new();
-    let end = state.sample_index() + (seconds * plan.sample_rate) as u64;
-    while state.sample_index() < end {
-        let n = ((end - state.sample_index()) as usize).min(block.len());
-        plan.process_pids(
-            state,
-            rt,
-            &mut block[..n],
-            &mut |r| readings.push(r),
-            &mut |_| {},
-        );
-    }
-    readings
-}
-
-fn change(plan: &mut SynthPlan, state: &mut SynthState, rt: &mut PidRuntime, settings: &Settings) {
-    let next = SynthPlan::new(settings).unwrap();
-    rt.release_drive(plan, state);
-    state.retarget(plan, &next);
-    let index = state.sample_index();
-    rt.retarget(plan, &next, index, state);
-    *plan = next;
-}
-
 fn mean(values: impl Iterator<Item = f64>) -> f64 {
     let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
     sum / n as f64
@@ -92,10 +61,7 @@ fn mean(values: impl Iterator<Item = f64>) -> f64 {
 /// at each z, the measured Δf and amplitude.
 fn approach(mut settings: Settings, deepest: f64, average: f64, calibration: f64) -> Approach {
     settings.surface.distance = AMPLITUDE + 20e-9;
-    let mut plan = SynthPlan::new(&settings).unwrap();
-    let mut state = SynthState::steady(&plan, 7);
-    let mut rt = PidRuntime::new(&plan);
-    rt.retarget(&plan, &plan, 0, &mut state);
+    let (mut plan, mut state, mut rt) = start(&settings, 7);
     let _ = run(&plan, &mut state, &mut rt, 0.02);
     let free = run(&plan, &mut state, &mut rt, 0.05);
     let f_free = mean(free.iter().filter(|r| r.unit == 0).map(|r| r.output));
@@ -270,10 +236,7 @@ fn the_higher_modes_soften_a_hard_tap() {
             settings.cantilever.q = q;
         }
         settings.surface.distance = AMPLITUDE + 20e-9;
-        let mut plan = SynthPlan::new(&settings).unwrap();
-        let mut state = SynthState::steady(&plan, 7);
-        let mut rt = PidRuntime::new(&plan);
-        rt.retarget(&plan, &plan, 0, &mut state);
+        let (mut plan, mut state, mut rt) = start(&settings, 7);
         let _ = run(&plan, &mut state, &mut rt, 0.02);
         let free = run(&plan, &mut state, &mut rt, 0.004);
         let f_free = mean(free.iter().filter(|r| r.unit == 0).map(|r| r.output));

@@ -7,8 +7,9 @@
 
 mod common;
 
+use common::loops::{change, run, start};
 use ftafm::config::{PidInput, Settings, default_settings};
-use ftafm::synth::{PidReading, PidRuntime, SynthPlan, SynthState};
+use ftafm::synth::{PidReading, SynthPlan};
 use serde_json::json;
 
 /// The default (coupled engine, every noise source on) with PID 0 an amplitude loop on the
@@ -35,49 +36,6 @@ fn amplitude_at(distance: f64) -> f64 {
     s.surface.distance = distance;
     s.scan.enable = true;
     SynthPlan::new(&s).unwrap().scan.unwrap().setpoint
-}
-
-/// Runs `plan` for `seconds` of simulated time; every update of every unit.
-fn run(
-    plan: &SynthPlan,
-    state: &mut SynthState,
-    rt: &mut PidRuntime,
-    seconds: f64,
-) -> Vec<PidReading> {
-    let mut block = vec![0.0; 4096];
-    let mut readings = Vec::new();
-    let end = state.sample_index() + (seconds * plan.sample_rate) as u64;
-    while state.sample_index() < end {
-        let n = ((end - state.sample_index()) as usize).min(block.len());
-        plan.process_pids(
-            state,
-            rt,
-            &mut block[..n],
-            &mut |r| readings.push(r),
-            &mut |_| {},
-        );
-    }
-    readings
-}
-
-/// A running loop: plan, state and runtime at sample 0 with `settings`.
-fn start(settings: &Settings, seed: u64) -> (SynthPlan, SynthState, PidRuntime) {
-    let plan = SynthPlan::new(settings).unwrap();
-    let state = SynthState::steady(&plan, seed);
-    let mut state = state;
-    let mut rt = PidRuntime::new(&plan);
-    rt.retarget(&plan, &plan, 0, &mut state);
-    (plan, state, rt)
-}
-
-/// Moves a running loop to `settings` at the next sample, as the synthesiser thread does.
-fn change(plan: &mut SynthPlan, state: &mut SynthState, rt: &mut PidRuntime, settings: &Settings) {
-    let next = SynthPlan::new(settings).unwrap();
-    rt.release_drive(plan, state);
-    state.retarget(plan, &next);
-    let index = state.sample_index();
-    rt.retarget(plan, &next, index, state);
-    *plan = next;
 }
 
 fn mean(values: impl Iterator<Item = f64>) -> f64 {

@@ -9,10 +9,11 @@ mod common;
 
 use std::f64::consts::PI;
 
+use common::loops::{change, run_traced, start};
 use ftafm::config::{PidInput, PidTarget, Settings, default_settings};
 use ftafm::control::loop_model::ADC_DELAY_SAMPLES;
 use ftafm::control::{Demodulator, Kind, LoopModel, Plant, advise};
-use ftafm::synth::{PidReading, PidRuntime, ReferenceChange, SynthPlan, SynthState};
+use ftafm::synth::PidReading;
 
 /// The free lever (surface out of reach) at the default drive, `detuning` (1) off its
 /// first resonance, with PID 0 a PLL: the phase of harmonic 1 held at π (the resonance:
@@ -69,50 +70,6 @@ fn phase_pi_frequency(settings: &Settings) -> f64 {
     b
 }
 
-/// A running loop: plan, state and runtime at sample 0 with `settings`.
-fn start(settings: &Settings, seed: u64) -> (SynthPlan, SynthState, PidRuntime) {
-    let plan = SynthPlan::new(settings).unwrap();
-    let mut state = SynthState::steady(&plan, seed);
-    let mut rt = PidRuntime::new(&plan);
-    rt.retarget(&plan, &plan, 0, &mut state);
-    (plan, state, rt)
-}
-
-/// Runs `plan` for `seconds` of simulated time: every update of every unit, every change
-/// of the reference, and the samples.
-fn run(
-    plan: &SynthPlan,
-    state: &mut SynthState,
-    rt: &mut PidRuntime,
-    seconds: f64,
-) -> (Vec<PidReading>, Vec<ReferenceChange>, Vec<f64>) {
-    let mut block = vec![0.0; 4096];
-    let (mut readings, mut changes, mut samples) = (Vec::new(), Vec::new(), Vec::new());
-    let end = state.sample_index() + (seconds * plan.sample_rate) as u64;
-    while state.sample_index() < end {
-        let n = ((end - state.sample_index()) as usize).min(block.len());
-        plan.process_pids(
-            state,
-            rt,
-            &mut block[..n],
-            &mut |r| readings.push(r),
-            &mut |c| changes.push(c),
-        );
-        samples.extend_from_slice(&block[..n]);
-    }
-    (readings, changes, samples)
-}
-
-/// Moves a running loop to `settings` at the next sample, as the synthesiser thread does.
-fn change(plan: &mut SynthPlan, state: &mut SynthState, rt: &mut PidRuntime, settings: &Settings) {
-    let next = SynthPlan::new(settings).unwrap();
-    rt.release_drive(plan, state);
-    state.retarget(plan, &next);
-    let index = state.sample_index();
-    rt.retarget(plan, &next, index, state);
-    *plan = next;
-}
-
 fn mean_and_spread(values: &[f64]) -> (f64, f64) {
     let n = values.len() as f64;
     let mean = values.iter().sum::<f64>() / n;
@@ -139,7 +96,7 @@ fn the_pll_locks_to_the_resonance_from_one_per_cent_off() {
     let f1 = settings.cantilever.f1;
     let expected = phase_pi_frequency(&settings);
     let (plan, mut state, mut rt) = start(&settings, 5);
-    let (readings, changes, _) = run(&plan, &mut state, &mut rt, 0.02);
+    let (readings, changes, _) = run_traced(&plan, &mut state, &mut rt, 0.02);
     let end = state.sample_index();
     let last = tail(&readings, end, (0.005 * plan.sample_rate) as u64);
     let frequencies: Vec<f64> = last.iter().map(|r| r.output).collect();
@@ -187,13 +144,13 @@ fn the_pll_tracks_a_step_of_the_resonance_as_its_linear_model_predicts() {
     settings.noise.enable = false;
     let f1 = settings.cantilever.f1;
     let (mut plan, mut state, mut rt) = start(&settings, 9);
-    let _ = run(&plan, &mut state, &mut rt, 0.01);
+    let _ = run_traced(&plan, &mut state, &mut rt, 0.01);
     // The resonance steps up by 50 Hz, a fifth of its half width f1/(2Q).
     let step = 50.0;
     settings.cantilever.f1 = f1 + step;
     change(&mut plan, &mut state, &mut rt, &settings);
     let from = state.sample_index();
-    let (readings, _, _) = run(&plan, &mut state, &mut rt, 0.01);
+    let (readings, _, _) = run_traced(&plan, &mut state, &mut rt, 0.01);
     let t = |r: &PidReading| (r.sample - from) as f64 / plan.sample_rate;
     let settled: Vec<f64> = readings
         .iter()
@@ -254,7 +211,7 @@ fn an_amplitude_loop_on_the_drive_holds_the_amplitude_it_is_asked_for() {
     pid.output_min = 0.0;
     pid.output_max = 50e-9;
     let (plan, mut state, mut rt) = start(&s, 4);
-    let (readings, changes, _) = run(&plan, &mut state, &mut rt, 0.03);
+    let (readings, changes, _) = run_traced(&plan, &mut state, &mut rt, 0.03);
     assert!(
         changes.is_empty(),
         "the amplitude leaves the reference alone"
@@ -281,7 +238,7 @@ fn a_change_of_the_drive_keeps_the_motion_continuous() {
     let mut settings = pll(0.01, 500.0);
     settings.noise.enable = false;
     let (plan, mut state, mut rt) = start(&settings, 1);
-    let (readings, _, samples) = run(&plan, &mut state, &mut rt, 0.005);
+    let (readings, _, samples) = run_traced(&plan, &mut state, &mut rt, 0.005);
     let largest_step = samples
         .windows(2)
         .map(|w| (w[1] - w[0]).abs())
@@ -293,7 +250,7 @@ fn a_change_of_the_drive_keeps_the_motion_continuous() {
     assert!(largest_step < bound);
     let (again, _, _) = {
         let (plan, mut state, mut rt) = start(&settings, 1);
-        run(&plan, &mut state, &mut rt, 0.005)
+        run_traced(&plan, &mut state, &mut rt, 0.005)
     };
     assert_eq!(readings, again, "same settings and seed, same trace");
 }
@@ -455,8 +412,8 @@ fn the_pll_frequency_noise_is_the_thermal_and_detector_limit() {
     let mut settings = pll(0.0, 500.0);
     settings.drive.free_amplitude = 30e-9;
     let (plan, mut state, mut rt) = start(&settings, 21);
-    let _ = run(&plan, &mut state, &mut rt, 0.02);
-    let (readings, _, _) = run(&plan, &mut state, &mut rt, 0.6);
+    let _ = run_traced(&plan, &mut state, &mut rt, 0.02);
+    let (readings, _, _) = run_traced(&plan, &mut state, &mut rt, 0.6);
     let f0 = settings.cantilever.f1;
     let frequencies: Vec<f64> = readings.iter().map(|r| r.output).collect();
     let rate = plan.drive_frequency;
@@ -567,13 +524,13 @@ fn the_advised_pll_steps_as_the_advisor_predicts() {
         pid.d = -advice.gains.d;
         pid.d_bandwidth = advice.gains.d_bandwidth;
         let (mut plan, mut state, mut rt) = start(&settings, 9);
-        let _ = run(&plan, &mut state, &mut rt, 0.005);
+        let _ = run_traced(&plan, &mut state, &mut rt, 0.005);
         settings.cantilever.f1 += 50.0;
         let after = phase_pi_frequency(&settings);
         change(&mut plan, &mut state, &mut rt, &settings);
         let from = state.sample_index();
         // Ten predicted settling times, and at least 5 ms.
-        let (readings, _, _) = run(
+        let (readings, _, _) = run_traced(
             &plan,
             &mut state,
             &mut rt,
@@ -660,11 +617,11 @@ fn the_advised_amplitude_loop_steps_as_the_advisor_predicts() {
         pid.output_min = 0.0;
         pid.output_max = 50e-9;
         let (mut plan, mut state, mut rt) = start(&settings, 3);
-        let _ = run(&plan, &mut state, &mut rt, 0.005);
+        let _ = run_traced(&plan, &mut state, &mut rt, 0.005);
         settings.pids[1].setpoint = 1.1 * free;
         change(&mut plan, &mut state, &mut rt, &settings);
         let from = state.sample_index();
-        let (readings, _, _) = run(
+        let (readings, _, _) = run_traced(
             &plan,
             &mut state,
             &mut rt,

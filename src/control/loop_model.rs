@@ -54,6 +54,23 @@ pub(crate) fn positive(parameter: &'static str, value: f64) -> Result<(), ModelE
     }
 }
 
+/// `value` finite and ≥ 0, or the error naming `parameter` and what is `allowed`.
+fn non_negative(
+    parameter: &'static str,
+    value: f64,
+    allowed: &'static str,
+) -> Result<(), ModelError> {
+    if value.is_finite() && value >= 0.0 {
+        Ok(())
+    } else {
+        Err(ModelError {
+            parameter,
+            value,
+            allowed,
+        })
+    }
+}
+
 /// The demodulator in the loop: its output filter and the delays between the actuator and
 /// the demodulator's output. Its filter has 1–8 sections ([`Self::new`]), or none (order 0:
 /// [`Self::unfiltered`], [`Self::pid_unit`]).
@@ -84,13 +101,7 @@ impl Demodulator {
         }
         positive("time_constant", time_constant)?;
         positive("output_rate", output_rate)?;
-        if !(dead_time.is_finite() && dead_time >= 0.0) {
-            return Err(ModelError {
-                parameter: "dead_time",
-                value: dead_time,
-                allowed: "a finite time ≥ 0 s",
-            });
-        }
+        non_negative("dead_time", dead_time, "a finite time ≥ 0 s")?;
         Ok(Self {
             order,
             time_constant,
@@ -125,13 +136,11 @@ impl Demodulator {
     ) -> Result<Self, ModelError> {
         positive("drive_frequency", drive_frequency)?;
         positive("sample_rate", sample_rate)?;
-        if !(adc_delay_samples.is_finite() && adc_delay_samples >= 0.0) {
-            return Err(ModelError {
-                parameter: "adc_delay_samples",
-                value: adc_delay_samples,
-                allowed: "a finite number of samples ≥ 0",
-            });
-        }
+        non_negative(
+            "adc_delay_samples",
+            adc_delay_samples,
+            "a finite number of samples ≥ 0",
+        )?;
         Self::unfiltered(
             drive_frequency,
             0.5 / drive_frequency + adc_delay_samples / sample_rate,

@@ -951,11 +951,8 @@ impl Plan {
                 row.0[0][i] = g * h * c;
                 row.0[1][i] = g * h * s;
             }
-            let step = word.wrapping_mul(PREDECIMATION as u64);
-            let (s, c) = phase_to_radians(harmonic_phase(step, k)).sin_cos();
-            self.blocks[block].step_re[i] = c;
-            self.blocks[block].step_im[i] = -s;
         }
+        self.tune_steps(word);
     }
 }
 

@@ -38,19 +38,20 @@ pub struct PidPlan {
     /// `/drive/free_amplitude` (m): a unit on `drive_amplitude` drives the excitation in
     /// these terms, the free amplitude it gives at `/drive/frequency`.
     pub free_amplitude: f64,
-    /// The base amplitude per metre of that free amplitude (1; set by the plan, which
-    /// knows the drive).
+    /// The base amplitude per metre of that free amplitude (1).
     pub base_per_free: f64,
 }
 
 impl PidPlan {
     /// The units of `settings`; `free_tip` is the coupled engine's free tip motion
     /// (z⁰ = Re[free_tip·e^{iθ}], m) that places the update phase, `None` on the paper
-    /// engine (where the settings checks allow no enabled unit). A unit whose settings the
+    /// engine (where the settings checks allow no enabled unit), and `base_amplitude` the
+    /// drive's base amplitude (m) at `/drive/free_amplitude`. A unit whose settings the
     /// controller refuses is refused here too (`model::check_pids` refuses them first).
     pub fn new(
         settings: &Settings,
         free_tip: Option<rustfft::num_complex::Complex64>,
+        base_amplitude: f64,
     ) -> Result<Self, PidError> {
         let mut units: [Option<PidUnitPlan>; PID_COUNT] = Default::default();
         for (index, unit) in settings.pids.iter().enumerate().take(PID_COUNT) {
@@ -72,7 +73,7 @@ impl PidPlan {
             surface_distance: settings.surface.distance,
             update_phase: free_tip.map_or(0, highest_phase),
             free_amplitude: settings.drive.free_amplitude,
-            base_per_free: 1.0,
+            base_per_free: base_amplitude / settings.drive.free_amplitude,
         })
     }
 

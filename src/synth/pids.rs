@@ -149,18 +149,25 @@ pub struct PidRuntime {
     /// Drive phase word at which the loops update ([`super::PidPlan::update_phase`],
     /// moved with the drive).
     update_phase: u64,
-    /// The lock-in's reference at output sample `reference_index`: the drive phase it was
-    /// taken at and the word per sample.
-    reference_index: u64,
+    /// The lock-in's reference at the next output sample: the drive phase it was taken at
+    /// and the word per sample.
     reference_phase: u64,
     reference_word: u64,
-    /// Reference changes ahead of `reference_index`, oldest first (a ring).
+    /// Reference changes ahead of the next output sample, oldest first (a ring).
     pending: [ReferenceChange; PENDING_REFERENCES],
     pending_head: usize,
     pending_len: usize,
     /// Whether the reference must be taken afresh from the drive (after a change of plan,
     /// whose block header carries it).
     reference_stale: bool,
+}
+
+impl Unit {
+    /// Empties the demodulator's sums for the next period.
+    fn clear(&mut self) {
+        self.acc = Complex64::new(0.0, 0.0);
+        self.image = Complex64::new(0.0, 0.0);
+    }
 }
 
 impl PidRuntime {
@@ -191,7 +198,6 @@ impl PidRuntime {
             word_held: None,
             base_held: None,
             update_phase: plan.pids.update_phase,
-            reference_index: 0,
             reference_phase: 0,
             reference_word: plan.frequency_word,
             pending: [ReferenceChange::default(); PENDING_REFERENCES],
@@ -217,17 +223,6 @@ impl PidRuntime {
         std::array::from_fn(|i| self.units[i].sums)
     }
 
-    /// The drive in force.
-    pub fn drive(&self) -> &Drive {
-        &self.drive
-    }
-
-    /// Whether a loop holds the surface distance away from `/surface/distance` (a unit on
-    /// it runs, or one that ran left it there).
-    pub fn surface_held(&self) -> bool {
-        self.held
-    }
-
     /// The outputs the loops hold away from the plan's nodes, bit `PidTarget as usize`
     /// each.
     pub fn held_outputs(&self) -> u64 {
@@ -246,7 +241,6 @@ impl PidRuntime {
                 self.restart(state.sample_index());
             }
             self.reference_stale = false;
-            self.reference_index = state.sample_index();
             self.reference_phase = plan.output_phase_at(state.phase(), self.drive.word);
             self.reference_word = self.drive.word;
             self.pending_len = 0;
@@ -421,8 +415,7 @@ impl PidRuntime {
     /// loops.
     fn restart(&mut self, index: u64) {
         for unit in &mut self.units {
-            unit.acc = Complex64::new(0.0, 0.0);
-            unit.image = Complex64::new(0.0, 0.0);
+            unit.clear();
         }
         self.acc_count = 0;
         self.next_update = index;
@@ -437,7 +430,6 @@ impl PidRuntime {
     /// Mixes `segment` (output samples from index `index` on, the reference's next) into
     /// the enabled units' boxcars, against the reference and its pending changes.
     fn demodulate(&mut self, segment: &[f64], index: u64) {
-        debug_assert_eq!(index, self.reference_index);
         let mut done = 0;
         while done < segment.len() {
             let at = index + done as u64;
@@ -476,7 +468,6 @@ impl PidRuntime {
                 .wrapping_add(word.wrapping_mul(piece.len() as u64));
             done = until;
         }
-        self.reference_index = index + segment.len() as u64;
         self.acc_count += segment.len() as u32;
     }
 }
@@ -584,8 +575,7 @@ impl SynthPlan {
             }
         }
         for unit in &mut rt.units {
-            unit.acc = Complex64::new(0.0, 0.0);
-            unit.image = Complex64::new(0.0, 0.0);
+            unit.clear();
             unit.partial = false;
         }
         rt.acc_count = 0;

@@ -340,8 +340,11 @@ impl SynthPlan {
             };
             ScanPlan::new(settings, &cantilever, base, tables)
         });
-        let mut pids = PidPlan::new(settings, coupled.as_ref().map(|c| c.free_tip))?;
-        pids.base_per_free = drive.base_amplitude / settings.drive.free_amplitude;
+        let pids = PidPlan::new(
+            settings,
+            coupled.as_ref().map(|c| c.free_tip),
+            drive.base_amplitude,
+        )?;
         Ok(Self {
             scan,
             pids,

@@ -3,6 +3,8 @@
 //! Each test binary uses a part of it.
 #![allow(dead_code)]
 
+pub mod loops;
+
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, Iterator, Literal, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Literal, Mapping, Sequence, TypeVar
 
 from .errors import InstrumentError
 from .tree import NodeBranch, NodeLeaf
@@ -295,15 +295,15 @@ class PidUnit:
         return f"<ftafm PID unit {self.path}>"
 
 
-class Pids(Sequence[PidUnit]):
-    """The PID units of a synchronous :class:`ftafm.Instrument`: ``afm.pids[0]``,
-    ``len(afm.pids)``, iteration, and :meth:`status` of all four from one message."""
+_Unit = TypeVar("_Unit")
 
-    def __init__(self, client: "Instrument"):
-        self._client = client
-        self._units = [PidUnit(client, n) for n in range(PID_COUNT)]
 
-    def __getitem__(self, index: int) -> PidUnit:  # type: ignore[override]
+class _Units(Sequence[_Unit]):
+    """The four units by index, with an error naming the range past them."""
+
+    _units: list[_Unit]
+
+    def __getitem__(self, index: int) -> _Unit:  # type: ignore[override]
         try:
             return self._units[index]
         except IndexError:
@@ -314,8 +314,17 @@ class Pids(Sequence[PidUnit]):
     def __len__(self) -> int:
         return len(self._units)
 
-    def __iter__(self) -> Iterator[PidUnit]:
+    def __iter__(self) -> Iterator[_Unit]:
         return iter(self._units)
+
+
+class Pids(_Units[PidUnit]):
+    """The PID units of a synchronous :class:`ftafm.Instrument`: ``afm.pids[0]``,
+    ``len(afm.pids)``, iteration, and :meth:`status` of all four from one message."""
+
+    def __init__(self, client: "Instrument"):
+        self._client = client
+        self._units = [PidUnit(client, n) for n in range(PID_COUNT)]
 
     def status(self, *, timeout: float | None = None) -> list[PidStatus]:
         """Every unit in the next ``status`` message (:meth:`ftafm.Instrument.pid_status`)."""
@@ -405,27 +414,13 @@ class AsyncPidUnit:
         return f"<ftafm PID unit {self.path} (asyncio)>"
 
 
-class AsyncPids(Sequence[AsyncPidUnit]):
+class AsyncPids(_Units[AsyncPidUnit]):
     """The PID units of an :class:`ftafm.aio.Instrument`: ``inst.pids[0]``,
     ``len(inst.pids)``, iteration, and ``await`` :meth:`status` / :meth:`held`."""
 
     def __init__(self, client: "aio.Instrument"):
         self._client = client
         self._units = [AsyncPidUnit(client, n) for n in range(PID_COUNT)]
-
-    def __getitem__(self, index: int) -> AsyncPidUnit:  # type: ignore[override]
-        try:
-            return self._units[index]
-        except IndexError:
-            raise IndexError(
-                f"no PID unit /pids/{index}: /pids/0 … /pids/{PID_COUNT - 1}"
-            ) from None
-
-    def __len__(self) -> int:
-        return len(self._units)
-
-    def __iter__(self) -> Iterator[AsyncPidUnit]:
-        return iter(self._units)
 
     async def status(self, *, timeout: float | None = None) -> list[PidStatus]:
         """Every unit in the next ``status`` message."""
