@@ -178,6 +178,7 @@ fn threads(c: &mut Criterion) {
                 order: 4,
                 timeconstant: 100e-6,
                 rate: 10e3,
+                oscillator: Default::default(),
             };
         }
         let mut plan = DspPlan::new(&settings).expect("valid plan");

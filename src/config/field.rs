@@ -7,9 +7,9 @@
 use super::kind::{Kind, NodeValue, TextEntry, Typed};
 use super::limits::*;
 use super::settings::{
-    DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, InclusionShape, InversionMethod, PID_COUNT,
-    PidInput, PidTarget, Settings, SourceKind, SpectrumWindow, SweepDirection, SweepParameter,
-    SweepScale,
+    DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, InclusionShape, InversionMethod, Oscillator,
+    PID_COUNT, PidInput, PidTarget, Settings, SourceKind, SpectrumWindow, SweepDirection,
+    SweepParameter, SweepScale,
 };
 
 /// Declares [`Field`] and its table from rows of
@@ -156,7 +156,8 @@ named_value!(
     SweepDirection,
     InclusionShape,
     PidInput,
-    PidTarget
+    PidTarget,
+    Oscillator
 );
 
 node_table! {
@@ -185,6 +186,12 @@ node_table! {
             "The drive frequency follows /cantilever/f1, like an instrument's auto-tune (true), or stays where /drive/frequency puts it (false); setting /drive/frequency to another value than f1 turns it off.";
         DriveFreeAmplitude "/drive/free_amplitude", "m", Kind::Float(LENGTH), drive.free_amplitude,
             "Free (non-contact) peak tip amplitude at the drive frequency, in m.";
+        Drive2Enable "/drive2/enable", "", Kind::Bool, drive2.enable,
+            "A second base excitation at /drive2/frequency drives the lever beside /drive's (bimodal AFM: every mode and the contact take the sum), or is off (false). The coupled engine only, and not while scanning. Demodulators on oscillator \"drive2\" read its frequency either way.";
+        Drive2Frequency "/drive2/frequency", "Hz", Kind::Float(FREQUENCY), drive2.frequency,
+            "Frequency Ω₂/2π of the second excitation, in Hz; below half the sample rate. Its default is the default lever's second flexural resonance (`ftafm info` lists a lever's modes).";
+        Drive2FreeAmplitude "/drive2/free_amplitude", "m", Kind::Float(LENGTH), drive2.free_amplitude,
+            "Free (non-contact) peak tip amplitude the second excitation gives at /drive2/frequency, in m.";
         SurfaceDistance "/surface/distance", "m", Kind::Float(LENGTH), surface.distance,
             "Distance A_set from the tip's rest position to the sample surface, in m; the tip taps when it is below the amplitude.";
         AdhesionEnable "/adhesion/enable", "", Kind::Bool, adhesion.enable,
@@ -333,6 +340,8 @@ node_table! {
             "Time constant of each first-order low-pass section of demodulator {i}, in s; at least one sample period.";
         DemodRate "rate", "Hz", Kind::Float(OUTPUT_RATE), rate,
             "Output rate of demodulator {i}, in Hz; at most the sample rate.";
+        DemodOscillator "oscillator", "", Kind::Text(Oscillator::NAMES), oscillator,
+            "The oscillator demodulator {i} reads its harmonic of: \"drive\" (/drive/frequency, and a PLL's moves of it) or \"drive2\" (/drive2/frequency, the second excitation's, whether or not it is enabled).";
     }
     table pid(i) in pids[PID_COUNT] at "/pids" {
         PidEnable "enable", "", Kind::Bool, enable,

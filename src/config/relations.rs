@@ -15,8 +15,8 @@ use super::quantity::{number, quantity};
 use super::range::{Bound, Range};
 use super::registry::registry;
 use super::settings::{
-    DEMODULATOR_COUNT, Engine, INCLUSION_COUNT, PID_COUNT, PidTarget, PidUnitSettings, Settings,
-    SourceKind, SweepParameter,
+    DEMODULATOR_COUNT, DemodSettings, Engine, INCLUSION_COUNT, Oscillator, PID_COUNT, PidTarget,
+    PidUnitSettings, Settings, SourceKind, SweepParameter,
 };
 
 impl Settings {
@@ -65,6 +65,7 @@ impl Settings {
         }
         check_modes(self)?;
         check_drive(self)?;
+        check_drive2(self)?;
         check_spectrum(self)?;
         check_scope(self)?;
         check_demods(self)?;
@@ -90,7 +91,11 @@ fn nyquist(s: &Settings) -> f64 {
 /// The highest harmonic in band: the largest k with k × `/drive/frequency` <
 /// `/synth/sample_rate` / 2, at most [`MAX_HARMONIC`]. Demodulators above it are out of band.
 pub(crate) fn highest_harmonic(s: &Settings) -> u64 {
-    let (drive, limit) = (s.drive.frequency, nyquist(s));
+    harmonics_below(s.drive.frequency, nyquist(s))
+}
+
+/// The largest k (at most [`MAX_HARMONIC`]) with k × `drive` < `limit` (Hz).
+fn harmonics_below(drive: f64, limit: f64) -> u64 {
     let max = u64::from(MAX_HARMONIC);
     if !drive.is_finite() || drive <= 0.0 {
         return max;
@@ -116,11 +121,25 @@ pub fn harmonic_in_band(s: &Settings, k: u32) -> bool {
 }
 
 impl Settings {
+    /// The frequency of `oscillator` (Hz): `/drive/frequency` or `/drive2/frequency`.
+    pub fn oscillator_frequency(&self, oscillator: Oscillator) -> f64 {
+        match oscillator {
+            Oscillator::Drive => self.drive.frequency,
+            Oscillator::Drive2 => self.drive2.frequency,
+        }
+    }
+
+    /// Whether demodulator `d`'s harmonic of its oscillator lies below the Nyquist
+    /// frequency.
+    pub fn demod_in_band(&self, d: &DemodSettings) -> bool {
+        f64::from(d.harmonic) * self.oscillator_frequency(d.oscillator) < nyquist(self)
+    }
+
     /// Whether demodulator `index` is enabled and its harmonic in band: it produces frames.
     pub fn demod_active(&self, index: usize) -> bool {
         self.demods
             .get(index)
-            .is_some_and(|d| d.enable && harmonic_in_band(self, d.harmonic))
+            .is_some_and(|d| d.enable && self.demod_in_band(d))
     }
 
     /// The enabled demodulators whose harmonic is at or above the Nyquist frequency, by
@@ -187,20 +206,24 @@ impl Settings {
         if let Some((index, key)) = rest.and_then(|r| r.split_once('/')) {
             let i: usize = index.parse().ok()?;
             let d = self.demods.get(i)?;
-            return (matches!(key, "harmonic" | "enable")
+            let (node, f) = match d.oscillator {
+                Oscillator::Drive => ("/drive/frequency", self.drive.frequency),
+                Oscillator::Drive2 => ("/drive2/frequency", self.drive2.frequency),
+            };
+            return (matches!(key, "harmonic" | "enable" | "oscillator")
                 && d.enable
-                && !harmonic_in_band(self, d.harmonic))
+                && !self.demod_in_band(d))
             .then(|| {
                 format!(
-                    "out of band: /demods/{i}/harmonic × /drive/frequency = {} × {} = {} is at \
+                    "out of band: /demods/{i}/harmonic × {node} = {} × {} = {} is at \
                      or above the Nyquist frequency /synth/sample_rate / 2 = {}; demodulator {i} \
                      produces no frames (harmonics up to {} are in band: lower its harmonic or \
-                     the drive, or raise the sample rate in the config)",
+                     {node}, or raise the sample rate in the config)",
                     d.harmonic,
-                    quantity(self.drive.frequency, "Hz"),
-                    quantity(f64::from(d.harmonic) * self.drive.frequency, "Hz"),
+                    quantity(f, "Hz"),
+                    quantity(f64::from(d.harmonic) * f, "Hz"),
                     quantity(nyquist(self), "Hz"),
-                    highest_harmonic(self)
+                    harmonics_below(f, nyquist(self))
                 )
             });
         }
@@ -298,13 +321,21 @@ impl Settings {
         if !outside.is_empty() {
             let list: Vec<String> = outside
                 .iter()
-                .map(|&i| format!("{} (H{})", i, self.demods[i].harmonic))
+                .map(|&i| {
+                    let d = &self.demods[i];
+                    match d.oscillator {
+                        Oscillator::Drive => format!("{i} (H{})", d.harmonic),
+                        Oscillator::Drive2 => format!("{i} (H{} of drive2)", d.harmonic),
+                    }
+                })
                 .collect();
             out.push(format!(
-                "demodulators out of band, producing no frames: {} (harmonic × /drive/frequency \
-                 = {} must be below the Nyquist frequency {})",
+                "demodulators out of band, producing no frames: {} (harmonic × its oscillator's \
+                 frequency, /drive/frequency = {} or /drive2/frequency = {}, must be below the \
+                 Nyquist frequency {})",
                 list.join(", "),
                 quantity(self.drive.frequency, "Hz"),
+                quantity(self.drive2.frequency, "Hz"),
                 quantity(nyquist(self), "Hz")
             ));
         }
@@ -469,6 +500,44 @@ fn check_drive(s: &Settings) -> Result<(), NodeError> {
     Ok(())
 }
 
+/// The second excitation, while enabled: on the coupled engine (the paper engine's pulse
+/// train is periodic in `/drive` alone), not while scanning, below the Nyquist frequency.
+/// Disabled, it is only a reference: demodulators on it beyond Nyquist are out of band.
+fn check_drive2(s: &Settings) -> Result<(), NodeError> {
+    let d = &s.drive2;
+    if !d.enable {
+        return Ok(());
+    }
+    if d.frequency >= nyquist(s) {
+        return Err(invalid(
+            "/drive2/frequency",
+            format!(
+                "/drive2/frequency = {} must be below the Nyquist frequency \
+                 /synth/sample_rate / 2 = {} while /drive2/enable = true",
+                quantity(d.frequency, "Hz"),
+                quantity(nyquist(s), "Hz")
+            ),
+        ));
+    }
+    if s.synth.engine != Engine::Coupled {
+        return Err(invalid(
+            "/drive2/enable",
+            "/drive2/enable = true needs /synth/engine = \"coupled\": the paper engine's tap \
+             force is a pulse train periodic in /drive alone"
+                .to_owned(),
+        ));
+    }
+    if s.scan.enable {
+        return Err(invalid(
+            "/drive2/enable",
+            "/drive2/enable = true and /scan/enable = true: the scan runs with /drive alone; \
+             turn one of them off"
+                .to_owned(),
+        ));
+    }
+    Ok(())
+}
+
 /// Spectrum frames may overlap, so the only limit on their rate is one per sample.
 fn check_spectrum(s: &Settings) -> Result<(), NodeError> {
     let (rate, sample_rate) = (s.spectrum.rate, s.synth.sample_rate);
@@ -576,12 +645,13 @@ fn check_demods(s: &Settings) -> Result<(), NodeError> {
     Ok(())
 }
 
-/// The harmonics of the enabled demodulators, ascending, each once.
+/// The harmonics of `/drive` that the enabled demodulators measure, ascending, each once
+/// (those on `/drive2` are no harmonics of the tapping).
 fn enabled_harmonics(s: &Settings) -> Vec<u32> {
     let mut harmonics: Vec<u32> = s
         .demods
         .iter()
-        .filter(|demod| demod.enable)
+        .filter(|demod| demod.enable && demod.oscillator == Oscillator::Drive)
         .map(|demod| demod.harmonic)
         .collect();
     harmonics.sort_unstable();
@@ -639,14 +709,15 @@ pub(crate) fn sole_inversion_measure(s: &Settings, index: usize) -> bool {
     };
     let inversion = &s.inversion;
     let needed = [inversion.harmonic_a, inversion.harmonic_b];
+    let on_drive = |d: &DemodSettings| d.enable && d.oscillator == Oscillator::Drive;
     inversion.enable
-        && demod.enable
+        && on_drive(demod)
         && needed.contains(&demod.harmonic)
         && !s
             .demods
             .iter()
             .enumerate()
-            .any(|(i, d)| i != index && d.enable && d.harmonic == demod.harmonic)
+            .any(|(i, d)| i != index && on_drive(d) && d.harmonic == demod.harmonic)
 }
 
 /// The inversion's two harmonics differ (always, so enabling the inversion never fails on
@@ -666,7 +737,11 @@ fn check_inversion(s: &Settings) -> Result<(), NodeError> {
     if !inversion.enable {
         return Ok(());
     }
-    let measured = |k: u32| s.demods.iter().any(|d| d.enable && d.harmonic == k);
+    let measured = |k: u32| {
+        s.demods
+            .iter()
+            .any(|d| d.enable && d.oscillator == Oscillator::Drive && d.harmonic == k)
+    };
     for (path, k) in [("/inversion/harmonic_a", a), ("/inversion/harmonic_b", b)] {
         if !measured(k) {
             return Err(invalid(
@@ -1294,8 +1369,8 @@ mod tests {
             s.node_warning("/demods/3/harmonic").unwrap(),
             "out of band: /demods/3/harmonic × /drive/frequency = 60 × 100 kHz = 6 MHz is at \
              or above the Nyquist frequency /synth/sample_rate / 2 = 5 MHz; demodulator 3 \
-             produces no frames (harmonics up to 49 are in band: lower its harmonic or the \
-             drive, or raise the sample rate in the config)"
+             produces no frames (harmonics up to 49 are in band: lower its harmonic or \
+             /drive/frequency, or raise the sample rate in the config)"
         );
         assert!(s.node_warning("/demods/4/harmonic").is_none());
         s.demods[3].enable = false;

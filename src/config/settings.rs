@@ -25,6 +25,9 @@ pub struct Settings {
     pub tip: Material,
     pub sample: Material,
     pub drive: DriveSettings,
+    /// `[drive2]`: the second excitation (absent from older files: off).
+    #[serde(default)]
+    pub drive2: SecondDriveSettings,
     pub surface: SurfaceSettings,
     pub adhesion: AdhesionSettings,
     pub synth: SynthSettings,
@@ -96,6 +99,33 @@ pub struct DriveSettings {
     pub follow_f1: bool,
     /// Free tip amplitude at the drive frequency, peak (m).
     pub free_amplitude: f64,
+}
+
+/// `[drive2]`: a second base excitation, u₂ = U₂·sin θ₂, beside `/drive`'s, for bimodal
+/// AFM (docs/loops.md): both move the base, and every mode and the tip's contact take the
+/// sum. Its phase θ₂ starts at 0 with sample 0 and runs on at its own frequency.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SecondDriveSettings {
+    /// The second excitation drives the base (true) or is off (false). Demodulators on
+    /// `"drive2"` read its frequency either way.
+    pub enable: bool,
+    /// Its frequency Ω₂/2π (Hz).
+    pub frequency: f64,
+    /// Free tip amplitude it gives at its frequency, peak (m).
+    pub free_amplitude: f64,
+}
+
+impl Default for SecondDriveSettings {
+    /// Off, at the default lever's second flexural resonance, 1 nm: the small second
+    /// amplitude of bimodal AFM.
+    fn default() -> Self {
+        Self {
+            enable: false,
+            frequency: 626.689e3,
+            free_amplitude: 1e-9,
+        }
+    }
 }
 
 /// `[surface]`: where the sample is.
@@ -477,6 +507,9 @@ pub struct DemodSettings {
     pub timeconstant: f64,
     /// Output rate (Hz).
     pub rate: f64,
+    /// The oscillator it demodulates against (absent from older files: `/drive`'s).
+    #[serde(default)]
+    pub oscillator: Oscillator,
 }
 
 /// `[scan]`: the raster scan of the tip over the sample map. Trace (left to right) and
@@ -545,6 +578,23 @@ macro_rules! named_choice {
             }
         }
     };
+}
+
+named_choice! {
+    /// The reference a demodulator reads (`/demods/N/oscillator`): its harmonic k is of
+    /// this oscillator's frequency and phase.
+    Oscillator {
+        /// `/drive`: the excitation the tapping and the FT-AFM harmonics follow.
+        Drive = "drive",
+        /// `/drive2`: the second excitation (bimodal AFM), whether or not it is enabled.
+        Drive2 = "drive2",
+    }
+}
+
+impl Default for Oscillator {
+    fn default() -> Self {
+        Self::Drive
+    }
 }
 
 named_choice! {

@@ -13,6 +13,10 @@ pub struct BlockHeader {
     pub phase: u64,
     /// Drive phase words per sample.
     pub frequency_word: u64,
+    /// `/drive2`'s phase word of the first sample and its phase words per sample: the
+    /// reference of the demodulators on oscillator `"drive2"` (whether or not it drives).
+    pub phase2: u64,
+    pub frequency_word2: u64,
     /// Unix time (ns) when the block's newest sample was synthesised.
     pub t_synth_ns: u64,
     /// The raster of the scan in progress, if one runs.

@@ -130,6 +130,8 @@ mod tests {
                 len: 64,
                 phase: 0,
                 frequency_word: 1 << 60,
+                phase2: 0,
+                frequency_word2: 0,
                 t_synth_ns: 0,
                 raster: None,
                 epoch: 0,

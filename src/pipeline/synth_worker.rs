@@ -155,6 +155,9 @@ impl SynthWorker {
                     self.plan.frequency_word,
                 )
             };
+            let phase2 = self
+                .plan
+                .output_phase_at(self.state.phase2(), self.plan.frequency_word2);
             let clipped_before = self.state.counters.clipped;
             let (refined_before, over_before) =
                 (self.state.counters.refined, self.state.counters.over_budget);
@@ -250,6 +253,8 @@ impl SynthWorker {
                 len: BLOCK_SAMPLES as u32,
                 phase,
                 frequency_word,
+                phase2,
+                frequency_word2: self.plan.frequency_word2,
                 t_synth_ns: unix_ns(),
                 raster: self.plan.scan.as_ref().and(self.scan.raster),
                 epoch,
@@ -299,7 +304,7 @@ impl SynthWorker {
             *stamped = epoch;
         }
         // A streamed sample is taken when it is: no ADC filter delays it.
-        let phase = self.state.phase();
+        let (phase, phase2) = (self.state.phase(), self.state.phase2());
         self.feed.take(&mut finished[..n]);
         for (w, &x) in block.iter_mut().zip(&finished[..n]) {
             w.grid = x;
@@ -314,6 +319,8 @@ impl SynthWorker {
             len: n as u32,
             phase,
             frequency_word: self.plan.frequency_word,
+            phase2,
+            frequency_word2: self.plan.frequency_word2,
             t_synth_ns: unix_ns(),
             raster: None,
             epoch,

@@ -42,6 +42,7 @@ use rustfft::num_complex::Complex64;
 use super::drive::Drive;
 use super::lanes::{Lanes, Portable};
 use super::modal::ModalKernel;
+use super::phasor::Phasors;
 use super::window::Moments;
 use crate::physics::beam::{MAX_MODES, Mode};
 use crate::physics::contact::{Adhesion, HertzContact};
@@ -167,8 +168,10 @@ pub(crate) struct SubstepLevel {
     substeps: usize,
     /// Half a sub-step (s).
     half_dt: f64,
-    /// Drive phasor per sub-step, e^{iΩh/S}.
+    /// Drive phasor per sub-step, e^{iΩh/S}; and the second excitation's, e^{iΩ₂h/S}
+    /// (1 without one).
     sub_rotation: Complex64,
+    sub_rotation2: Complex64,
     /// The tip's displacement after a sub-step's drift per unit of Im q, of Re q and of
     /// the thermal deviate before it (m), and per newton of the force whose kick opened
     /// the sub-step (Σ tip·a_im·kick times the kick's duration, m/N): half a sub-step
@@ -252,6 +255,7 @@ impl SubstepLevel {
             substeps,
             half_dt: 0.5 * dt,
             sub_rotation: Complex64::from_polar(1.0, omega * dt),
+            sub_rotation2: Complex64::new(1.0, 0.0),
             stiffness_limit,
         }
     }
@@ -308,6 +312,13 @@ pub struct CoupledKernel {
     pub(crate) distance: f64,
     /// The free tip position (base plus free deflection): z⁰ = Re[free_tip·e^{iθ}] (m).
     pub(crate) free_tip: Complex64,
+    /// The second excitation's part of it, Re[free_tip2·e^{iθ₂}] (m; 0 without one).
+    pub(crate) free_tip2: Complex64,
+    /// The free tip's curvature bound from the first excitation, Ω²·|z⁰| (m/s²).
+    curvature: f64,
+    /// The free tip's curvature bound from the second excitation, Ω₂²·|z⁰₂| (m/s²; 0
+    /// without one), which the margin adds to the first's.
+    curvature2: f64,
     /// Tip metres per unit of Im q: φ_n(L)/ω_d (s).
     pub(crate) tip: [f64; MAX_MODES],
     /// Change of Re q per newton-second of tip force: φ_n(L)/M_n (1/kg).
@@ -369,7 +380,8 @@ impl CoupledKernel {
             kick[m] = kernel.force_gain;
             free_tip += y * mode.tip_value;
         }
-        let margin = free_margin(modes, h, omega, drive_response, base_amplitude, adhesion);
+        let curvature = free_curvature(modes, omega, drive_response, base_amplitude);
+        let margin = free_margin(h, curvature, adhesion);
         let (mut strength, mut a0, mut pull_off) = (0.0, 1.0, 0.0);
         if let Some(a) = adhesion {
             strength = a.strength(contact.radius);
@@ -406,6 +418,9 @@ impl CoupledKernel {
             adhesion,
             distance,
             free_tip,
+            free_tip2: Complex64::new(0.0, 0.0),
+            curvature,
+            curvature2: 0.0,
             tip,
             kick,
             full: Drift::new(modes, h, thermal_sigma),
@@ -428,18 +443,37 @@ impl CoupledKernel {
         let omega = drive.omega();
         let response = &drive.response[..modes.len()];
         self.free_tip = drive.free_tip(modes);
-        self.margin = free_margin(
-            modes,
-            h,
-            omega,
-            response,
-            drive.base_amplitude,
-            self.adhesion,
-        );
+        self.curvature = free_curvature(modes, omega, response, drive.base_amplitude);
+        self.margin = free_margin(h, self.curvature + self.curvature2, self.adhesion);
         self.base_amplitude = drive.base_amplitude;
         self.omega = omega;
         for level in std::iter::once(&mut self.base).chain(&mut self.finer) {
             level.sub_rotation = Complex64::from_polar(1.0, omega * 2.0 * level.half_dt);
+        }
+    }
+
+    /// Takes up the second excitation `drive2` (or none) beside the first: the free tip
+    /// motion's second part, the sub-steps' second phasors and the margin. Built off the
+    /// real-time thread with the plan.
+    pub(crate) fn set_second_drive(&mut self, modes: &[Mode], h: f64, drive2: Option<&Drive>) {
+        let (free_tip2, curvature2, omega2) = match drive2 {
+            Some(d) => (
+                d.free_tip(modes),
+                free_curvature(
+                    modes,
+                    d.omega(),
+                    &d.response[..modes.len()],
+                    d.base_amplitude,
+                ),
+                d.omega(),
+            ),
+            None => (Complex64::new(0.0, 0.0), 0.0, 0.0),
+        };
+        self.free_tip2 = free_tip2;
+        self.curvature2 = curvature2;
+        self.margin = free_margin(h, self.curvature + curvature2, self.adhesion);
+        for level in std::iter::once(&mut self.base).chain(&mut self.finer) {
+            level.sub_rotation2 = Complex64::from_polar(1.0, omega2 * 2.0 * level.half_dt);
         }
     }
 
@@ -511,8 +545,20 @@ impl CoupledKernel {
 
     /// Tip position z (m) at drive phasor `rho` with mode lanes `im` (Im q).
     #[inline(always)]
-    pub(crate) fn tip_position<V: Lanes>(&self, c: &CoupledLanes<V>, rho: Complex64, im: V) -> f64 {
-        (self.free_tip * rho).re + c.tip.mul(im).sum()
+    pub(crate) fn tip_position<V: Lanes, P: Phasors>(
+        &self,
+        c: &CoupledLanes<V>,
+        rho: P,
+        im: V,
+    ) -> f64 {
+        rho.real(self.free_tips()) + c.tip.mul(im).sum()
+    }
+
+    /// The free tip's complex amplitudes on each excitation, as the loop's phasors carry
+    /// them.
+    #[inline(always)]
+    fn free_tips<P: Phasors>(&self) -> P {
+        P::new(self.free_tip, self.free_tip2)
     }
 
     /// The step of a sample clear of the surface at both ends without adhesion, where the
@@ -524,12 +570,12 @@ impl CoupledKernel {
     /// leaves out that step's force law and bookkeeping, which nine samples in ten of
     /// tapping skip.
     #[inline(always)]
-    pub(crate) fn clear_step<V: Lanes>(
+    pub(crate) fn clear_step<V: Lanes, P: Phasors>(
         &self,
         c: &CoupledLanes<V>,
         re: V,
         im: V,
-        next: Complex64,
+        next: P,
         z: V,
         tip: f64,
     ) -> Option<(V, V, f64)> {
@@ -560,13 +606,13 @@ impl CoupledKernel {
     /// hands them again from j = 0); the real-time loop passes a no-op, which compiles away.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    pub(crate) fn step_lanes<V: Lanes>(
+    pub(crate) fn step_lanes<V: Lanes, P: Phasors>(
         &self,
         c: &CoupledLanes<V>,
         re: V,
         im: V,
-        rho: Complex64,
-        next: Complex64,
+        rho: P,
+        next: P,
         z: V,
         tip: f64,
         mid: &mut (V, V),
@@ -654,13 +700,13 @@ impl CoupledKernel {
     /// [`sub_step`](Self::sub_step) at level `r`.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn at_level<V: Lanes>(
+    fn at_level<V: Lanes, P: Phasors>(
         &self,
         c: &CoupledLanes<V>,
         r: usize,
         re: V,
         im: V,
-        rho: Complex64,
+        rho: P,
         z: V,
         g0: f64,
         gap0: f64,
@@ -672,11 +718,11 @@ impl CoupledKernel {
             self.finer_steps(c, r, re, im, rho, z, g0, gap0, mid, moments, record)
         } else if self.base.substeps == DEFAULT_SUBSTEPS {
             // The default count compiled as a constant: its loop's bounds and midpoint known.
-            self.sub_step::<V, DEFAULT_SUBSTEPS>(
+            self.sub_step::<V, P, DEFAULT_SUBSTEPS>(
                 c, &self.base, &c.sub, 1, re, im, rho, z, g0, gap0, mid, moments, record,
             )
         } else {
-            self.sub_step::<V, 0>(
+            self.sub_step::<V, P, 0>(
                 c, &self.base, &c.sub, 1, re, im, rho, z, g0, gap0, mid, moments, record,
             )
         }
@@ -688,13 +734,13 @@ impl CoupledKernel {
     /// operation became a call: the synthesis ran 9× slower).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn finer_steps<V: Lanes>(
+    fn finer_steps<V: Lanes, P: Phasors>(
         &self,
         c: &CoupledLanes<V>,
         r: usize,
         re: V,
         im: V,
-        rho: Complex64,
+        rho: P,
         z: V,
         g0: f64,
         gap0: f64,
@@ -704,7 +750,7 @@ impl CoupledKernel {
     ) -> (V, V, f64, f64) {
         let level = self.level(r);
         let lanes = level.lanes::<V>();
-        self.sub_step::<V, 0>(
+        self.sub_step::<V, P, 0>(
             c,
             level,
             &lanes,
@@ -734,7 +780,7 @@ impl CoupledKernel {
     /// position at the end and the smallest gap met (m; from `gap0`, the start's).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn sub_step<V: Lanes, const FIXED: usize>(
+    fn sub_step<V: Lanes, P: Phasors, const FIXED: usize>(
         &self,
         c: &CoupledLanes<V>,
         level: &SubstepLevel,
@@ -742,7 +788,7 @@ impl CoupledKernel {
         stride: usize,
         mut re: V,
         mut im: V,
-        rho: Complex64,
+        rho: P,
         z: V,
         g0: f64,
         gap0: f64,
@@ -752,13 +798,14 @@ impl CoupledKernel {
     ) -> (V, V, f64, f64) {
         let dt = 2.0 * level.half_dt;
         let h = 2.0 * self.half_h;
-        let mut r = rho * level.sub_rotation;
+        let rotation = P::new(level.sub_rotation, level.sub_rotation2);
+        let free_tips = self.free_tips::<P>();
+        let mut r = rho.times(rotation);
         // Sub-step 0: its gap from the lanes it starts from.
         let p = s
             .sub_gap_im
             .mul_add(im, s.sub_gap_re.mul_add(re, s.sub_gap_noise.mul(z)));
-        let mut gap =
-            (self.free_tip * r).re + p.sum() + self.distance + level.first_gap_per_force * g0;
+        let mut gap = r.real(free_tips) + p.sum() + self.distance + level.first_gap_per_force * g0;
         let mut deepest = gap0;
         let mut g = g0;
         let mut impulse = level.half_dt * g0;
@@ -773,8 +820,8 @@ impl CoupledKernel {
             deepest = deepest.min(gap);
             let next_g;
             if j < substeps {
-                r *= level.sub_rotation;
-                let base = (self.free_tip * r).re
+                r = r.times(rotation);
+                let base = r.real(free_tips)
                     + two.sum()
                     + self.distance
                     + level.two_gap_per_impulse * impulse;
@@ -953,23 +1000,29 @@ impl CoupledKernel {
     }
 }
 
-/// How far from the surface (m) a sample's ends must keep the tip for the whole sample to
-/// be clear of it: twice the chord bound a·h²/8 of the tip's free path (its curvature
-/// bounded by Ω²|z⁰| for the drive and ω_n² per mode at its drive amplitude; the tap
-/// response is caught by the ends of the sample, where contact starts), never below 1 pm,
-/// and adhesion's reach.
-fn free_margin(
+/// The bound on the free tip path's curvature (m/s²) of a drive at `omega` (rad/s) with
+/// modal responses `drive_response` from base amplitude `base_amplitude` (m): Ω² times
+/// the base's and each mode's tip amplitude.
+fn free_curvature(
     modes: &[Mode],
-    h: f64,
     omega: f64,
     drive_response: &[Complex64],
     base_amplitude: f64,
-    adhesion: Option<Adhesion>,
 ) -> f64 {
     let mut curvature = omega * omega * base_amplitude;
     for (mode, y) in modes.iter().zip(drive_response) {
         curvature += omega * omega * (y * mode.tip_value).norm();
     }
+    curvature
+}
+
+/// How far from the surface (m) a sample's ends must keep the tip for the whole sample to
+/// be clear of it: twice the chord bound a·h²/8 of the tip's free path (its curvature
+/// bounded by Ω²|z⁰| for the drive and ω_n² per mode at its drive amplitude; the tap
+/// response is caught by the ends of the sample, where contact starts), never below 1 pm,
+/// and adhesion's reach.
+fn free_margin(h: f64, curvature: f64, adhesion: Option<Adhesion>) -> f64 {
+    debug_assert!(curvature >= 0.0);
     let margin = (curvature * h * h / 4.0).max(1e-12);
     match adhesion {
         Some(a) => margin.max(ADHESION_REACH * a.distance),

@@ -11,6 +11,7 @@ mod lanes;
 pub mod modal;
 pub mod noise_pages;
 pub mod normals;
+pub(crate) mod phasor;
 pub mod pid_plan;
 pub mod pids;
 pub mod plan;

@@ -87,6 +87,12 @@ pub struct SynthPlan {
     pub(crate) modes: Vec<ModalKernel>,
     /// The drive `/drive/*` configure: its steady responses, and the loop's constants.
     pub drive: Drive,
+    /// The second excitation (`/drive2/*`), where it drives: its steady responses beside
+    /// the first's. The coupled engine only.
+    pub drive2: Option<Drive>,
+    /// `/drive2/frequency`'s phase words per sample, whether or not it drives: the
+    /// reference of the demodulators on it (0 where it is not below the Nyquist frequency).
+    pub frequency_word2: u64,
     pub(crate) pulse: Option<PulseKernel>,
     /// The engine (`/synth/engine`).
     pub engine: Engine,
@@ -257,6 +263,15 @@ impl SynthPlan {
         );
         let drive_response = &drive.response[..cantilever.modes.len()];
         let drive_signal = drive.signal;
+        let frequency_word2 = frequency_word(settings.drive2.frequency, sample_rate).unwrap_or(0);
+        let drive2 = (settings.drive2.enable && engine == Engine::Coupled).then(|| {
+            Drive::with_free_amplitude(
+                &cantilever,
+                sample_rate,
+                frequency_word2,
+                settings.drive2.free_amplitude,
+            )
+        });
 
         let tap = match engine {
             Engine::Paper => {
@@ -303,7 +318,7 @@ impl SynthPlan {
         let force_window = force_window(&modes, h);
         let coupled = (engine == Engine::Coupled).then(|| {
             let contact = model::impact_oscillator(settings, &cantilever, settings.sample).contact;
-            CoupledKernel::new(
+            let mut kernel = CoupledKernel::new(
                 &cantilever.modes,
                 h,
                 omega,
@@ -315,7 +330,9 @@ impl SynthPlan {
                 &thermal_sigma,
                 settings.synth.contact_substeps as usize,
                 settings.synth.substep_budget,
-            )
+            );
+            kernel.set_second_drive(&cantilever.modes, h, drive2.as_ref());
+            kernel
         });
         let scan = settings.scan.enable.then(|| {
             let base = match &coupled {
@@ -357,6 +374,8 @@ impl SynthPlan {
             cantilever,
             modes,
             drive,
+            drive2,
+            frequency_word2,
             pulse,
             engine,
             coupled,

@@ -18,6 +18,7 @@ use super::lanes::{Avx8, Avx512x8};
 use super::lanes::{Lanes, Portable};
 use super::noise_pages::{NoisePages, PAGE, PageCounts, PageKey, PageSupply};
 use super::normals::NormalSource;
+use super::phasor::{Phasors, Two};
 
 use super::modal::ModalKernel;
 use super::plan::SynthPlan;
@@ -113,6 +114,10 @@ pub struct SynthState {
     im: [f64; MAX_MODES],
     phase: u64,
     rho: Complex64,
+    /// `/drive2`'s phase word of the next sample and its phasor (kept where it drives):
+    /// the reference of the demodulators on it, which runs on whether or not it drives.
+    phase2: u64,
+    rho2: Complex64,
     /// Seed of the noise sources.
     seed: u64,
     /// The thermal and detector deviates, a page of samples at a time, keyed by the
@@ -179,6 +184,8 @@ impl SynthState {
             im: q.map(|q| q.im),
             phase: 0,
             rho: Complex64::new(1.0, 0.0),
+            phase2: 0,
+            rho2: Complex64::new(1.0, 0.0),
             seed,
             noise: NoisePages::new(),
             adc,
@@ -219,6 +226,11 @@ impl SynthState {
         self.phase
     }
 
+    /// `/drive2`'s phase word of the next sample (2^64 = one period; 0 = cosine peak).
+    pub fn phase2(&self) -> u64 {
+        self.phase2
+    }
+
     /// Moves the stream on by `samples` without synthesising them: the sample index and the
     /// drive phase advance as if they had been (the modes keep their state, and the ADC
     /// window's next sample starts afresh), so a streamed source's blocks take the place of
@@ -229,6 +241,11 @@ impl SynthState {
             .phase
             .wrapping_add(plan.frequency_word.wrapping_mul(samples));
         self.rho = Complex64::from_polar(1.0, phase_to_radians(self.phase));
+        self.set_phase2(
+            plan,
+            self.phase2
+                .wrapping_add(plan.frequency_word2.wrapping_mul(samples)),
+        );
         self.window.valid = false;
     }
 
@@ -241,7 +258,16 @@ impl SynthState {
         self.counters.samples += 1;
         self.phase = plan.frequency_word.wrapping_mul(writer_index);
         self.rho = Complex64::from_polar(1.0, phase_to_radians(self.phase));
+        self.set_phase2(plan, plan.frequency_word2.wrapping_mul(writer_index));
         self.window.valid = false;
+    }
+
+    /// Puts `/drive2`'s phase at `phase2`, its phasor with it where it drives.
+    fn set_phase2(&mut self, plan: &SynthPlan, phase2: u64) {
+        self.phase2 = phase2;
+        if plan.drive2.is_some() {
+            self.rho2 = Complex64::from_polar(1.0, phase_to_radians(phase2));
+        }
     }
 
     /// Moves the modes from drive `from` to drive `to` at the next sample without a jump:
@@ -278,7 +304,18 @@ impl SynthState {
         }
         let theta = phase_to_radians(self.phase);
         let rho = Complex64::from_polar(1.0, theta);
-        let particular = |plan: &SynthPlan, m: usize| plan.drive.particular(m, rho);
+        let rho2 = Complex64::from_polar(1.0, phase_to_radians(self.phase2));
+        // Both excitations' steady motions: the second's where it drives.
+        let particular = |plan: &SynthPlan, m: usize| {
+            let (y, v) = plan.drive.particular(m, rho);
+            match &plan.drive2 {
+                Some(d) => {
+                    let (y2, v2) = d.particular(m, rho2);
+                    (y + y2, v + v2)
+                }
+                None => (y, v),
+            }
+        };
         for m in 0..new.modes.len() {
             let (y, v) = if m < old.modes.len() {
                 let (yh, vh) = old.modes[m].displacement_velocity(self.q(m));
@@ -293,6 +330,7 @@ impl SynthState {
         for m in new.modes.len()..MAX_MODES {
             self.set_q(m, Complex64::new(0.0, 0.0));
         }
+        self.rho2 = rho2;
     }
 }
 
@@ -421,15 +459,36 @@ impl SynthPlan {
         state: &mut SynthState,
         out: Output<'_>,
     ) {
-        match (coupled, self.anti_alias.is_some()) {
-            (Some(c), true) => {
-                self.process_lanes::<V, true, true>(drive, None, Some(c), state, out)
+        // A second excitation drives only the coupled engine (the settings refuse it on
+        // the paper engine's).
+        let two = self.drive2.as_ref().filter(|_| coupled.is_some());
+        match (coupled, self.anti_alias.is_some(), two) {
+            (Some(c), true, None) => self.process_lanes::<V, Complex64, true, true>(
+                drive,
+                None,
+                None,
+                Some(c),
+                state,
+                out,
+            ),
+            (Some(c), false, None) => self.process_lanes::<V, Complex64, false, true>(
+                drive,
+                None,
+                None,
+                Some(c),
+                state,
+                out,
+            ),
+            (Some(c), true, d2) => {
+                self.process_lanes::<V, Two, true, true>(drive, d2, None, Some(c), state, out)
             }
-            (Some(c), false) => {
-                self.process_lanes::<V, false, true>(drive, None, Some(c), state, out)
+            (Some(c), false, d2) => {
+                self.process_lanes::<V, Two, false, true>(drive, d2, None, Some(c), state, out)
             }
-            (None, true) => self.process_lanes::<V, true, false>(drive, pulse, None, state, out),
-            (None, false) => self.process_lanes::<V, false, false>(drive, pulse, None, state, out),
+            (None, true, _) => self
+                .process_lanes::<V, Complex64, true, false>(drive, None, pulse, None, state, out),
+            (None, false, _) => self
+                .process_lanes::<V, Complex64, false, false>(drive, None, pulse, None, state, out),
         }
     }
 
@@ -447,17 +506,31 @@ impl SynthPlan {
     /// sample to the next ([`WindowCarry`]).
     #[allow(clippy::needless_range_loop)]
     #[inline(always)]
-    fn process_lanes<V: Lanes, const MID: bool, const COUPLED: bool>(
+    fn process_lanes<V: Lanes, P: Phasors, const MID: bool, const COUPLED: bool>(
         &self,
         drive: &Drive,
+        drive2: Option<&Drive>,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
         out: Output<'_>,
     ) {
         let k = &self.lanes;
-        let step =
-            Complex64::from_polar(1.0, drive.word as f64 / TWO_POW_64 * std::f64::consts::TAU);
+        let rotation = |word: u64| {
+            Complex64::from_polar(1.0, word as f64 / TWO_POW_64 * std::f64::consts::TAU)
+        };
+        // The second excitation's amplitudes (zero where it does not drive; a single
+        // drive's phasors leave them out).
+        let zero = Complex64::new(0.0, 0.0);
+        let word2 = self.frequency_word2;
+        let step = P::new(
+            rotation(drive.word),
+            drive2.map_or(zero, |_| rotation(word2)),
+        );
+        let grid_c = P::new(drive.grid, drive2.map_or(zero, |d| d.grid));
+        let mid_c = P::new(drive.mid, drive2.map_or(zero, |d| d.mid));
+        let signal_c = P::new(drive.signal, drive2.map_or(zero, |d| d.signal));
+        let (start_index, start_phase2) = (state.counters.samples, state.phase2);
         let (a_re, a_im) = (V::load(&k.a_re), V::load(&k.a_im));
         let (noise_re, noise_im) = (V::load(&k.noise_re), V::load(&k.noise_im));
         let lever = V::load(&k.lever);
@@ -480,7 +553,7 @@ impl SynthPlan {
         // The coupled engine's tip position at the next sample, once a step has found it.
         let mut tip = f64::NAN;
         let mut phase = state.phase;
-        let mut rho = state.rho;
+        let mut rho = P::new(state.rho, state.rho2);
         let mut index = state.counters.samples;
         let mut clipped = 0u64;
         let (mut refined, mut over_budget) = (0u64, 0u64);
@@ -509,10 +582,11 @@ impl SynthPlan {
                 // coefficients).
                 let z = V::load_f32(&thermal[i * n..]);
                 if index.is_multiple_of(REANCHOR) {
-                    rho = Complex64::from_polar(1.0, phase_to_radians(phase));
+                    let phase2 = start_phase2.wrapping_add(word2.wrapping_mul(index - start_index));
+                    rho = P::at(phase, phase2);
                 }
                 let (re0, im0) = (re, im);
-                let mut next = rho * step;
+                let mut next = rho.times(step);
                 'sample: {
                     // The coupled engine's common case in tapping: a sample clear of the
                     // surface after a sample without force. It has no force and no carry, so
@@ -528,8 +602,8 @@ impl SynthPlan {
                             (re0, im0),
                             z,
                             z_before,
-                            (drive.grid * rho).re,
-                            (drive.mid * rho).re,
+                            rho.real(grid_c),
+                            rho.real(mid_c),
                         );
                         z_before = z;
                         // The run of clear samples after it, in a loop of its own: its few
@@ -545,7 +619,7 @@ impl SynthPlan {
                         let mut j = i + 1;
                         while j < stop {
                             let z = V::load_f32(&thermal[j * n..]);
-                            let next_run = rho_run * step;
+                            let next_run = rho_run.times(step);
                             let Some(clear) = coupled.clear_step(lanes, re, im, next_run, z, tip)
                             else {
                                 break;
@@ -554,8 +628,8 @@ impl SynthPlan {
                                 (re, im),
                                 z,
                                 z_before,
-                                (drive.grid * rho_run).re,
-                                (drive.mid * rho_run).re,
+                                rho_run.real(grid_c),
+                                rho_run.real(mid_c),
                             );
                             (re, im, tip) = clear;
                             z_before = z;
@@ -649,8 +723,8 @@ impl SynthPlan {
                         re = r1;
                     }
                     if MID {
-                        let drive_grid = (drive.grid * rho).re;
-                        let drive_mid = (drive.mid * rho).re;
+                        let drive_grid = rho.real(grid_c);
+                        let drive_mid = rho.real(mid_c);
                         if !forced && !forced_before {
                             (*out, mids[i]) =
                                 self.free_windows((re0, im0), z, z_before, drive_grid, drive_mid);
@@ -679,7 +753,7 @@ impl SynthPlan {
                         forced_before = forced;
                         z_before = z;
                     } else {
-                        *out = (drive.signal * rho).re + lever.mul(im0).sum();
+                        *out = rho.real(signal_c) + lever.mul(im0).sum();
                     }
                 }
                 phase = phase.wrapping_add(drive.word);
@@ -719,7 +793,11 @@ impl SynthPlan {
         knot_before.store(&mut carry.mid);
         (carry.input, carry.forced, carry.valid) = (input_before, forced_before, MID);
         state.phase = phase;
-        state.rho = rho;
+        state.rho = rho.first();
+        if let Some(rho2) = rho.second() {
+            state.rho2 = rho2;
+        }
+        state.phase2 = start_phase2.wrapping_add(word2.wrapping_mul(index - start_index));
         state.counters.samples = index;
         state.counters.clipped += clipped;
         state.counters.refined += refined;
@@ -892,6 +970,7 @@ impl SynthPlan {
         let before = BEFORE;
         let word = self.frequency_word;
         let start = 0u64.wrapping_sub((before as u64).wrapping_mul(word));
+        let start2 = 0u64.wrapping_sub((before as u64).wrapping_mul(self.frequency_word2));
         let t = -(before as f64) * self.h;
         let (periodic, refinement) = self.tap_steady_state(phase_to_radians(start));
         let mut temp = SynthState {
@@ -899,6 +978,8 @@ impl SynthPlan {
             im: [0.0; MAX_MODES],
             phase: start,
             rho: Complex64::from_polar(1.0, phase_to_radians(start)),
+            phase2: start2,
+            rho2: Complex64::from_polar(1.0, phase_to_radians(start2)),
             seed: 0,
             noise: NoisePages::new(),
             adc: AdcFilter::new(CHUNK, |_| 0.0),
