@@ -2,6 +2,7 @@
 //! impact oscillator, spectra and transfer functions. No threads, no I/O.
 
 pub mod beam;
+pub mod bimodal;
 pub mod contact;
 pub mod coupled;
 pub mod fm;
