@@ -493,6 +493,47 @@ fn harmonic_above_nyquist_is_out_of_band_not_refused() {
     assert!(s.node_warning("/demods/3/harmonic").is_none());
 }
 
+/// The second excitation: refused where it cannot drive (the paper engine, a scan, above
+/// Nyquist), each message naming the nodes; off, it is only a reference, and a
+/// demodulator on it is in or out of band by its own frequency.
+#[test]
+fn second_excitation_is_refused_where_it_cannot_drive() {
+    let on = "[drive2]\nenable = true\n";
+    assert_mentions(
+        &error_of(&format!("{on}[synth]\nengine = \"paper\"\n")),
+        &["/drive2/enable", "/synth/engine", "coupled"],
+    );
+    assert_mentions(
+        &error_of(&format!("{on}[scan]\nenable = true\n")),
+        &["/drive2/enable", "/scan/enable"],
+    );
+    assert_mentions(
+        &error_of(&format!("{on}frequency = 6e6\n")),
+        &["/drive2/frequency", "6 MHz", "Nyquist", "5 MHz"],
+    );
+    // Off, any frequency stands; a demodulator on it above Nyquist is out of band.
+    let s = load_str(
+        "[drive2]\nfrequency = 6e6\n[demods.20]\noscillator = \"drive2\"\nharmonic = 1\n",
+        "t.toml",
+    )
+    .unwrap();
+    assert!(!s.demod_active(20));
+    assert_mentions(
+        s.node_warning("/demods/20/oscillator").as_deref().unwrap(),
+        &["out of band", "/drive2/frequency", "6 MHz"],
+    );
+    // On drive2, demodulator 5's harmonic 6 is no harmonic of the drive: the inversion's
+    // harmonic_a = 6 loses its only measure.
+    assert_mentions(
+        &error_of("[demods.5]\noscillator = \"drive2\"\n"),
+        &["/inversion/harmonic_a = 6 is not measured by any enabled demodulator"],
+    );
+    assert_mentions(
+        &error_of("[demods.3]\noscillator = \"drive3\"\n"),
+        &["/demods/3/oscillator", "drive3", "drive2"],
+    );
+}
+
 /// A 300 kHz, 40 N/m lever, set up in one place: the drive follows f1, the demodulators it
 /// pushes above Nyquist are out of band, and the inversion takes in-band harmonics.
 #[test]
@@ -2124,8 +2165,8 @@ fn every_node_round_trips_through_set() {
 fn list_entries_have_the_protocol_fields() {
     let nodes = default_settings().nodes();
     assert_eq!(nodes.len(), registry().len());
-    // 69 scalar nodes, 8 inclusions of 10 nodes, 32 demodulators of 5, 4 PIDs of 12.
-    assert_eq!(nodes.len(), 69 + 8 * 10 + 32 * 5 + 4 * 12);
+    // 72 scalar nodes, 8 inclusions of 10 nodes, 32 demodulators of 6, 4 PIDs of 12.
+    assert_eq!(nodes.len(), 72 + 8 * 10 + 32 * 6 + 4 * 12);
     let entry = serde_json::to_value(&nodes[0]).unwrap();
     let keys: BTreeSet<&str> = entry
         .as_object()
@@ -2266,7 +2307,8 @@ fn nodes_under_matches_whole_segments() {
             "/demods/1/harmonic",
             "/demods/1/order",
             "/demods/1/timeconstant",
-            "/demods/1/rate"
+            "/demods/1/rate",
+            "/demods/1/oscillator"
         ]
     );
     // A trailing slash is malformed, as it is for `get` and `set`.
