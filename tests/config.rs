@@ -532,6 +532,14 @@ fn second_excitation_is_refused_where_it_cannot_drive() {
         &error_of("[demods.3]\noscillator = \"drive3\"\n"),
         &["/demods/3/oscillator", "drive3", "drive2"],
     );
+    // `list` gives the Nyquist limit while it drives, the static range while it is off.
+    let range = |s: &Settings| {
+        let info = &s.list("/drive2/frequency").unwrap()[0];
+        (info.max.clone(), info.max_inclusive)
+    };
+    assert_eq!(range(&default_settings()), (json!(1e8), Some(true)));
+    let on = load_str("[drive2]\nenable = true\n", "t.toml").unwrap();
+    assert_eq!(range(&on), (json!(5e6), Some(false)));
 }
 
 /// A 300 kHz, 40 N/m lever, set up in one place: the drive follows f1, the demodulators it

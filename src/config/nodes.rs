@@ -58,6 +58,8 @@ impl NodeSpec {
                         below(relations::highest_drive_frequency(s), false);
                         above(relations::lowest_drive_frequency(s));
                     }
+                    // While it drives, the second excitation stays below Nyquist.
+                    Field::Drive2Frequency if s.drive2.enable => below(sample_rate / 2.0, false),
                     Field::DemodTimeconstant(_) => above(1.0 / sample_rate),
                     Field::DemodRate(_) | Field::SpectrumRate => below(sample_rate, true),
                     Field::ScopeRate => below(relations::highest_scope_rate(s), true),

@@ -295,6 +295,10 @@ pub struct CoupledTrace {
     pub start_phase: u64,
     /// The free tip motion: z⁰ = Re[free_tip·e^{iθ}] (m).
     pub free_tip: Complex64,
+    /// `/drive2`'s phase word at the first sample, and its part of the free tip motion,
+    /// Re[free_tip2·e^{iθ₂}] (m; 0 where it does not drive).
+    pub start_phase2: u64,
+    pub free_tip2: Complex64,
 }
 
 /// Everything the coupled engine adds to a plan. Built off the real-time thread.

@@ -902,7 +902,22 @@ impl SynthPlan {
     /// Not for the real-time thread (it allocates). `None` with the paper engine.
     pub fn coupled_trace(&self, state: &mut SynthState, samples: usize) -> Option<CoupledTrace> {
         let coupled = self.coupled.as_ref()?;
-        let step = self.frequency_word;
+        // Both excitations where the second drives: the tip where the stream puts it.
+        Some(if self.drive2.is_some() {
+            self.trace_with::<Two>(coupled, state, samples)
+        } else {
+            self.trace_with::<Complex64>(coupled, state, samples)
+        })
+    }
+
+    /// [`coupled_trace`](Self::coupled_trace) with the drive phasors `P`.
+    fn trace_with<P: Phasors>(
+        &self,
+        coupled: &CoupledKernel,
+        state: &mut SynthState,
+        samples: usize,
+    ) -> CoupledTrace {
+        let (step, step2) = (self.frequency_word, self.frequency_word2);
         let mut trace = CoupledTrace {
             force: Vec::with_capacity(samples * coupled.substeps()),
             tip: Vec::with_capacity(samples),
@@ -910,6 +925,8 @@ impl SynthPlan {
             substeps: coupled.substeps(),
             start_phase: state.phase,
             free_tip: coupled.free_tip,
+            start_phase2: state.phase2,
+            free_tip2: coupled.free_tip2,
         };
         type All = Portable<MAX_MODES>;
         let lanes = coupled.lanes::<All>();
@@ -918,9 +935,12 @@ impl SynthPlan {
         let mut mid = (re, im);
         let mut moments = Moments::default();
         for _ in 0..samples {
-            let rho = Complex64::from_polar(1.0, phase_to_radians(state.phase));
-            let next_phase = state.phase.wrapping_add(step);
-            let next = Complex64::from_polar(1.0, phase_to_radians(next_phase));
+            let rho = P::at(state.phase, state.phase2);
+            let (next_phase, next_phase2) = (
+                state.phase.wrapping_add(step),
+                state.phase2.wrapping_add(step2),
+            );
+            let next = P::at(next_phase, next_phase2);
             let tip = coupled.tip_position(&lanes, rho, im);
             trace.tip.push(tip);
             let start = trace.force.len();
@@ -941,14 +961,15 @@ impl SynthPlan {
                     trace.force.push(g);
                 },
             );
-            state.phase = next_phase;
+            (state.phase, state.phase2) = (next_phase, next_phase2);
             state.counters.samples += 1;
         }
         re.store(&mut state.re);
         im.store(&mut state.im);
         state.rho = Complex64::from_polar(1.0, phase_to_radians(state.phase));
+        state.rho2 = Complex64::from_polar(1.0, phase_to_radians(state.phase2));
         state.window.valid = false;
-        Some(trace)
+        trace
     }
 
     /// The modal states at phase 0, the ADC filter's history and the window's carry for a
