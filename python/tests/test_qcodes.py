@@ -236,3 +236,8 @@ def test_the_second_drive_and_a_demodulators_oscillator(afm: FTAFM) -> None:
     # Back on the drive: the labels say the plain harmonic again.
     osc("drive")
     assert afm.demods[3].r.label == "H2 amplitude"
+    # A change made elsewhere (a script on another connection) shows once read.
+    afm.client.set("/demods/3/oscillator", "drive2")
+    assert afm.demods[3].r.label == "H2 amplitude", "not read yet"
+    assert osc() == "drive2"
+    assert afm.demods[3].r.label == "H2 of drive2 amplitude"

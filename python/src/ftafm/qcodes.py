@@ -475,7 +475,7 @@ class FTAFM(Instrument):
                     x for x in (node.description, bounds_text(node) and
                                 f"Allowed: {bounds_text(node)}.") if x
                 ),
-                get_cmd=lambda p=node.path: self.client.get(p),
+                get_cmd=lambda p=node.path: self._get(p),
                 set_cmd=(lambda v, p=node.path: self._set(p, v)) if node.writable
                 else False,
                 vals=_validator(self.client, node),
@@ -507,8 +507,17 @@ class FTAFM(Instrument):
             return PidChannel(self, index)
         return InstrumentChannel(self, f"{group.rstrip('s')}{index}")
 
+    def _get(self, path: str) -> Any:
+        value = self.client.get(path)
+        self._follow(path, value)
+        return value
+
     def _set(self, path: str, value: Any) -> None:
         self.client.set(path, value)
+        self._follow(path, value)
+
+    def _follow(self, path: str, value: Any) -> None:
+        """A demodulator's labels follow its harmonic and oscillator, read or set."""
         parts = path.split("/")
         if len(parts) == 4 and parts[1] == "demods" and parts[3] in ("harmonic", "oscillator"):
             channel = self.demod_channel(int(parts[2]))
