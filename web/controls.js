@@ -51,7 +51,7 @@ const GROUPS = [
 const DEMOD_ITEMS = [
   { key: "enable", label: "Enabled" },
   { key: "harmonic", label: "Harmonic k" },
-  { key: "oscillator", label: "Of oscillator", options: ["drive", "drive2"] },
+  { key: "oscillator", label: "Oscillator", options: ["drive", "drive2"] },
   { key: "order", label: "Filter order" },
   { key: "timeconstant", label: "Time constant" },
 ];
