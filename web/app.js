@@ -54,7 +54,7 @@ const app = {
   stats,
   hello: null,
   nodes: new Map(), // path → node as in `list`
-  params: { f1: 0, modes: 0, fDrive: 0 },
+  params: { f1: 0, modes: 0, fDrive: 0, fDrive2: 0 }, // fDrive2: 0 while the second drive is off
   history: new DemodHistory(30000),
   conn: null,
   /** The last change made from this page: { path, value, t } with t the simulated time (s)
@@ -65,6 +65,7 @@ const app = {
     const n = app.nodes.get(path);
     if (n) n.value = value;
     updateParams();
+    if (/^\/demods\/\d+\/oscillator$/.test(path)) syncOscillators();
     controls.updateDemodOptions();
     image.onSet(path, value);
   },
@@ -91,20 +92,37 @@ function updateParams() {
   app.params.f1 = v("/cantilever/f1") ?? 0;
   app.params.modes = (Array.isArray(q) ? q.length : 0) + (v("/cantilever/extra_modes") ?? 0);
   app.params.fDrive = v("/drive/frequency") ?? 0;
+  app.params.fDrive2 = v("/drive2/enable") ? v("/drive2/frequency") ?? 0 : 0;
   spectrum.dirty = true;
+}
+
+const OSCILLATOR_PATHS = Array.from({ length: 32 }, (_, i) => `/demods/${i}/oscillator`);
+
+/** The history and the harmonics panel learn each demodulator's oscillator from its node
+ * (the demods stream does not carry it). */
+function syncOscillators() {
+  for (let i = 0; i < OSCILLATOR_PATHS.length; i++) {
+    app.history.setOscillator(i, app.nodes.get(OSCILLATOR_PATHS[i])?.value ?? "drive");
+  }
 }
 
 /** The mode markers need f1 and the number of modes: re-read them now and then. */
 async function refreshParams() {
   if (!app.conn.open) return;
   try {
-    for (const path of ["/cantilever/f1", "/cantilever/q", "/cantilever/extra_modes", "/drive/frequency"]) {
-      const r = await app.conn.request("get", { path });
+    // one request for all: the demodulators' oscillators may change from a script
+    const paths = ["/cantilever/f1", "/cantilever/q", "/cantilever/extra_modes", "/drive/frequency",
+      "/drive2/enable", "/drive2/frequency", ...OSCILLATOR_PATHS];
+    const r = await app.conn.request("get", { paths });
+    for (const path of paths) {
+      if (!(path in r.values)) continue;
       const n = app.nodes.get(path);
-      if (n) n.value = r.value;
-      else app.nodes.set(path, { path, value: r.value });
+      if (n) n.value = r.values[path];
+      else app.nodes.set(path, { path, value: r.values[path] });
     }
     updateParams();
+    syncOscillators();
+    controls.updateDemodOptions();
   } catch (e) {
     if (e.code !== "disconnected") console.warn("ftafm: reading cantilever parameters:", e.message);
   }
@@ -181,6 +199,7 @@ async function onOpen(conn) {
     const list = await conn.request("list");
     for (const n of list.nodes) app.nodes.set(n.path, n);
     updateParams();
+    syncOscillators();
     controls.setNodes(app.nodes);
     pids.setNodes(app.nodes);
     await subs;
@@ -318,7 +337,7 @@ window.ftafm = {
   stats,
   app,
   panels: { spectrum, harmonics, contrast, scope, status, controls, force, image, sweeper, pids },
-  /** 0.2 s mean amplitude (m) at harmonic k, or null. */
+  /** 0.2 s mean amplitude (m) at harmonic k of the drive, or null. */
   amplitude(k) {
     const i = app.history.indexOf(k);
     const m = i >= 0 ? app.history.mean(i, 0.2) : null;

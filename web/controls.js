@@ -15,6 +15,12 @@ const GROUPS = [
     { path: "/drive/free_amplitude", label: "Free amplitude A₀", sym: "A₀" },
     { path: "/drive/frequency", label: "Drive frequency", sym: "f" },
   ] },
+  // bimodal AFM: a second base excitation; a demodulator reads it with oscillator "drive2"
+  { legend: "Second drive (bimodal)", items: [
+    { path: "/drive2/enable", label: "Second excitation" },
+    { path: "/drive2/free_amplitude", label: "Free amplitude A₂", sym: "A₂" },
+    { path: "/drive2/frequency", label: "Frequency f₂", sym: "f₂" },
+  ] },
   { legend: "Synthesis", items: [
     { path: "/noise/enable", label: "Noise" },
     { path: "/synth/engine", label: "Tip-force engine", options: ["paper", "coupled"] },
@@ -45,6 +51,7 @@ const GROUPS = [
 const DEMOD_ITEMS = [
   { key: "enable", label: "Enabled" },
   { key: "harmonic", label: "Harmonic k" },
+  { key: "oscillator", label: "Oscillator", options: ["drive", "drive2"] },
   { key: "order", label: "Filter order" },
   { key: "timeconstant", label: "Time constant" },
 ];
@@ -132,7 +139,7 @@ export class Control {
     const kind = this.kind();
     if (kind === "bool") this.input.checked = !!n.value;
     else if (kind === "text") {
-      const opts = [...new Set([n.value, ...(this.spec.options || [])])];
+      const opts = [...new Set([n.value, ...(n.allowed || this.spec.options || [])])];
       if (this.input.options.length !== opts.length || this.input.dataset.opts !== opts.join("|")) {
         this.input.innerHTML = opts.map((o) => `<option value="${esc(o)}">${esc(o)}</option>`).join("");
         this.input.dataset.opts = opts.join("|");
@@ -255,7 +262,9 @@ export class ControlsPanel {
     for (let i = 0; i < 32; i++) {
       const h = this.app.nodes.get(`/demods/${i}/harmonic`)?.value;
       const on = this.app.nodes.get(`/demods/${i}/enable`)?.value;
-      parts.push(`<option value="${i}">${i} — harmonic ${h ?? "?"}${on === false ? " (off)" : ""}</option>`);
+      const osc = this.app.nodes.get(`/demods/${i}/oscillator`)?.value;
+      const of = osc && osc !== "drive" ? ` of ${esc(osc)}` : "";
+      parts.push(`<option value="${i}">${i} — harmonic ${h ?? "?"}${of}${on === false ? " (off)" : ""}</option>`);
     }
     const html = parts.join("");
     if (html !== this.optionsHtml) {

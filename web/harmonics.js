@@ -13,6 +13,10 @@ const DEFAULT_HARMONICS = [1, 6, 17, 18];
 const MIN_FRAME_MS = 26;
 const READOUT_MS = 200;
 
+function esc(s) {
+  return String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
+}
+
 export class HarmonicsPanel {
   constructor(app) {
     this.app = app;
@@ -58,20 +62,25 @@ export class HarmonicsPanel {
     this.lastReadout = 0;
   }
 
-  /** Chips for every demodulator (its harmonic as the label); rebuilt when harmonics change. */
+  /** Chips for every demodulator (its harmonic as the label, "f₂×k" for a harmonic of the
+   * second drive); rebuilt when harmonics or oscillators change. */
   updateChips() {
     const h = this.hist.harmonic;
-    const key = Array.from(h).join(",") + "|" + Array.from(this.selected.entries()).join(";");
+    const osc = this.hist.oscillator;
+    const key = Array.from(h).join(",") + "|" + osc.join(",") + "|" + Array.from(this.selected.entries()).join(";");
     if (key === this.chipKey) return;
     this.chipKey = key;
     const parts = [];
     for (let i = 0; i < DEMODS; i++) {
       const on = this.selected.has(i);
       const style = on ? ` style="background:${this.selected.get(i)}"` : "";
-      const label = h[i] >= 0 ? h[i] : "–";
-      const cls = `chip${on ? " on" : ""}${h[i] < 0 ? " off" : ""}`;
-      const title = h[i] >= 0 ? `demodulator ${i}, harmonic ${h[i]}` : `demodulator ${i} (disabled)`;
-      parts.push(`<button type="button" class="${cls}" data-index="${i}" title="${title}"${style}>${label}</button>`);
+      const drive = this.hist.onDrive(i);
+      const label = h[i] < 0 ? "–" : drive ? String(h[i]) : `f₂×${h[i]}`;
+      const cls = `chip${on ? " on" : ""}${h[i] < 0 ? " off" : ""}${drive ? "" : " drive2"}`;
+      const title = h[i] < 0 ? `demodulator ${i} (disabled)`
+        : drive ? `demodulator ${i}, harmonic ${h[i]}`
+        : `demodulator ${i}, harmonic ${h[i]} of drive2 (/drive2/frequency)`;
+      parts.push(`<button type="button" class="${cls}" data-index="${i}" data-oscillator="${esc(osc[i])}" title="${esc(title)}"${style}>${label}</button>`);
     }
     this.chips.innerHTML = parts.join("");
   }
@@ -132,14 +141,16 @@ export class HarmonicsPanel {
   }
 
   updateTable() {
+    // harmonics of the drive first, then those of the second drive
     const rows = [...this.selected.entries()]
-      .map(([i, color]) => ({ i, color, m: this.hist.mean(i, 0.2), k: this.hist.harmonic[i] }))
-      .sort((a, b) => a.k - b.k);
-    const html = rows.map(({ i, color, m, k }) => {
+      .map(([i, color]) => ({ i, color, m: this.hist.mean(i, 0.2), k: this.hist.harmonic[i], osc: this.hist.oscillator[i] }))
+      .sort((a, b) => (a.osc === "drive" ? 0 : 1) - (b.osc === "drive" ? 0 : 1) || a.k - b.k);
+    const html = rows.map(({ i, color, m, k, osc }) => {
       const r = m ? m.r : NaN;
       const ph = m ? (m.phase * 180) / Math.PI : NaN;
-      return `<tr data-index="${i}" data-harmonic="${k}"><td><span class="swatch" style="background:${color}"></span></td>` +
-        `<td>${i}</td><td>${k >= 0 ? k : "off"}</td>` +
+      const of = osc === "drive" ? "" : ` of ${esc(osc)}`;
+      return `<tr data-index="${i}" data-harmonic="${k}" data-oscillator="${esc(osc)}"><td><span class="swatch" style="background:${color}"></span></td>` +
+        `<td>${i}</td><td>${k >= 0 ? k + of : "off"}</td>` +
         `<td class="r" data-value="${isFinite(r) ? r : ""}">${si(r, "m", 4)}</td>` +
         `<td class="phase" data-value="${isFinite(ph) ? ph : ""}">${isFinite(ph) ? ph.toFixed(2).replace("-", "−") + "°" : "–"}</td></tr>`;
     });

@@ -1,6 +1,8 @@
 // History of the lock-in outputs: one ring per demodulator index (0 … 31) of x, y, r and
 // phase, with a shared time axis (simulated time t of each demods message). At the default
-// 1 kHz it holds the last 30 s; a demodulator whose harmonic changes starts afresh.
+// 1 kHz it holds the last 30 s; a demodulator whose harmonic changes starts afresh, and so
+// does one whose oscillator changes (/demods/N/oscillator: the stream does not carry it, the
+// page sets it from the node, setOscillator).
 
 export const DEMODS = 32;
 
@@ -13,6 +15,7 @@ export class DemodHistory {
       for (const a of [this.x, this.y, this.r, this.p]) a.push(new Float32Array(capacity).fill(NaN));
     }
     this.harmonic = new Int32Array(DEMODS).fill(-1); // -1: not in the latest message (disabled)
+    this.oscillator = new Array(DEMODS).fill("drive"); // whose harmonic each reads: "drive" or "drive2"
     this.latest = new Array(DEMODS).fill(null);
     this.head = 0; // next write position
     this.len = 0;
@@ -36,6 +39,21 @@ export class DemodHistory {
   clearChannel(i) {
     this.channelEpoch[i]++;
     this.x[i].fill(NaN); this.y[i].fill(NaN); this.r[i].fill(NaN); this.p[i].fill(NaN);
+  }
+
+  /** Demodulator i reads the harmonics of `osc` (its /demods/N/oscillator node) from now on;
+   * true when that changed (its history then starts afresh). */
+  setOscillator(i, osc) {
+    if (i < 0 || i >= DEMODS || typeof osc !== "string" || this.oscillator[i] === osc) return false;
+    this.oscillator[i] = osc;
+    this.clearChannel(i);
+    this.version++;
+    return true;
+  }
+
+  /** Whether demodulator i reads a harmonic of the drive (not of the second excitation). */
+  onDrive(i) {
+    return this.oscillator[i] === "drive";
   }
 
   /** Adds one demods message. */
@@ -102,9 +120,9 @@ export class DemodHistory {
     return { r: sr / n, x: sx / n, y: sy / n, phase: Math.atan2(sy, sx), n, harmonic: this.harmonic[i] };
   }
 
-  /** Demodulator index measuring harmonic k (the lowest index), or -1. */
+  /** Demodulator index measuring harmonic k of the drive (the lowest index), or -1. */
   indexOf(k) {
-    for (let i = 0; i < DEMODS; i++) if (this.harmonic[i] === k) return i;
+    for (let i = 0; i < DEMODS; i++) if (this.harmonic[i] === k && this.onDrive(i)) return i;
     return -1;
   }
 }

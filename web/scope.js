@@ -78,10 +78,11 @@ export class ScopePanel {
     this.foldRange.update(lo, hi);
   }
 
-  /** Demodulator measuring harmonic 1: demodulator 0 if it does, else the first that does. */
+  /** Demodulator measuring harmonic 1 of the drive: demodulator 0 if it does, else the first
+   * that does. */
   fundamental() {
     const h = this.app.history;
-    const i = h.harmonic[0] === 1 ? 0 : h.indexOf(1);
+    const i = h.harmonic[0] === 1 && h.onDrive(0) ? 0 : h.indexOf(1);
     return i >= 0 && h.latest[i] ? { i, d: h.latest[i] } : null;
   }
 

@@ -99,7 +99,7 @@ export class SpectrumPanel {
     const xr = this.xRange(nyq);
     const dec = this.decades ?? [-15, -7];
     p.begin(xr, [10 ** dec[0], 10 ** dec[1]]);
-    const { fDrive, f1, modes } = this.app.params;
+    const { fDrive, fDrive2, f1, modes } = this.app.params;
     // drive harmonics: ticks along the top with their numbers in the margin
     if (this.showHarm.checked && fDrive > 0) {
       const kmax = Math.floor(xr[1] / fDrive);
@@ -145,7 +145,8 @@ export class SpectrumPanel {
       ? `Δf = ${si(d.binWidth, "Hz", 4)} · ${d.mags.length} bins · t = ${d.t.toFixed(3)} s` +
         (this.pow ? ` · power average of ~${this.powN} spectra` : "") +
         (f1 > 0 ? ` · ${modes} modes from f1 = ${si(f1, "Hz", 4)}` : "") +
-        (fDrive > 0 ? ` · drive ${si(fDrive, "Hz", 4)}` : "")
+        (fDrive > 0 ? ` · drive ${si(fDrive, "Hz", 4)}` : "") +
+        (fDrive2 > 0 ? ` · drive2 ${si(fDrive2, "Hz", 4)}` : "")
       : "";
   }
 

@@ -195,9 +195,9 @@ export class SweeperPanel {
     return r.clear ? `; ${where} (the free lever's resonance)` : `; ${where}: not clear of the tip's swing, it may still touch`;
   }
 
-  /** r and phase of harmonic `k` at a point (NaN where it was not measured). */
+  /** r and phase of harmonic `k` of the drive at a point (NaN where it was not measured). */
   at(p, k) {
-    const d = p.demods.find((d) => d.harmonic === k);
+    const d = p.demods.find((d) => d.harmonic === k && this.app.history.onDrive(d.index));
     return d && typeof d.r === "number" ? d.r : NaN;
   }
 

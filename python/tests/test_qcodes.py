@@ -188,3 +188,56 @@ def test_pid_units_as_a_channel_list_reading_their_latest_update(afm: FTAFM) -> 
     # changes), so that the restore of the settings after the test moves it back.
     unit.enable(False)
     afm.surface.distance(21e-9)
+
+
+def test_the_second_drive_and_a_demodulators_oscillator(afm: FTAFM) -> None:
+    from qcodes import validators as vals
+
+    drive2 = afm.drive2
+    assert drive2.enable is afm.by_path["/drive2/enable"]
+    assert (drive2.enable.label, drive2.enable.unit) == ("Second drive enable", "")
+    assert (drive2.frequency.label, drive2.frequency.unit) == ("Second drive frequency", "Hz")
+    assert (drive2.free_amplitude.label, drive2.free_amplitude.unit) == (
+        "Second drive free amplitude", "m")
+    assert isinstance(drive2.enable.vals, vals.Bool)
+    assert repr(drive2.free_amplitude.vals) == "<0 < value ≤ 1e-6 m>"
+    osc = afm.demods[3].oscillator
+    assert osc is afm.by_path["/demods/3/oscillator"]
+    assert osc.label == "Demodulator 3 oscillator"
+    assert isinstance(osc.vals, vals.Enum) and set(osc.vals.valid_values) == {"drive", "drive2"}
+    assert osc.cache.get() == "drive"
+    # Set and read back, and the daemon holds the same.
+    drive2.enable(True)
+    drive2.frequency(610e3)
+    drive2.free_amplitude(3e-9)
+    afm.demods[3].harmonic(2)
+    osc("drive2")
+    assert (drive2.enable(), drive2.frequency(), drive2.free_amplitude(), osc()) == (
+        True, 610e3, 3e-9, "drive2")
+    assert afm.client.get_many(["/drive2/frequency", "/demods/3/oscillator"]) == {
+        "/drive2/frequency": 610e3, "/demods/3/oscillator": "drive2"}
+    # The labels say which oscillator's harmonic a demodulator measures, in a snapshot too.
+    assert afm.demods[3].r.label == "H2 of drive2 amplitude"
+    assert afm.demods[3].sample.labels[0] == "H2 of drive2 in-phase x"
+    assert afm.demods[4].r.label == "H5 amplitude"
+    snap = afm.snapshot(update=True)
+    demod3 = snap["submodules"]["demods"]["channels"]["afm_test_demod3"]["parameters"]
+    assert demod3["oscillator"]["value"] == "drive2"
+    assert demod3["r"]["label"] == "H2 of drive2 amplitude"
+    assert snap["submodules"]["drive2"]["parameters"]["frequency"]["value"] == 610e3
+    # A value outside the Enum is refused before it is sent; the daemon still holds drive2.
+    with pytest.raises(ValueError, match="drive3"):
+        afm.demods[3].oscillator("drive3")
+    assert afm.client.get("/demods/3/oscillator") == "drive2"
+    # Above Nyquist while enabled: only the daemon knows (the static range allows it).
+    with pytest.raises(ftafm.InstrumentError, match="/drive2/frequency"):
+        drive2.frequency(6e6)
+    assert drive2.frequency() == 610e3
+    # Back on the drive: the labels say the plain harmonic again.
+    osc("drive")
+    assert afm.demods[3].r.label == "H2 amplitude"
+    # A change made elsewhere (a script on another connection) shows once read.
+    afm.client.set("/demods/3/oscillator", "drive2")
+    assert afm.demods[3].r.label == "H2 amplitude", "not read yet"
+    assert osc() == "drive2"
+    assert afm.demods[3].r.label == "H2 of drive2 amplitude"

@@ -4,6 +4,8 @@
 >>> afm = FTAFM("afm", "ws://127.0.0.1:8700/ws")          # doctest: +SKIP
 >>> afm.surface.distance(15e-9)                            # doctest: +SKIP
 >>> afm.demods[16].harmonic()                              # doctest: +SKIP
+>>> afm.drive2.enable(True)            # bimodal AFM: the second excitation  # doctest: +SKIP
+>>> afm.demods[3].oscillator("drive2") # its harmonics of /drive2/frequency  # doctest: +SKIP
 >>> afm.demods[16].sample()            # x, y, r, phase of one frame   # doctest: +SKIP
 >>> afm.snapshot(update=True)          # every parameter, one request  # doctest: +SKIP
 
@@ -14,8 +16,16 @@ is an :class:`InstrumentModule` (``afm.sample.youngs_modulus``), numbered ones
 reads ("Sample Young's modulus", "H17 amplitude"), the node's unit and description, and a
 validator stating the range as the daemon enforces it, open or closed ends included
 (``0 < value ≤ 1e13 Pa``), read from ``list`` at the moment of the set (ranges may depend
-on other nodes). What only the daemon checks (relations between nodes) raises
-:class:`ftafm.InstrumentError` naming the node. Read-only nodes are get-only.
+on other nodes); a text node with a fixed set of values (``afm.demods[3].oscillator``:
+``"drive"`` or ``"drive2"``) has an :class:`~qcodes.validators.Enum` of them. What only
+the daemon checks (relations between nodes: ``/drive2/frequency`` below the Nyquist
+frequency while ``/drive2/enable``) raises :class:`ftafm.InstrumentError` naming the node.
+Read-only nodes are get-only.
+
+The second excitation of bimodal AFM is ``afm.drive2`` (``enable``, ``frequency`` in Hz,
+``free_amplitude`` in m). A demodulator reads the harmonics of the oscillator its
+``oscillator`` parameter names; the labels of one on ``"drive2"`` say so ("H1 of drive2
+amplitude").
 
 Measured parameters: per demodulator ``x``, ``y``, ``r`` (m), ``phase`` (rad) and ``t``
 (s) of its newest output, and ``sample``, all four from one frame (a
@@ -76,6 +86,7 @@ _WORDS = {
 #: Group titles, for labels ("Sample Young's modulus", "Demodulator 3 harmonic").
 _GROUPS = {
     "dsp": "DSP",
+    "drive2": "Second drive",
     "synth": "Synthesiser",
     "demods": "Demodulator",
     "inclusions": "Inclusion",
@@ -242,8 +253,9 @@ class DemodSample(MultiParameter):
 
 
 class DemodChannel(InstrumentChannel):
-    """Demodulator N: its nodes (``harmonic``, ``enable``, ...) and its newest output
-    (``x``, ``y``, ``r``, ``phase``, ``t``, and ``sample``, the four from one frame)."""
+    """Demodulator N: its nodes (``harmonic``, ``oscillator``, ``enable``, ...) and its
+    newest output (``x``, ``y``, ``r``, ``phase``, ``t``, and ``sample``, the four from one
+    frame), labelled with its harmonic and, when not the drive, its oscillator."""
 
     def __init__(self, driver: "FTAFM", index: int):
         super().__init__(driver, f"demod{index}")
@@ -268,13 +280,29 @@ class DemodChannel(InstrumentChannel):
             if "harmonic" in self.parameters else None
         return int(h) if isinstance(h, (int, float)) else None
 
-    def part_label(self, part: str) -> str:
+    def oscillator_now(self) -> str:
+        """The oscillator (``"drive"`` or ``"drive2"``) the driver last saw this demodulator
+        read its harmonic of."""
+        param = self.parameters.get("oscillator")
+        osc = param.cache.get(get_if_invalid=False) if param is not None else None
+        return osc if isinstance(osc, str) else "drive"
+
+    def harmonic_name(self) -> str | None:
+        """``"H17"`` for a harmonic of the drive, ``"H1 of drive2"`` for one of the second
+        excitation; ``None`` before the harmonic is known."""
         k = self.harmonic_now()
-        who = f"H{k}" if k is not None else f"Demodulator {self.index}"
+        if k is None:
+            return None
+        osc = self.oscillator_now()
+        return f"H{k}" if osc == "drive" else f"H{k} of {osc}"
+
+    def part_label(self, part: str) -> str:
+        who = self.harmonic_name() or f"Demodulator {self.index}"
         return f"{who} {_DEMOD_PARTS[part][1]}"
 
     def relabel(self) -> None:
-        """Labels follow the harmonic: "H17 amplitude"."""
+        """Labels follow the harmonic and its oscillator: "H17 amplitude", "H1 of drive2
+        amplitude"."""
         for part in _DEMOD_PARTS:
             param = self.parameters[part]
             assert isinstance(param, Parameter)
@@ -447,7 +475,7 @@ class FTAFM(Instrument):
                     x for x in (node.description, bounds_text(node) and
                                 f"Allowed: {bounds_text(node)}.") if x
                 ),
-                get_cmd=lambda p=node.path: self.client.get(p),
+                get_cmd=lambda p=node.path: self._get(p),
                 set_cmd=(lambda v, p=node.path: self._set(p, v)) if node.writable
                 else False,
                 vals=_validator(self.client, node),
@@ -479,11 +507,21 @@ class FTAFM(Instrument):
             return PidChannel(self, index)
         return InstrumentChannel(self, f"{group.rstrip('s')}{index}")
 
+    def _get(self, path: str) -> Any:
+        value = self.client.get(path)
+        self._follow(path, value)
+        return value
+
     def _set(self, path: str, value: Any) -> None:
         self.client.set(path, value)
-        if path.startswith("/demods/") and path.endswith("/harmonic"):
-            channel = self.demod_channel(int(path.split("/")[2]))
-            channel.parameters["harmonic"].cache._set_from_raw_value(value)
+        self._follow(path, value)
+
+    def _follow(self, path: str, value: Any) -> None:
+        """A demodulator's labels follow its harmonic and oscillator, read or set."""
+        parts = path.split("/")
+        if len(parts) == 4 and parts[1] == "demods" and parts[3] in ("harmonic", "oscillator"):
+            channel = self.demod_channel(int(parts[2]))
+            channel.parameters[parts[3]].cache._set_from_raw_value(value)
             channel.relabel()
 
     def demod_channel(self, index: int) -> DemodChannel:
