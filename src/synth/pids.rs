@@ -447,21 +447,34 @@ impl PidRuntime {
             };
             let piece = &segment[done..until];
             let word = self.reference_word;
-            for unit in self.units.iter_mut().filter(|u| u.enabled) {
-                let k = u64::from(unit.harmonic);
-                let mut rho = Complex64::from_polar(
-                    1.0,
-                    -phase_to_radians(harmonic_phase(self.reference_phase, unit.harmonic)),
-                );
-                let step =
-                    Complex64::from_polar(1.0, -(word.wrapping_mul(k) as f64) / TWO_POW_64 * TAU);
-                let (mut acc, mut image) = (unit.acc, unit.image);
+            // Units at one harmonic share their sums (a PLL and an amplitude loop both read
+            // harmonic 1): each harmonic's mixing runs once.
+            let mut harmonics = [0u32; PID_COUNT];
+            let mut count = 0;
+            for unit in self.units.iter().filter(|u| u.enabled) {
+                if !harmonics[..count].contains(&unit.harmonic) {
+                    harmonics[count] = unit.harmonic;
+                    count += 1;
+                }
+            }
+            for &harmonic in &harmonics[..count] {
+                let theta = harmonic_phase(self.reference_phase, harmonic);
+                let turn = word.wrapping_mul(u64::from(harmonic));
+                let rho0 = Complex64::from_polar(1.0, -phase_to_radians(theta));
+                let step = Complex64::from_polar(1.0, -(turn as f64) / TWO_POW_64 * TAU);
+                let mut rho = rho0;
+                let mut acc = Complex64::new(0.0, 0.0);
                 for &s in piece {
                     acc += rho * s;
-                    image += rho * rho;
                     rho *= step;
                 }
-                (unit.acc, unit.image) = (acc, image);
+                let image = image_sum(rho0, step, turn, piece.len() as u64);
+                for unit in self.units.iter_mut() {
+                    if unit.enabled && unit.harmonic == harmonic {
+                        unit.acc += acc;
+                        unit.image += image;
+                    }
+                }
             }
             self.reference_phase = self
                 .reference_phase
@@ -469,6 +482,23 @@ impl PidRuntime {
             done = until;
         }
         self.acc_count += segment.len() as u32;
+    }
+}
+
+/// Σ (ρ0·rⁿ)² over n = 0 … `len` − 1 for the mixing phasor ρ0 = e^{−iθ} and its step
+/// r = e^{−iω}, ω the phase word `turn` (2^64 = one turn): the boxcar's image of −kΩ over a
+/// piece of `len` samples, the geometric series summed in closed form (its terms do not
+/// depend on the signal, so no sample need add them).
+fn image_sum(rho0: Complex64, step: Complex64, turn: u64, len: u64) -> Complex64 {
+    let start = rho0 * rho0;
+    let ratio = step * step;
+    let last = Complex64::from_polar(1.0, -phase_to_radians(turn.wrapping_mul(2 * len)));
+    let denominator = Complex64::new(1.0, 0.0) - ratio;
+    // At 2kΩ a whole number of turns a sample, every term is the first.
+    if denominator.norm() < 1e-9 {
+        start * len as f64
+    } else {
+        start * (Complex64::new(1.0, 0.0) - last) / denominator
     }
 }
 
@@ -584,5 +614,35 @@ impl SynthPlan {
         }
         rt.take_drive(self, state, index, reference);
         rt.next_update = index + samples_until(state.phase(), rt.update_phase, rt.drive.word);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The closed form against the terms summed one by one: fractional periods, many
+    /// turns, and 2kΩ a whole turn a sample (the series' degenerate case).
+    #[test]
+    fn image_sum_is_the_series() {
+        for (theta, turn, len) in [
+            (0u64, 1u64 << 57, 100u64),
+            (0x1234_5678_9abc_def0, 0x0290_0000_1234_5678, 97),
+            (1 << 63, 1 << 63, 40),
+            (12345, 0, 7),
+        ] {
+            let mut direct = Complex64::new(0.0, 0.0);
+            for n in 0..len {
+                let phase = theta.wrapping_add(turn.wrapping_mul(n)).wrapping_mul(2);
+                direct += Complex64::from_polar(1.0, -phase_to_radians(phase));
+            }
+            let rho0 = Complex64::from_polar(1.0, -phase_to_radians(theta));
+            let step = Complex64::from_polar(1.0, -phase_to_radians(turn));
+            let closed = image_sum(rho0, step, turn, len);
+            assert!(
+                (closed - direct).norm() < 1e-9 * len as f64,
+                "θ {theta:#x}, ω {turn:#x}, {len}: {closed} against {direct}"
+            );
+        }
     }
 }
