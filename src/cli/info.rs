@@ -19,17 +19,20 @@ pub fn command(config: &ConfigArg) -> Result<ExitCode, ExitCode> {
         si(settings.cantilever.k, "N/m", 4),
         si(settings.sample.youngs_modulus, "Pa", 4)
     );
+    // k_tip = K_n/φ_n(L)²: the spring a point force at the tip sees (the k of FM-AFM's
+    // and the bimodal expressions).
     println!(
-        "{:>4}  {:>12}  {:>8}  {:>12}  {:>9}",
-        "mode", "f", "Q", "K_n", "L·φ'(L)"
+        "{:>4}  {:>12}  {:>8}  {:>12}  {:>12}  {:>9}",
+        "mode", "f", "Q", "K_n", "k_tip", "L·φ'(L)"
     );
     for mode in &cantilever.modes {
         println!(
-            "{:>4}  {:>12}  {:>8.1}  {:>12}  {:>9.4}",
+            "{:>4}  {:>12}  {:>8.1}  {:>12}  {:>12}  {:>9.4}",
             mode.n,
             si(mode.frequency, "Hz", 6),
             mode.q,
             si(mode.stiffness, "N/m", 5),
+            si(mode.tip_stiffness(), "N/m", 5),
             mode.tip_slope
         );
     }
