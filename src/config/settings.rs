@@ -583,17 +583,13 @@ macro_rules! named_choice {
 named_choice! {
     /// The reference a demodulator reads (`/demods/N/oscillator`): its harmonic k is of
     /// this oscillator's frequency and phase.
+    #[derive(Default)]
     Oscillator {
         /// `/drive`: the excitation the tapping and the FT-AFM harmonics follow.
+        #[default]
         Drive = "drive",
         /// `/drive2`: the second excitation (bimodal AFM), whether or not it is enabled.
         Drive2 = "drive2",
-    }
-}
-
-impl Default for Oscillator {
-    fn default() -> Self {
-        Self::Drive
     }
 }
 
