@@ -843,3 +843,28 @@ fn approach_summary(measured: &[Measured], settings: &Settings) -> Value {
         "hysteresis": sweep::hysteresis(&up, &down).map(|(rel, at)| json!({"max": rel, "at": at})),
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_point_reads_the_drives_harmonics_past_a_demodulator_on_drive2() {
+        // Demodulator 0 reads harmonic 1 of /drive2: the tune's and approach's harmonic 1
+        // and mean are demodulator 1's and 2's, on the drive.
+        let mut demods = [(0, Oscillator::Drive, f64::NAN, f64::NAN); DEMODULATOR_COUNT];
+        demods[0] = (1, Oscillator::Drive2, 3.0, 4.0);
+        demods[1] = (1, Oscillator::Drive, 0.0, 2.0);
+        demods[2] = (0, Oscillator::Drive, 7.0, 0.0);
+        demods[3] = (0, Oscillator::Drive2, 9.0, 0.0);
+        let m = Measured {
+            value: 0.0,
+            leg: Leg::Up,
+            demods,
+        };
+        assert_eq!(m.r_at(1), Some(2.0));
+        assert_eq!(m.phase_at(1), Some(std::f64::consts::FRAC_PI_2));
+        assert_eq!(m.mean_deflection(), Some(7.0));
+        assert_eq!(m.r_at(2), None);
+    }
+}

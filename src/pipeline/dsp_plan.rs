@@ -332,6 +332,68 @@ mod tests {
     use super::*;
 
     #[test]
+    fn values_name_their_oscillator_and_drive2_values_read_the_second_tone() {
+        // Demodulator 1 on /drive2 at harmonic 1, the rest on the drive; a tone of each,
+        // in blocks whose headers' phases advance as the synthesiser's do.
+        struct Last([Option<DemodValue>; 4]);
+        impl DspSink for Last {
+            fn demod(&mut self, _: u64, v: DemodValue) {
+                self.0[usize::from(v.index)] = Some(v);
+            }
+            fn spectrum<I: ExactSizeIterator<Item = f64>>(&mut self, _: u64, _: f64, _: I) {}
+        }
+        let mut s = crate::config::default_settings();
+        s.synth.realtime = false;
+        s.spectrum.enable = false;
+        s.scope.enable = false;
+        s.dsp.threads = 1;
+        s.drive2.frequency = 626.689e3;
+        for (i, d) in s.demods.iter_mut().enumerate() {
+            d.enable = i < 4;
+            d.harmonic = 1;
+            d.timeconstant = 100e-6;
+            d.order = 4;
+        }
+        s.demods[1].oscillator = Oscillator::Drive2;
+        let fs = s.synth.sample_rate;
+        let word = crate::timebase::frequency_word(s.drive.frequency, fs).unwrap();
+        let word2 = crate::timebase::frequency_word(s.drive2.frequency, fs).unwrap();
+        let mut plan = DspPlan::new(&s).unwrap();
+        let mut team = DspTeam::spawn(0, false).unwrap();
+        let mut last = Last([None; 4]);
+        let (a, b, phi) = (2e-8, 5e-10, 0.7);
+        for block in 0..60u64 {
+            let first = block * 4096;
+            let x: Vec<f64> = (first..first + 4096)
+                .map(|m| {
+                    let t1 = crate::timebase::phase_to_radians(word.wrapping_mul(m));
+                    let t2 = crate::timebase::phase_to_radians(word2.wrapping_mul(m));
+                    a * t1.cos() + b * (t2 + phi).cos()
+                })
+                .collect();
+            plan.align_drive2(word2.wrapping_mul(first), word2);
+            plan.process_block(&mut team, word.wrapping_mul(first), word, &x, &mut last);
+        }
+        let [Some(d0), Some(d1), ..] = last.0 else {
+            panic!("no outputs")
+        };
+        assert_eq!(
+            (d0.oscillator, d1.oscillator),
+            (Oscillator::Drive, Oscillator::Drive2)
+        );
+        assert!(d0.on_drive() && !d1.on_drive());
+        assert!(
+            (d0.x - a).abs() < 1e-6 * a && d0.y.abs() < 1e-6 * a,
+            "{d0:?}"
+        );
+        let (x, y) = (b * phi.cos(), b * phi.sin());
+        assert!(
+            (d1.x - x).abs() < 1e-6 * b && (d1.y - y).abs() < 1e-6 * b,
+            "{d1:?}"
+        );
+    }
+
+    #[test]
     fn hops_stay_between_one_sample_and_the_longest() {
         assert_eq!(samples_between(2e6, 20.0), 100_000);
         assert_eq!(samples_between(2e6, 3e6), 1);
