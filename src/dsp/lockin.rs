@@ -67,8 +67,8 @@ const REANCHOR_INTERVAL: u32 = 256;
 pub struct Demodulator {
     /// Whether the demodulator runs and produces output.
     pub enable: bool,
-    /// Harmonic k of the drive (1); 0 demodulates the mean. Above the Nyquist frequency
-    /// (k·f_drive > f_s/2) it demodulates the alias, as sampling dictates.
+    /// Harmonic k of its oscillator (1); 0 demodulates the mean. Above the Nyquist
+    /// frequency (k·f > f_s/2, f the oscillator's frequency) it demodulates the alias, as sampling dictates.
     pub harmonic: u32,
     /// Low-pass order: identical first-order sections in cascade (1–8).
     pub order: u32,
@@ -132,7 +132,7 @@ impl LockInSample {
         self.x.hypot(self.y)
     }
 
-    /// Phase φ = arg(X + iY) against k times the drive phase (rad, in (−π, π]).
+    /// Phase φ = arg(X + iY) against k times its oscillator's phase (rad, in (−π, π]).
     pub fn phase(&self) -> f64 {
         self.y.atan2(self.x)
     }
@@ -622,7 +622,7 @@ impl LockInBank {
     /// A PLL moves the word by a little at every drive period: then only the phase steps
     /// follow it (one `sin_cos` per lane) while the pre-decimator's mixing taps stay on the
     /// word they were computed for, as long as that shifts the taps' symmetric kernel by at
-    /// most [`TAPS_TOLERANCE`] rad per sample at the highest harmonic: its passband gain is
+    /// most [`TAPS_TOLERANCE`] rad per sample at its lanes' highest harmonic: its passband gain is
     /// then within 1e-6 of what exact taps give, and its phase exact (the kernel stays
     /// symmetric about the window's centre, where the reference is taken).
     ///
@@ -673,7 +673,7 @@ impl LockInBank {
     /// The boxcar demodulation since the last call: for each enabled demodulator, in index
     /// order, `sink(demod, harmonic, oscillator, x, y)` with X + iY the mean of its pre-decimated
     /// baseband samples (the same calibration as its low-pass output: peak amplitude, phase
-    /// against k times the drive). A decimated sample belongs to the call after the input
+    /// against k times its oscillator's phase). A decimated sample belongs to the call after the input
     /// sample that completes it, [`group_delay`](Self::group_delay) samples after its
     /// centre. Resets the integrators; returns the decimated samples averaged (0: nothing
     /// is reported). Real-time safe.
