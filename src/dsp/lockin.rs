@@ -622,9 +622,9 @@ impl LockInBank {
     /// A PLL moves the word by a little at every drive period: then only the phase steps
     /// follow it (one `sin_cos` per lane) while the pre-decimator's mixing taps stay on the
     /// word they were computed for, as long as that shifts the taps' symmetric kernel by at
-    /// most [`TAPS_TOLERANCE`] rad per sample at its lanes' highest harmonic: its passband gain is
-    /// then within 1e-6 of what exact taps give, and its phase exact (the kernel stays
-    /// symmetric about the window's centre, where the reference is taken).
+    /// most [`TAPS_TOLERANCE`] rad per sample at its lanes' highest harmonic: its passband
+    /// gain is then within 1e-6 of what exact taps give, and its phase exact (the kernel
+    /// stays symmetric about the window's centre, where the reference is taken).
     ///
     /// Only the demodulators on [`Oscillator::Drive`] follow; those on the second
     /// excitation keep their reference ([`align_drive2`](Self::align_drive2)).
