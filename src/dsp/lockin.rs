@@ -68,7 +68,8 @@ pub struct Demodulator {
     /// Whether the demodulator runs and produces output.
     pub enable: bool,
     /// Harmonic k of its oscillator (1); 0 demodulates the mean. Above the Nyquist
-    /// frequency (k·f > f_s/2, f the oscillator's frequency) it demodulates the alias, as sampling dictates.
+    /// frequency (k·f > f_s/2, f the oscillator's frequency) it demodulates the alias, as
+    /// sampling dictates.
     pub harmonic: u32,
     /// Low-pass order: identical first-order sections in cascade (1–8).
     pub order: u32,
@@ -671,11 +672,11 @@ impl LockInBank {
     }
 
     /// The boxcar demodulation since the last call: for each enabled demodulator, in index
-    /// order, `sink(demod, harmonic, oscillator, x, y)` with X + iY the mean of its pre-decimated
-    /// baseband samples (the same calibration as its low-pass output: peak amplitude, phase
-    /// against k times its oscillator's phase). A decimated sample belongs to the call after the input
-    /// sample that completes it, [`group_delay`](Self::group_delay) samples after its
-    /// centre. Resets the integrators; returns the decimated samples averaged (0: nothing
+    /// order, `sink(demod, harmonic, oscillator, x, y)` with X + iY the mean of its
+    /// pre-decimated baseband samples (the same calibration as its low-pass output: peak
+    /// amplitude, phase against k times its oscillator's phase). A decimated sample belongs
+    /// to the call after the input sample that completes it,
+    /// [`group_delay`](Self::group_delay) samples after its centre. Resets the integrators; returns the decimated samples averaged (0: nothing
     /// is reported). Real-time safe.
     pub fn take_integrals(
         &mut self,
