@@ -87,6 +87,7 @@ fn main() {
             frame.values[i] = DemodValue {
                 index: i as u8,
                 harmonic: i as u32 + 1,
+                oscillator: Default::default(),
                 x: z.re,
                 y: z.im,
             };

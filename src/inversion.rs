@@ -26,7 +26,7 @@
 
 use serde::Serialize;
 
-use crate::config::{Engine, InversionMethod, Material, Settings};
+use crate::config::{Engine, InversionMethod, Material, Oscillator, Settings};
 use crate::model;
 use crate::physics::inversion::{
     ALIAS_HARMONICS, CutCosineFit, CutCosinePrior, CutCosineStart, HarmonicSample,
@@ -135,7 +135,7 @@ pub struct ForceEstimator {
     averaging: usize,
     points: usize,
     noise: NoiseModel,
-    /// Per demodulator index (`None`: disabled).
+    /// Per demodulator index (`None`: disabled, or on `/drive2`).
     demods: Vec<Option<DemodNoise>>,
     /// F(E) and τ(E) as the method measures them. With the paper engine the tap force *is*
     /// the cut cosine of the 1-DOF (F, τ), so both methods measure exactly the 1-DOF pulse's
@@ -195,8 +195,13 @@ impl ForceEstimator {
         })?;
         let pair = (pair.0 as usize, pair.1 as usize);
         let fs = settings.synth.sample_rate;
+        // The tapping's harmonics: those of demodulators on /drive (one on /drive2 reads
+        // another excitation's, which the inversion does not model).
+        let on_drive = |i: usize| {
+            settings.demod_active(i) && settings.demods[i].oscillator == Oscillator::Drive
+        };
         let harmonics: Vec<usize> = (0..settings.demods.len())
-            .filter(|&i| settings.demod_active(i))
+            .filter(|&i| on_drive(i))
             .map(|i| settings.demods[i].harmonic as usize)
             .collect();
         let mut lockin =
@@ -229,7 +234,7 @@ impl ForceEstimator {
             .iter()
             .enumerate()
             .map(|(i, d)| {
-                settings.demod_active(i).then(|| {
+                on_drive(i).then(|| {
                     let filter = LowPassNoise {
                         order: d.order,
                         time_constant: d.timeconstant,
@@ -422,7 +427,7 @@ impl ForceEstimator {
         }
         let n = self.summed as f64;
         let mut samples = Vec::with_capacity(frame.len);
-        for v in frame.values() {
+        for v in frame.values().iter().filter(|v| v.on_drive()) {
             let i = v.index as usize;
             let (Some(sum), Some(Some(noise))) = (self.sum.get(i), self.demods.get(i)) else {
                 continue;
@@ -447,7 +452,7 @@ impl ForceEstimator {
         bandwidth: f64,
     ) -> Result<ForceEstimate, EstimateError> {
         let mut samples = Vec::with_capacity(frame.len);
-        for v in frame.values() {
+        for v in frame.values().iter().filter(|v| v.on_drive()) {
             let Some(Some(noise)) = self.demods.get(v.index as usize) else {
                 continue;
             };

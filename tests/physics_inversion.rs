@@ -727,6 +727,7 @@ fn chain_frames(settings: &Settings, settle: f64, seconds: f64) -> Vec<DemodFram
             frame.values[frame.len] = DemodValue {
                 index: s.demod as u8,
                 harmonic: s.harmonic,
+                oscillator: s.oscillator,
                 x: s.x,
                 y: s.y,
             };
@@ -1423,6 +1424,7 @@ fn noisy_frame(
         frame.values[i] = DemodValue {
             index: i as u8,
             harmonic: k,
+            oscillator: Default::default(),
             x: z.re + sigma * x,
             y: z.im + sigma * y,
         };

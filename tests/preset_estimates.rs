@@ -97,6 +97,7 @@ fn point(lever: &str, sample: &str, seed: u64, averaging: Option<u32>) -> Outcom
         frame.values[frame.len] = DemodValue {
             index: i as u8,
             harmonic: d.harmonic,
+            oscillator: d.oscillator,
             x: z.re + sigma * x,
             y: z.im + sigma * y,
         };

@@ -69,6 +69,7 @@ fn demod(index: u8, harmonic: u32, x: f64, y: f64) -> DemodValue {
     DemodValue {
         index,
         harmonic,
+        oscillator: Default::default(),
         x,
         y,
     }

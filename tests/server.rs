@@ -71,7 +71,7 @@ async fn every_op_answers_and_ids_are_echoed() {
     )
     .await;
     assert_eq!(demod3["id"], json!([1, 2]));
-    assert_eq!(demod3["nodes"].as_array().unwrap().len(), 5);
+    assert_eq!(demod3["nodes"].as_array().unwrap().len(), 6);
 
     let set = call(
         &mut ws,

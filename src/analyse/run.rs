@@ -576,6 +576,8 @@ pub fn analyse_with(
     settings.drive.frequency = reference.frequency;
     settings.drive.follow_f1 = false;
     settings.scope.enable = false;
+    // Demodulators on /drive2 read /drive2/frequency from phase 0 at the recording's first
+    // sample: a recording carries the drive's reference alone.
     let mut plan = DspPlan::new(&settings).map_err(|e| format!("the lock-in bank: {e}"))?;
     let threads = dsp_threads(&settings).min(plan.shards());
     let mut team =

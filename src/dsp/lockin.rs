@@ -1,4 +1,4 @@
-//! Multi-harmonic lock-in: a bank of demodulators at harmonics of one drive.
+//! Multi-harmonic lock-in: a bank of demodulators at harmonics of a drive's oscillators.
 //!
 //! Signal path of demodulator i at harmonic k (all demodulators share steps 1–2):
 //!
@@ -16,6 +16,12 @@
 //! 3. Droop compensator `[−a, 1+2a, −a]` at f_s/D (see [`Predecimator`]).
 //! 4. The demodulator's [`LowPass`] at f_s/D, then decimation to its output rate.
 //!
+//! Each demodulator reads harmonic k of one of two oscillators ([`Oscillator`]): the drive
+//! (θ, which a PLL moves with [`LockInBank::align_drive`]) or the second excitation
+//! (θ₂, [`LockInBank::align_drive2`]). The oscillator only decides which integer phase and
+//! frequency word a lane's tables and phasors are computed from (steps 1–2); the kernel
+//! runs every lane alike, so it costs the same whichever oscillators the lanes read.
+//!
 //! Layout is structure-of-arrays over demodulators ("lanes", in blocks of 16) so the loops
 //! over lanes vectorise; on x86-64 with AVX2 and FMA a kernel compiled for them is chosen at
 //! construction.
@@ -24,6 +30,7 @@ use super::lowpass::MAX_ORDER;
 use super::predecimator::Predecimator;
 use super::simd::F64s;
 use super::{DspError, LowPass};
+pub use crate::config::Oscillator;
 use crate::timebase::{PREDECIMATION, PhaseAccumulator, harmonic_phase, phase_to_radians};
 
 /// Number of demodulators a bank holds at most.
@@ -60,8 +67,9 @@ const REANCHOR_INTERVAL: u32 = 256;
 pub struct Demodulator {
     /// Whether the demodulator runs and produces output.
     pub enable: bool,
-    /// Harmonic k of the drive (1); 0 demodulates the mean. Above the Nyquist frequency
-    /// (k·f_drive > f_s/2) it demodulates the alias, as sampling dictates.
+    /// Harmonic k of its oscillator (1); 0 demodulates the mean. Above the Nyquist
+    /// frequency (k·f > f_s/2, f the oscillator's frequency) it demodulates the alias, as
+    /// sampling dictates.
     pub harmonic: u32,
     /// Low-pass order: identical first-order sections in cascade (1–8).
     pub order: u32,
@@ -70,6 +78,9 @@ pub struct Demodulator {
     /// Requested output rate (Hz). The bank realises f_s/(D·M) for the integer M closest
     /// to f_s/(D·rate), at most f_s/D; [`LockInBank::output_rate`] reports it.
     pub output_rate: f64,
+    /// The oscillator whose harmonic k it reads: the drive (the default) or the second
+    /// excitation.
+    pub oscillator: Oscillator,
 }
 
 impl Demodulator {
@@ -82,7 +93,13 @@ impl Demodulator {
             order,
             time_constant,
             output_rate,
+            oscillator: Oscillator::Drive,
         }
+    }
+
+    /// The same demodulator reading harmonic k of `oscillator`.
+    pub const fn on(self, oscillator: Oscillator) -> Self {
+        Self { oscillator, ..self }
     }
 }
 
@@ -98,6 +115,8 @@ pub struct LockInSample {
     pub demod: usize,
     /// Its harmonic k.
     pub harmonic: u32,
+    /// The oscillator whose harmonic k it reads.
+    pub oscillator: Oscillator,
     /// Index of the newest input sample that went into this output (counted from the
     /// bank's first sample). The low-pass adds its own delay (n·τ at DC); the
     /// pre-decimator and compensator a fixed [`LockInBank::group_delay`].
@@ -114,7 +133,7 @@ impl LockInSample {
         self.x.hypot(self.y)
     }
 
-    /// Phase φ = arg(X + iY) against k times the drive phase (rad, in (−π, π]).
+    /// Phase φ = arg(X + iY) against k times its oscillator's phase (rad, in (−π, π]).
     pub fn phase(&self) -> f64 {
         self.y.atan2(self.x)
     }
@@ -183,8 +202,8 @@ impl Default for BlockState {
     }
 }
 
-/// What the settings and the drive frequency determine, per lane (lane = position among
-/// the enabled demodulators; lanes past `count` are spare and compute zeros).
+/// What the settings and the oscillators' frequencies determine, per lane (lane = position
+/// among the enabled demodulators; lanes past `count` are spare and compute zeros).
 #[derive(Debug)]
 struct Plan {
     /// Enabled demodulators (lanes in use).
@@ -193,6 +212,8 @@ struct Plan {
     demod: Vec<usize>,
     /// Harmonic of each lane (0 for spare lanes).
     harmonic: Vec<u32>,
+    /// The oscillator of each lane (the drive for spare lanes).
+    oscillator: Vec<Oscillator>,
     /// Mixer gain: 2 for k ≥ 1 (one-sided peak amplitude), 1 for the mean; 0 when spare.
     gain: Vec<f64>,
     /// Decimated samples per output, per lane in use.
@@ -204,10 +225,16 @@ struct Plan {
     /// `[block][u]` → `[g·h_u·cos(kωu), g·h_u·sin(kωu)]` over the block's lanes.
     coef: Vec<Row>,
     blocks: Vec<BlockConstants>,
-    /// The frequency word `coef` was computed for.
+    /// The frequency word the drive lanes' `coef` was computed for.
     taps_word: u64,
-    /// The highest harmonic of a lane in use.
+    /// The same for the lanes on the second excitation.
+    taps_word2: u64,
+    /// The highest harmonic of a lane in use on the drive.
     max_harmonic: u32,
+    /// The highest harmonic of a lane in use on the second excitation.
+    max_harmonic2: u32,
+    /// Lanes in use on the second excitation.
+    count2: usize,
     /// Times `coef` was recomputed.
     retunes: u64,
 }
@@ -217,6 +244,8 @@ struct Plan {
 struct State {
     /// Drive phase of sample `samples`, the next one to arrive.
     drive: PhaseAccumulator,
+    /// The second excitation's phase of that sample.
+    drive2: PhaseAccumulator,
     /// Input samples consumed.
     samples: u64,
     /// The last 2c input samples, then room for a chunk.
@@ -289,20 +318,42 @@ pub struct LockInBank {
 impl LockInBank {
     /// A bank for input at `sample_rate` (Hz) and a drive at `drive_frequency` (Hz), with
     /// `demodulators[i]` becoming demodulator i (at most [`MAX_DEMODULATORS`]; disabled
-    /// ones are neither validated nor run). Drive phase 0 at sample 0.
+    /// ones are neither validated nor run). Drive phase 0 at sample 0. Demodulators on
+    /// [`Oscillator::Drive2`] read a second excitation at 0 Hz until
+    /// [`align_drive2`](Self::align_drive2) sets it ([`with_drive2`](Self::with_drive2)
+    /// gives its frequency from the start).
     pub fn new(
         sample_rate: f64,
         drive_frequency: f64,
         demodulators: &[Demodulator],
     ) -> Result<Self, DspError> {
         let drive = PhaseAccumulator::new(drive_frequency, sample_rate)?;
-        Self::with_drive(sample_rate, drive, demodulators)
+        Self::with_drives(
+            sample_rate,
+            drive,
+            PhaseAccumulator::from_words(0, 0),
+            demodulators,
+        )
     }
 
-    /// [`new`](Self::new) with the drive given as a phase accumulator.
-    fn with_drive(
+    /// [`new`](Self::new) with the second excitation at `drive2_frequency` (Hz), its
+    /// phase 0 at sample 0.
+    pub fn with_drive2(
+        sample_rate: f64,
+        drive_frequency: f64,
+        drive2_frequency: f64,
+        demodulators: &[Demodulator],
+    ) -> Result<Self, DspError> {
+        let drive = PhaseAccumulator::new(drive_frequency, sample_rate)?;
+        let drive2 = PhaseAccumulator::new(drive2_frequency, sample_rate)?;
+        Self::with_drives(sample_rate, drive, drive2, demodulators)
+    }
+
+    /// [`new`](Self::new) with both oscillators given as phase accumulators.
+    fn with_drives(
         sample_rate: f64,
         drive: PhaseAccumulator,
+        drive2: PhaseAccumulator,
         demodulators: &[Demodulator],
     ) -> Result<Self, DspError> {
         if demodulators.len() > MAX_DEMODULATORS {
@@ -338,10 +389,19 @@ impl LockInBank {
             step_im: [0.0; BLOCK],
             alpha: [[1.0; BLOCK]; MAX_ORDER as usize],
         };
+        let max_harmonic_on = |oscillator| {
+            filters
+                .iter()
+                .filter(|f| f.1.oscillator == oscillator)
+                .map(|f| f.1.harmonic)
+                .max()
+                .unwrap_or(0)
+        };
         let mut plan = Plan {
             count,
             demod: filters.iter().map(|f| f.0).collect(),
             harmonic: vec![0; width],
+            oscillator: vec![Oscillator::Drive; width],
             gain: vec![0.0; width],
             period: vec![0; count],
             sections,
@@ -349,11 +409,18 @@ impl LockInBank {
             coef: vec![Row([[0.0; BLOCK]; 2]); nblocks * (HALF + 1)],
             blocks: vec![idle; nblocks],
             taps_word: 0,
-            max_harmonic: filters.iter().map(|f| f.1.harmonic).max().unwrap_or(0),
+            taps_word2: 0,
+            max_harmonic: max_harmonic_on(Oscillator::Drive),
+            max_harmonic2: max_harmonic_on(Oscillator::Drive2),
+            count2: filters
+                .iter()
+                .filter(|f| f.1.oscillator == Oscillator::Drive2)
+                .count(),
             retunes: 0,
         };
         for (lane, (_, d, filter)) in filters.iter().enumerate() {
             plan.harmonic[lane] = d.harmonic;
+            plan.oscillator[lane] = d.oscillator;
             plan.gain[lane] = if d.harmonic == 0 { 1.0 } else { 2.0 };
             let period = (decimated_rate / d.output_rate).round();
             plan.period[lane] = period.clamp(1.0, u32::MAX as f64) as u32;
@@ -361,10 +428,14 @@ impl LockInBank {
                 alpha[lane % BLOCK] = filter.alpha();
             }
         }
-        plan.tune(drive.frequency_word());
+        plan.tune(Oscillator::Drive, drive.frequency_word());
+        if plan.count2 > 0 {
+            plan.tune(Oscillator::Drive2, drive2.frequency_word());
+        }
 
         let state = State {
             drive,
+            drive2,
             samples: 0,
             history: vec![0.0; 2 * HALF + CHUNK],
             until_output: PREDECIMATION,
@@ -425,7 +496,12 @@ impl LockInBank {
                     ..*d
                 })
                 .collect();
-            let mut shard = Self::with_drive(self.sample_rate, self.state.drive, &demods)?;
+            let mut shard = Self::with_drives(
+                self.sample_rate,
+                self.state.drive,
+                self.state.drive2,
+                &demods,
+            )?;
             shard.plan.sections = self.plan.sections;
             shard.fma = self.fma;
             shard.avx512 = self.avx512;
@@ -513,6 +589,12 @@ impl LockInBank {
         self.state.drive.frequency(self.sample_rate)
     }
 
+    /// The second excitation's phase accumulator (the reference of the demodulators on
+    /// [`Oscillator::Drive2`]); its phase is that of the next input sample.
+    pub const fn drive2(&self) -> &PhaseAccumulator {
+        &self.state.drive2
+    }
+
     /// Input samples consumed so far; also the index of the next one.
     pub const fn samples_processed(&self) -> u64 {
         self.state.samples
@@ -527,7 +609,8 @@ impl LockInBank {
         self.state
             .drive
             .set_frequency(frequency, self.sample_rate)?;
-        self.plan.tune(self.state.drive.frequency_word());
+        self.plan
+            .tune(Oscillator::Drive, self.state.drive.frequency_word());
         self.state.reanchor_in = 0;
         Ok(())
     }
@@ -540,21 +623,40 @@ impl LockInBank {
     /// A PLL moves the word by a little at every drive period: then only the phase steps
     /// follow it (one `sin_cos` per lane) while the pre-decimator's mixing taps stay on the
     /// word they were computed for, as long as that shifts the taps' symmetric kernel by at
-    /// most [`TAPS_TOLERANCE`] rad per sample at the highest harmonic: its passband gain is
-    /// then within 1e-6 of what exact taps give, and its phase exact (the kernel stays
-    /// symmetric about the window's centre, where the reference is taken).
+    /// most [`TAPS_TOLERANCE`] rad per sample at its lanes' highest harmonic: its passband
+    /// gain is then within 1e-6 of what exact taps give, and its phase exact (the kernel
+    /// stays symmetric about the window's centre, where the reference is taken).
+    ///
+    /// Only the demodulators on [`Oscillator::Drive`] follow; those on the second
+    /// excitation keep their reference ([`align_drive2`](Self::align_drive2)).
     pub fn align_drive(&mut self, phase: u64, frequency_word: u64) {
         if frequency_word != self.state.drive.frequency_word() {
             self.state.drive = PhaseAccumulator::from_words(phase, frequency_word);
-            if self.plan.taps_hold(frequency_word) {
-                self.plan.tune_steps(frequency_word);
-            } else {
-                self.plan.retune(frequency_word);
-            }
+            self.plan.follow(Oscillator::Drive, frequency_word);
         } else {
             self.state.drive.set_phase(phase);
         }
         self.state.reanchor_in = 0;
+    }
+
+    /// [`align_drive`](Self::align_drive) for the second excitation: `phase` its phase
+    /// word of the next input sample and `frequency_word` its step per sample (2^64 = one
+    /// period). Moves the demodulators on [`Oscillator::Drive2`] only; with none, it keeps
+    /// the accumulator and touches nothing the other lanes compute. Real-time safe.
+    pub fn align_drive2(&mut self, phase: u64, frequency_word: u64) {
+        if frequency_word != self.state.drive2.frequency_word() {
+            self.state.drive2 = PhaseAccumulator::from_words(phase, frequency_word);
+            if self.plan.count2 > 0 {
+                self.plan.follow(Oscillator::Drive2, frequency_word);
+            }
+        } else {
+            self.state.drive2.set_phase(phase);
+        }
+        // The phasors' re-anchoring is exact, but re-anchoring at another sample than the
+        // drive's alignment alone asks for would round the drive lanes differently.
+        if self.plan.count2 > 0 {
+            self.state.reanchor_in = 0;
+        }
     }
 
     /// Times the pre-decimator's mixing taps were recomputed since the bank was built.
@@ -570,13 +672,16 @@ impl LockInBank {
     }
 
     /// The boxcar demodulation since the last call: for each enabled demodulator, in index
-    /// order, `sink(demod, harmonic, x, y)` with X + iY the mean of its pre-decimated
-    /// baseband samples (the same calibration as its low-pass output: peak amplitude, phase
-    /// against k times the drive). A decimated sample belongs to the call after the input
-    /// sample that completes it, [`group_delay`](Self::group_delay) samples after its
-    /// centre. Resets the integrators; returns the decimated samples averaged (0: nothing
+    /// order, `sink(demod, harmonic, oscillator, x, y)` with X + iY the mean of its
+    /// pre-decimated baseband samples (the same calibration as its low-pass output: peak
+    /// amplitude, phase against k times its oscillator's phase). A decimated sample belongs
+    /// to the call after the input sample that completes it,
+    /// [`group_delay`](Self::group_delay) samples after its centre. Resets the integrators; returns the decimated samples averaged (0: nothing
     /// is reported). Real-time safe.
-    pub fn take_integrals(&mut self, mut sink: impl FnMut(usize, u32, f64, f64)) -> u32 {
+    pub fn take_integrals(
+        &mut self,
+        mut sink: impl FnMut(usize, u32, Oscillator, f64, f64),
+    ) -> u32 {
         let n = self.state.integrated;
         if n > 0 {
             let scale = 1.0 / f64::from(n);
@@ -585,6 +690,7 @@ impl LockInBank {
                 sink(
                     self.plan.demod[l],
                     self.plan.harmonic[l],
+                    self.plan.oscillator[l],
                     block.acc_re[l % BLOCK] * scale,
                     block.acc_im[l % BLOCK] * scale,
                 );
@@ -680,6 +786,7 @@ impl LockInBank {
             self.state.history.copy_within(n..n + span, 0);
             self.state.samples += n as u64;
             self.state.drive.advance(n as u64);
+            self.state.drive2.advance(n as u64);
         }
     }
 
@@ -716,9 +823,15 @@ impl LockInBank {
         if st.reanchor_in == 0 {
             // The window centre is `HALF` samples before `fire`; `fire` is relative to the
             // sample whose phase the accumulator holds.
-            let centre_phase = st.drive.phase_at(fire as i64 - HALF as i64);
+            let centre = fire as i64 - HALF as i64;
+            let (centre_phase, centre_phase2) =
+                (st.drive.phase_at(centre), st.drive2.phase_at(centre));
             for l in 0..plan.count {
-                let theta = phase_to_radians(harmonic_phase(centre_phase, plan.harmonic[l]));
+                let phase = match plan.oscillator[l] {
+                    Oscillator::Drive => centre_phase,
+                    Oscillator::Drive2 => centre_phase2,
+                };
+                let theta = phase_to_radians(harmonic_phase(phase, plan.harmonic[l]));
                 let (s, c) = theta.sin_cos();
                 let block = &mut st.blocks[l / BLOCK];
                 block.rot_re[l % BLOCK] = c;
@@ -759,6 +872,7 @@ impl LockInBank {
                     sink(LockInSample {
                         demod: plan.demod[l],
                         harmonic: plan.harmonic[l],
+                        oscillator: plan.oscillator[l],
                         sample_index,
                         x: st.out_re[l],
                         y: st.out_im[l],
@@ -896,19 +1010,51 @@ unsafe fn lane_block<V: F64s, const NV: usize, const S: usize>(
 }
 
 impl Plan {
-    /// Whether the taps computed for `taps_word` serve `word`: the kernel shift
-    /// 2π·k·Δword/2^64 at the highest harmonic k within [`TAPS_TOLERANCE`].
-    fn taps_hold(&self, word: u64) -> bool {
-        let shift = word.wrapping_sub(self.taps_word) as i64 as f64 / crate::timebase::TWO_POW_64
+    /// The word `oscillator`'s lanes' taps were computed for, and their highest harmonic.
+    fn taps_of(&self, oscillator: Oscillator) -> (u64, u32) {
+        match oscillator {
+            Oscillator::Drive => (self.taps_word, self.max_harmonic),
+            Oscillator::Drive2 => (self.taps_word2, self.max_harmonic2),
+        }
+    }
+
+    /// Whether the taps computed for `oscillator`'s lanes serve `word`: the kernel shift
+    /// 2π·k·Δword/2^64 at their highest harmonic k within [`TAPS_TOLERANCE`].
+    fn taps_hold(&self, oscillator: Oscillator, word: u64) -> bool {
+        let (taps_word, max_harmonic) = self.taps_of(oscillator);
+        let shift = word.wrapping_sub(taps_word) as i64 as f64 / crate::timebase::TWO_POW_64
             * std::f64::consts::TAU
-            * f64::from(self.max_harmonic);
+            * f64::from(max_harmonic);
         shift.abs() <= TAPS_TOLERANCE
     }
 
-    /// The phase steps per decimated sample for `word` (the taps stay). No allocation.
-    fn tune_steps(&mut self, word: u64) {
+    /// `oscillator` moved to `word` while running: its lanes' phase steps follow, and their
+    /// taps too when they no longer hold ([`taps_hold`](Self::taps_hold)). No allocation.
+    fn follow(&mut self, oscillator: Oscillator, word: u64) {
+        if self.taps_hold(oscillator, word) {
+            self.tune_steps(oscillator, word);
+        } else {
+            self.retune(oscillator, word);
+        }
+    }
+
+    /// Records that `oscillator`'s lanes' taps are now computed for `word`.
+    fn set_taps_word(&mut self, oscillator: Oscillator, word: u64) {
+        match oscillator {
+            Oscillator::Drive => self.taps_word = word,
+            Oscillator::Drive2 => self.taps_word2 = word,
+        }
+        self.retunes += 1;
+    }
+
+    /// The phase steps per decimated sample of `oscillator`'s lanes for `word` (the taps
+    /// stay). No allocation.
+    fn tune_steps(&mut self, oscillator: Oscillator, word: u64) {
         let step = word.wrapping_mul(PREDECIMATION as u64);
-        for (l, &k) in self.harmonic.iter().enumerate() {
+        for (l, (&k, &o)) in self.harmonic.iter().zip(&self.oscillator).enumerate() {
+            if o != oscillator {
+                continue;
+            }
             let (block, i) = (l / BLOCK, l % BLOCK);
             let (s, c) = phase_to_radians(harmonic_phase(step, k)).sin_cos();
             self.blocks[block].step_re[i] = c;
@@ -916,14 +1062,17 @@ impl Plan {
         }
     }
 
-    /// [`tune`](Self::tune) for a drive that moved while running: each lane's mixing
-    /// phasors e^{ikωu} by recurrence from one `sin_cos` (31 complex products, within a few
-    /// 1e-15 of `tune`'s), so a PLL whose drive wanders costs the DSP thread about 32
+    /// [`tune`](Self::tune) for an oscillator that moved while running: each of its lanes'
+    /// mixing phasors e^{ikωu} by recurrence from one `sin_cos` (31 complex products, within
+    /// a few 1e-15 of `tune`'s), so a PLL whose drive wanders costs the DSP thread about 32
     /// `sin_cos` a retune, not 10³. No allocation.
-    fn retune(&mut self, word: u64) {
-        self.taps_word = word;
-        self.retunes += 1;
-        for (l, (&k, &g)) in self.harmonic.iter().zip(&self.gain).enumerate() {
+    fn retune(&mut self, oscillator: Oscillator, word: u64) {
+        self.set_taps_word(oscillator, word);
+        for l in 0..self.harmonic.len() {
+            if self.oscillator[l] != oscillator {
+                continue;
+            }
+            let (k, g) = (self.harmonic[l], self.gain[l]);
             let (block, i) = (l / BLOCK, l % BLOCK);
             let rows = &mut self.coef[block * (HALF + 1)..][..HALF + 1];
             let (s, c) = phase_to_radians(harmonic_phase(word, k)).sin_cos();
@@ -935,14 +1084,18 @@ impl Plan {
                 phasor *= turn;
             }
         }
-        self.tune_steps(word);
+        self.tune_steps(oscillator, word);
     }
 
-    /// Recompute everything that depends on the drive's frequency word (no allocation).
-    fn tune(&mut self, word: u64) {
-        self.taps_word = word;
-        self.retunes += 1;
-        for (l, (&k, &g)) in self.harmonic.iter().zip(&self.gain).enumerate() {
+    /// Recompute everything of `oscillator`'s lanes that depends on its frequency word (no
+    /// allocation).
+    fn tune(&mut self, oscillator: Oscillator, word: u64) {
+        self.set_taps_word(oscillator, word);
+        for l in 0..self.harmonic.len() {
+            if self.oscillator[l] != oscillator {
+                continue;
+            }
+            let (k, g) = (self.harmonic[l], self.gain[l]);
             let (block, i) = (l / BLOCK, l % BLOCK);
             let rows = &mut self.coef[block * (HALF + 1)..][..HALF + 1];
             for (u, (h, row)) in self.taps.iter().zip(rows).enumerate() {
@@ -952,7 +1105,7 @@ impl Plan {
                 row.0[1][i] = g * h * s;
             }
         }
-        self.tune_steps(word);
+        self.tune_steps(oscillator, word);
     }
 }
 
@@ -1046,6 +1199,173 @@ mod tests {
             assert!((a.r() / b.r() - 1.0).abs() < 1e-12, "{a:?} {b:?}");
             assert!((a.phase() - b.phase()).abs() < 1e-12, "{a:?} {b:?}");
         }
+    }
+
+    /// Runs `bank` over `x` in blocks of 4096 samples, aligned at each block to the drive
+    /// (`word`, or `stepped` from sample `step` on, phase-continuous as a PLL moves it) and to
+    /// the second excitation (`word2`), as the DSP thread does from the block headers; the
+    /// drive's step lands inside a block, as a reference change does. Returns every output.
+    fn run_blocks(
+        bank: &mut LockInBank,
+        x: &[f64],
+        (word, stepped, step): (u64, u64, usize),
+        word2: u64,
+    ) -> Vec<LockInSample> {
+        let drive_phase = |m: usize| {
+            if m <= step {
+                word.wrapping_mul(m as u64)
+            } else {
+                let at_step = word.wrapping_mul(step as u64);
+                at_step.wrapping_add(stepped.wrapping_mul((m - step) as u64))
+            }
+        };
+        let drive_word = |m: usize| if m < step { word } else { stepped };
+        let mut out = Vec::new();
+        let mut start = 0;
+        while start < x.len() {
+            let end = (start + 4096).min(x.len());
+            bank.align_drive(drive_phase(start), drive_word(start));
+            bank.align_drive2(word2.wrapping_mul(start as u64), word2);
+            if (start + 1..end).contains(&step) {
+                bank.process(&x[start..step], |s| out.push(s));
+                bank.align_drive(drive_phase(step), stepped);
+                bank.process(&x[step..end], |s| out.push(s));
+            } else {
+                bank.process(&x[start..end], |s| out.push(s));
+            }
+            start = end;
+        }
+        out
+    }
+
+    #[test]
+    fn a_demodulator_on_drive2_reads_its_tone_and_ignores_the_drives_pll() {
+        // A·cos θ₁ + B·cos(θ₂ + φ), f₂ incommensurate with f₁; the drive steps by 40 Hz at
+        // sample `step` (a PLL's reference change) and the signal's first tone with it.
+        let (fs, f1, f2) = (10e6, 100e3, 626.689e3);
+        let (a, b, phi) = (2.0, 0.5, 0.7);
+        let word = PhaseAccumulator::new(f1, fs).unwrap().frequency_word();
+        let stepped = PhaseAccumulator::new(f1 + 40.0, fs)
+            .unwrap()
+            .frequency_word();
+        let word2 = PhaseAccumulator::new(f2, fs).unwrap().frequency_word();
+        let (n, step) = (300_000, 100_003);
+        let signal = |pll: bool| -> Vec<f64> {
+            let theta = |w: u64, m: u64| phase_to_radians(w.wrapping_mul(m));
+            (0..n)
+                .map(|m| {
+                    let theta1 = if pll && m > step {
+                        let at_step = word.wrapping_mul(step as u64);
+                        phase_to_radians(
+                            at_step.wrapping_add(stepped.wrapping_mul((m - step) as u64)),
+                        )
+                    } else {
+                        theta(word, m as u64)
+                    };
+                    a * theta1.cos() + b * (theta(word2, m as u64) + phi).cos()
+                })
+                .collect()
+        };
+        let demods = [
+            Demodulator::new(1, 4, 100e-6, 10e3),
+            Demodulator::new(1, 4, 100e-6, 10e3).on(Oscillator::Drive2),
+        ];
+        let last = |out: &[LockInSample], demod: usize| {
+            *out.iter().rev().find(|s| s.demod == demod).unwrap()
+        };
+        let mut results = Vec::new();
+        // Without and with the step.
+        for pll in [false, true] {
+            let stepped = if pll { stepped } else { word };
+            let mut bank = LockInBank::with_drive2(fs, f1, f2, &demods).unwrap();
+            let out = run_blocks(&mut bank, &signal(pll), (word, stepped, step), word2);
+            let (d1, d2) = (last(&out, 0), last(&out, 1));
+            assert_eq!(d2.oscillator, Oscillator::Drive2);
+            assert_eq!(d1.oscillator, Oscillator::Drive);
+            assert!(
+                (d1.x - a).abs() < 1e-6 * a && d1.y.abs() < 1e-6 * a,
+                "{d1:?}"
+            );
+            let (x, y) = (b * phi.cos(), b * phi.sin());
+            assert!(
+                (d2.x - x).abs() < 1e-6 * b && (d2.y - y).abs() < 1e-6 * b,
+                "{d2:?}"
+            );
+            results.push(out);
+        }
+        // The same stepped signal through a bank whose drive reference stays put: its
+        // drive2 demodulator's outputs are those of the bank that followed the step, bit
+        // for bit, all along; its drive demodulator's are not (the reference runs 40 Hz
+        // from the first tone, whose phasor turns by 2π·40 Hz·t).
+        let mut frozen = LockInBank::with_drive2(fs, f1, f2, &demods).unwrap();
+        let out = run_blocks(&mut frozen, &signal(true), (word, word, step), word2);
+        let on = |out: &[LockInSample], demod: usize| -> Vec<(u64, u64, u64)> {
+            out.iter()
+                .filter(|s| s.demod == demod)
+                .map(|s| (s.sample_index, s.x.to_bits(), s.y.to_bits()))
+                .collect()
+        };
+        assert!(on(&out, 1).len() > 200);
+        assert_eq!(on(&out, 1), on(&results[1], 1));
+        let d1 = last(&out, 0);
+        assert!(
+            (d1.x - a).abs() > 1e-3 * a || d1.y.abs() > 1e-3 * a,
+            "{d1:?}"
+        );
+    }
+
+    #[test]
+    fn lanes_on_drive2_leave_the_drive_lanes_bit_for_bit() {
+        // The drive's lanes of a bank with lanes on /drive2 beside them compute what a bank
+        // of the drive's lanes alone does, bit for bit, through a PLL's step.
+        let (fs, f1, f2) = (10e6, 100.0123e3, 626.689e3);
+        let word = PhaseAccumulator::new(f1, fs).unwrap().frequency_word();
+        let stepped = PhaseAccumulator::new(f1 + 300.0, fs)
+            .unwrap()
+            .frequency_word();
+        let word2 = PhaseAccumulator::new(f2, fs).unwrap().frequency_word();
+        let mut x = tone(120_000, fs, f1, 2.0, 0.3);
+        for (m, v) in tone(120_000, fs, f2, 0.5, -1.2).iter().enumerate() {
+            x[m] += v;
+        }
+        let drive: Vec<Demodulator> = (0..20)
+            .map(|i| Demodulator::new(i, 1 + i % 8, 50e-6, 20e3))
+            .collect();
+        // Interleaved: lanes on /drive2 between the drive's, in the same blocks of lanes.
+        let mut mixed = drive.clone();
+        for k in 1..=5 {
+            mixed.insert(
+                3 * k as usize,
+                Demodulator::new(k, 3, 50e-6, 20e3).on(Oscillator::Drive2),
+            );
+        }
+        let both: Vec<Demodulator> = mixed
+            .iter()
+            .map(|d| Demodulator {
+                enable: d.oscillator == Oscillator::Drive,
+                ..*d
+            })
+            .collect();
+        let keep = |out: Vec<LockInSample>| -> Vec<_> {
+            out.into_iter()
+                .filter(|s| s.oscillator == Oscillator::Drive)
+                .map(|s| (s.demod, s.sample_index, s.x.to_bits(), s.y.to_bits()))
+                .collect()
+        };
+        let alone = keep(run_blocks(
+            &mut LockInBank::with_drive2(fs, f1, f2, &both).unwrap(),
+            &x,
+            (word, stepped, 70_001),
+            word2,
+        ));
+        let beside = keep(run_blocks(
+            &mut LockInBank::with_drive2(fs, f1, f2, &mixed).unwrap(),
+            &x,
+            (word, stepped, 70_001),
+            word2,
+        ));
+        assert!(alone.len() > 1000, "{} outputs", alone.len());
+        assert_eq!(alone, beside);
     }
 
     #[test]

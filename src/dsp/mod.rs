@@ -3,8 +3,9 @@
 //!
 //! The drive phase ([`crate::timebase::PhaseAccumulator`]) and the pre-decimation factor
 //! come from [`crate::timebase`], which the synthesiser shares.
-//! - [`LockInBank`]: up to 32 [`Demodulator`]s at harmonics of the drive, sharing one
-//!   pre-decimator ([`Predecimator`]) and each followed by its own [`LowPass`].
+//! - [`LockInBank`]: up to 32 [`Demodulator`]s at harmonics of the drive or of a second
+//!   excitation ([`Oscillator`]), sharing one pre-decimator ([`Predecimator`]) and each
+//!   followed by its own [`LowPass`].
 //! - [`SlidingSpectrum`]: windowed ([`Window`]), amplitude-calibrated, hop-based real FFT.
 //!
 //! Construction (planning, tables, buffers) allocates and belongs off the real-time thread;
@@ -18,7 +19,8 @@ mod spectrum;
 mod window;
 
 pub use lockin::{
-    Demodulator, LockInBank, LockInSample, MAX_DEMODULATORS, PREDECIMATION_ORDER, SPLIT_LANES,
+    Demodulator, LockInBank, LockInSample, MAX_DEMODULATORS, Oscillator, PREDECIMATION_ORDER,
+    SPLIT_LANES,
 };
 pub use lowpass::{LowPass, LowPassState, MAX_ORDER};
 pub use predecimator::Predecimator;

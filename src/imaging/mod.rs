@@ -222,7 +222,9 @@ impl Assembler {
         }
         let mut values: Vec<(String, &'static str, f64)> = Vec::with_capacity(40);
         values.push(("height".into(), "m", topo.map_or(f64::NAN, |t| t.height)));
-        let fundamental = p.frame.values().iter().find(|v| v.harmonic == 1);
+        // The channels are the tapping's: values on /drive2 are no harmonics of it.
+        let on_drive = || p.frame.values().iter().filter(|v| v.on_drive());
+        let fundamental = on_drive().find(|v| v.harmonic == 1);
         values.push((
             "amplitude".into(),
             "m",
@@ -240,12 +242,7 @@ impl Assembler {
             let point = crate::sweep::ApproachPoint {
                 r: h1.r(),
                 phase: crate::sweep::phase_to_drive(h1.phase()),
-                mean: p
-                    .frame
-                    .values()
-                    .iter()
-                    .find(|v| v.harmonic == 0)
-                    .map(|v| v.x),
+                mean: on_drive().find(|v| v.harmonic == 0).map(|v| v.x),
             };
             crate::sweep::regime(
                 point,
@@ -257,12 +254,7 @@ impl Assembler {
             .code()
         });
         values.push(("regime".into(), "1", regime));
-        let mut harmonics: Vec<_> = p
-            .frame
-            .values()
-            .iter()
-            .filter(|v| v.harmonic >= 2)
-            .collect();
+        let mut harmonics: Vec<_> = on_drive().filter(|v| v.harmonic >= 2).collect();
         harmonics.sort_by_key(|v| v.harmonic);
         harmonics.dedup_by_key(|v| v.harmonic);
         for v in harmonics {

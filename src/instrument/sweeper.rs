@@ -17,7 +17,8 @@ use super::Control;
 use super::force::{ForceLink, ForceOutcome};
 use super::tap::{FrameTap, Tap};
 use crate::config::{
-    DEMODULATOR_COUNT, Settings, SweepDirection, SweepParameter, SweepScale, SweeperSettings,
+    DEMODULATOR_COUNT, Oscillator, Settings, SweepDirection, SweepParameter, SweepScale,
+    SweeperSettings,
 };
 use crate::pipeline::DemodFrame;
 use crate::sweep::{self, Leg};
@@ -121,32 +122,34 @@ pub(crate) fn automatic_settling(s: &Settings) -> f64 {
 struct Measured {
     value: f64,
     leg: Leg,
-    /// Per demodulator index: harmonic, mean x, mean y (NaN when it gave nothing).
-    demods: [(u32, f64, f64); DEMODULATOR_COUNT],
+    /// Per demodulator index: harmonic, oscillator, mean x, mean y (NaN when it gave
+    /// nothing).
+    demods: [(u32, Oscillator, f64, f64); DEMODULATOR_COUNT],
 }
 
 impl Measured {
-    /// r of the first demodulator at `harmonic`.
-    fn r_at(&self, harmonic: u32) -> Option<f64> {
+    /// Mean x and y of the first demodulator that gave output at harmonic `harmonic` of
+    /// the drive (one on /drive2 measures no harmonic of the tapping).
+    fn at(&self, harmonic: u32) -> Option<(f64, f64)> {
         self.demods
             .iter()
-            .find(|(h, x, _)| *h == harmonic && x.is_finite())
-            .map(|(_, x, y)| x.hypot(*y))
+            .find(|(h, o, x, _)| *h == harmonic && *o == Oscillator::Drive && x.is_finite())
+            .map(|(_, _, x, y)| (*x, *y))
+    }
+
+    /// r of the first demodulator at `harmonic` of the drive.
+    fn r_at(&self, harmonic: u32) -> Option<f64> {
+        self.at(harmonic).map(|(x, y)| x.hypot(y))
     }
 
     /// The mean deflection (m): x of the first demodulator at harmonic 0, if one runs.
     fn mean_deflection(&self) -> Option<f64> {
-        self.demods
-            .iter()
-            .find(|(h, x, _)| *h == 0 && x.is_finite())
-            .map(|(_, x, _)| *x)
+        self.at(0).map(|(x, _)| x)
     }
 
+    /// The phase (rad) of the first demodulator at `harmonic` of the drive.
     fn phase_at(&self, harmonic: u32) -> Option<f64> {
-        self.demods
-            .iter()
-            .find(|(h, x, _)| *h == harmonic && x.is_finite())
-            .map(|(_, x, y)| y.atan2(*x))
+        self.at(harmonic).map(|(x, y)| y.atan2(x))
     }
 }
 
@@ -447,7 +450,7 @@ async fn run_sweep(
         let mut force = ForcePoint::default();
         let mut force_done = force_off.is_some();
         let mut force_deadline = None;
-        let mut sums = [(0u32, 0.0f64, 0.0f64, 0u32); DEMODULATOR_COUNT];
+        let mut sums = [(0u32, Oscillator::Drive, 0.0f64, 0.0f64, 0u32); DEMODULATOR_COUNT];
         let mut taken = 0;
         // The PID units' running sums the point's first and last averaged frames carry:
         // their means over the same stretch of the stream, to a block.
@@ -466,7 +469,7 @@ async fn run_sweep(
                         }
                         for v in f.values() {
                             let s = &mut sums[usize::from(v.index)];
-                            *s = (v.harmonic, s.1 + v.x, s.2 + v.y, s.3 + 1);
+                            *s = (v.harmonic, v.oscillator, s.2 + v.x, s.3 + v.y, s.4 + 1);
                         }
                         taken += 1;
                         if taken == w.averaging {
@@ -505,10 +508,10 @@ async fn run_sweep(
                 }
             }
         }
-        let mut demods = [(0u32, f64::NAN, f64::NAN); DEMODULATOR_COUNT];
+        let mut demods = [(0u32, Oscillator::Drive, f64::NAN, f64::NAN); DEMODULATOR_COUNT];
         for (d, s) in demods.iter_mut().zip(&sums) {
-            if s.3 > 0 {
-                *d = (s.0, s.1 / f64::from(s.3), s.2 / f64::from(s.3));
+            if s.4 > 0 {
+                *d = (s.0, s.1, s.2 / f64::from(s.4), s.3 / f64::from(s.4));
             }
         }
         let m = Measured {
@@ -520,9 +523,9 @@ async fn run_sweep(
             .demods
             .iter()
             .enumerate()
-            .filter(|(_, (_, x, _))| x.is_finite())
-            .map(|(index, (h, x, y))| {
-                json!({"index": index, "harmonic": h, "x": x, "y": y,
+            .filter(|(_, (_, _, x, _))| x.is_finite())
+            .map(|(index, (h, o, x, y))| {
+                json!({"index": index, "harmonic": h, "oscillator": o.name(), "x": x, "y": y,
                        "r": x.hypot(*y), "phase": y.atan2(*x)})
             })
             .collect();
@@ -839,4 +842,29 @@ fn approach_summary(measured: &[Measured], settings: &Settings) -> Value {
             .collect::<Vec<_>>(),
         "hysteresis": sweep::hysteresis(&up, &down).map(|(rel, at)| json!({"max": rel, "at": at})),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_point_reads_the_drives_harmonics_past_a_demodulator_on_drive2() {
+        // Demodulator 0 reads harmonic 1 of /drive2: the tune's and approach's harmonic 1
+        // and mean are demodulator 1's and 2's, on the drive.
+        let mut demods = [(0, Oscillator::Drive, f64::NAN, f64::NAN); DEMODULATOR_COUNT];
+        demods[0] = (1, Oscillator::Drive2, 3.0, 4.0);
+        demods[1] = (1, Oscillator::Drive, 0.0, 2.0);
+        demods[2] = (0, Oscillator::Drive, 7.0, 0.0);
+        demods[3] = (0, Oscillator::Drive2, 9.0, 0.0);
+        let m = Measured {
+            value: 0.0,
+            leg: Leg::Up,
+            demods,
+        };
+        assert_eq!(m.r_at(1), Some(2.0));
+        assert_eq!(m.phase_at(1), Some(std::f64::consts::FRAC_PI_2));
+        assert_eq!(m.mean_deflection(), Some(7.0));
+        assert_eq!(m.r_at(2), None);
+    }
 }

@@ -1,7 +1,7 @@
 //! The DSP stage's configuration and state, built off the real-time thread from the
 //! settings: the lock-in bank and the sliding spectrum.
 
-use crate::config::{Settings, SpectrumWindow};
+use crate::config::{Oscillator, Settings, SpectrumWindow};
 use crate::dsp::{
     Demodulator, DspError, LockInBank, LockInSample, MAX_DEMODULATORS, SPLIT_LANES,
     SlidingSpectrum, SpectrumConfig, Window,
@@ -61,8 +61,9 @@ pub struct DspPlan {
     /// block of that epoch (`BlockHeader::epoch`).
     pub(crate) epoch: u64,
     /// What the bank was built from: a plan built from the same takes over the running
-    /// bank (its filters' state) instead of starting from zero.
-    bank_key: (f64, Vec<Demodulator>, usize),
+    /// bank (its filters' state) instead of starting from zero. The second excitation's
+    /// frequency counts only while a demodulator reads it.
+    bank_key: (f64, Option<f64>, Vec<Demodulator>, usize),
 }
 
 impl DspPlan {
@@ -71,7 +72,17 @@ impl DspPlan {
         let fs = settings.synth.sample_rate;
         let demods = demodulators(settings);
         let threads = dsp_threads(settings);
-        let bank = LockInBank::new(fs, settings.drive.frequency, &demods)?.split(threads)?;
+        let drive2 = demods
+            .iter()
+            .any(|d| d.enable && d.oscillator == Oscillator::Drive2)
+            .then_some(settings.drive2.frequency);
+        let bank = LockInBank::with_drive2(
+            fs,
+            settings.drive.frequency,
+            settings.drive2.frequency,
+            &demods,
+        )?
+        .split(threads)?;
         let outputs = if bank.len() > 1 {
             let per_lane = PIECE / PREDECIMATION + 1;
             bank.iter()
@@ -108,7 +119,7 @@ impl DspPlan {
             bank_offset: 0,
             spectrum_offset: 0,
             epoch: 0,
-            bank_key: (settings.drive.frequency, demods, threads),
+            bank_key: (settings.drive.frequency, drive2, demods, threads),
         })
     }
 
@@ -160,11 +171,12 @@ impl DspPlan {
         let mut samples = 0;
         // Shards hold consecutive demodulators: shard by shard is index order.
         for shard in &mut self.bank {
-            samples = shard.take_integrals(|demod, harmonic, x, y| {
+            samples = shard.take_integrals(|demod, harmonic, oscillator, x, y| {
                 if frame.len < frame.values.len() {
                     frame.values[frame.len] = DemodValue {
                         index: demod as u8,
                         harmonic,
+                        oscillator,
                         x,
                         y,
                     };
@@ -175,10 +187,23 @@ impl DspPlan {
         samples
     }
 
-    /// Locks the lock-in reference to the synthesiser's drive for the next sample.
+    /// Locks the reference of the demodulators on the drive to the synthesiser's drive for
+    /// the next sample (those on `/drive2` keep theirs: a PLL moves the drive alone).
     pub(crate) fn align(&mut self, phase: u64, frequency_word: u64) {
         for shard in &mut self.bank {
             shard.align_drive(phase, frequency_word);
+        }
+    }
+
+    /// Locks the reference of the demodulators on oscillator `"drive2"` to the second
+    /// excitation for the next sample: `phase2` its phase word of that sample and
+    /// `frequency_word2` its step per sample (2^64 = one period), as in
+    /// [`BlockHeader`](super::BlockHeader). The DSP thread calls it at every block;
+    /// before [`process_block`](Self::process_block) it does the same for a caller with
+    /// demodulators on `"drive2"`. Real-time safe.
+    pub fn align_drive2(&mut self, phase2: u64, frequency_word2: u64) {
+        for shard in &mut self.bank {
+            shard.align_drive2(phase2, frequency_word2);
         }
     }
 
@@ -187,6 +212,9 @@ impl DspPlan {
     /// sample, and `frequency_word`, as in [`BlockHeader`](super::BlockHeader)), then the
     /// bank and the spectrum over `input`, the bank's shards on `team`'s workers. The
     /// stream starts at index 0 with the plan's first block and must continue without gaps.
+    /// Demodulators on `"drive2"` keep the reference of the last
+    /// [`align_drive2`](Self::align_drive2) (from `/drive2/frequency`, phase 0 at sample 0,
+    /// without one).
     pub fn process_block<S: DspSink>(
         &mut self,
         team: &mut DspTeam,
@@ -208,6 +236,7 @@ impl DspPlan {
         let value = |s: &LockInSample| DemodValue {
             index: s.demod as u8,
             harmonic: s.harmonic,
+            oscillator: s.oscillator,
             x: s.x,
             y: s.y,
         };
@@ -284,6 +313,7 @@ pub fn demodulators(settings: &Settings) -> Vec<Demodulator> {
             order: d.order,
             time_constant: d.timeconstant,
             output_rate: d.rate,
+            oscillator: d.oscillator,
         })
         .collect()
 }
@@ -300,6 +330,68 @@ fn window(w: SpectrumWindow) -> Window {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn values_name_their_oscillator_and_drive2_values_read_the_second_tone() {
+        // Demodulator 1 on /drive2 at harmonic 1, the rest on the drive; a tone of each,
+        // in blocks whose headers' phases advance as the synthesiser's do.
+        struct Last([Option<DemodValue>; 4]);
+        impl DspSink for Last {
+            fn demod(&mut self, _: u64, v: DemodValue) {
+                self.0[usize::from(v.index)] = Some(v);
+            }
+            fn spectrum<I: ExactSizeIterator<Item = f64>>(&mut self, _: u64, _: f64, _: I) {}
+        }
+        let mut s = crate::config::default_settings();
+        s.synth.realtime = false;
+        s.spectrum.enable = false;
+        s.scope.enable = false;
+        s.dsp.threads = 1;
+        s.drive2.frequency = 626.689e3;
+        for (i, d) in s.demods.iter_mut().enumerate() {
+            d.enable = i < 4;
+            d.harmonic = 1;
+            d.timeconstant = 100e-6;
+            d.order = 4;
+        }
+        s.demods[1].oscillator = Oscillator::Drive2;
+        let fs = s.synth.sample_rate;
+        let word = crate::timebase::frequency_word(s.drive.frequency, fs).unwrap();
+        let word2 = crate::timebase::frequency_word(s.drive2.frequency, fs).unwrap();
+        let mut plan = DspPlan::new(&s).unwrap();
+        let mut team = DspTeam::spawn(0, false).unwrap();
+        let mut last = Last([None; 4]);
+        let (a, b, phi) = (2e-8, 5e-10, 0.7);
+        for block in 0..60u64 {
+            let first = block * 4096;
+            let x: Vec<f64> = (first..first + 4096)
+                .map(|m| {
+                    let t1 = crate::timebase::phase_to_radians(word.wrapping_mul(m));
+                    let t2 = crate::timebase::phase_to_radians(word2.wrapping_mul(m));
+                    a * t1.cos() + b * (t2 + phi).cos()
+                })
+                .collect();
+            plan.align_drive2(word2.wrapping_mul(first), word2);
+            plan.process_block(&mut team, word.wrapping_mul(first), word, &x, &mut last);
+        }
+        let [Some(d0), Some(d1), ..] = last.0 else {
+            panic!("no outputs")
+        };
+        assert_eq!(
+            (d0.oscillator, d1.oscillator),
+            (Oscillator::Drive, Oscillator::Drive2)
+        );
+        assert!(d0.on_drive() && !d1.on_drive());
+        assert!(
+            (d0.x - a).abs() < 1e-6 * a && d0.y.abs() < 1e-6 * a,
+            "{d0:?}"
+        );
+        let (x, y) = (b * phi.cos(), b * phi.sin());
+        assert!(
+            (d1.x - x).abs() < 1e-6 * b && (d1.y - y).abs() < 1e-6 * b,
+            "{d1:?}"
+        );
+    }
 
     #[test]
     fn hops_stay_between_one_sample_and_the_longest() {

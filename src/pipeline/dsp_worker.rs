@@ -172,6 +172,10 @@ impl DspWorker {
             let busy = Instant::now();
             let frames_before = self.counters.demod_frames.load(Ordering::Relaxed);
             self.plan.align(header.phase, header.frequency_word);
+            // The second excitation's demodulators: aligned here only, as a loop's
+            // reference changes below move the drive alone.
+            self.plan
+                .align_drive2(header.phase2, header.frequency_word2);
             let len = header.len as usize;
             let mut finished = std::mem::take(&mut self.finished);
             {

@@ -10,8 +10,13 @@ use crate::dsp::MAX_DEMODULATORS;
 pub struct DemodValue {
     /// Demodulator index N of `/demods/N`.
     pub index: u8,
-    /// Its harmonic k.
+    /// Its harmonic k (of `oscillator`).
     pub harmonic: u32,
+    /// The oscillator whose harmonic k it reads (`/demods/N/oscillator`). Internal: the
+    /// stream formats leave it out, a client knows it from the node. Only values on
+    /// [`Oscillator::Drive`](crate::config::Oscillator::Drive) are harmonics of the tapping.
+    #[serde(skip)]
+    pub oscillator: crate::config::Oscillator,
     /// In-phase part X (m, nominal photodiode deflection).
     pub x: f64,
     /// Quadrature part Y (m).
@@ -24,9 +29,14 @@ impl DemodValue {
         self.x.hypot(self.y)
     }
 
-    /// Phase (rad) against k times the drive phase (cosine reference).
+    /// Phase (rad) against k times its oscillator's phase (cosine reference).
     pub fn phase(&self) -> f64 {
         self.y.atan2(self.x)
+    }
+
+    /// Whether it reads a harmonic of the drive (the tapping), not of `/drive2`.
+    pub fn on_drive(&self) -> bool {
+        self.oscillator == crate::config::Oscillator::Drive
     }
 }
 

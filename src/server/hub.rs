@@ -506,7 +506,13 @@ fn live_regime(
     if current.t.is_none_or(|t| frame.t < t) {
         return None;
     }
-    let at = |k: u32| frame.values().iter().find(|v| v.harmonic == k);
+    // A harmonic of /drive2 is none of the tapping's.
+    let at = |k: u32| {
+        frame
+            .values()
+            .iter()
+            .find(|v| v.on_drive() && v.harmonic == k)
+    };
     let h1 = at(1)?;
     let point = crate::sweep::ApproachPoint {
         r: h1.r(),

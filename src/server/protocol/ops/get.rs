@@ -217,6 +217,7 @@ fn measured(ctx: &Context<'_>, path: &str) -> Result<Value, ProtocolError> {
     Ok(json!({
         "t": frame.t,
         "harmonic": value.harmonic,
+        "oscillator": value.oscillator.name(),
         "x": value.x,
         "y": value.y,
         "r": value.r(),
