@@ -32,6 +32,7 @@ use super::simd::F64s;
 use super::{DspError, LowPass};
 pub use crate::config::Oscillator;
 use crate::timebase::{PREDECIMATION, PhaseAccumulator, harmonic_phase, phase_to_radians};
+use rustfft::num_complex::Complex64;
 
 /// Number of demodulators a bank holds at most.
 pub const MAX_DEMODULATORS: usize = 32;
@@ -254,6 +255,11 @@ struct State {
     until_output: usize,
     /// Decimated samples until the phasors are recomputed exactly.
     reanchor_in: u32,
+    /// Whether the next re-anchoring follows a move of an oscillator's word (a PLL's step,
+    /// up to one a drive period): it then takes each lane's phasor as a power of its
+    /// oscillator's, one `sin_cos` an oscillator, not one a lane. The periodic
+    /// re-anchoring, and every one of a bank whose oscillators never move, stays exact.
+    reanchor_moved: bool,
     /// Shared sums (u = 0…c) and differences of samples symmetric about the centre.
     sums: Vec<f64>,
     diffs: Vec<f64>,
@@ -440,6 +446,7 @@ impl LockInBank {
             history: vec![0.0; 2 * HALF + CHUNK],
             until_output: PREDECIMATION,
             reanchor_in: 0,
+            reanchor_moved: false,
             sums: vec![0.0; HALF + 1],
             diffs: vec![0.0; HALF + 1],
             blocks: vec![BlockState::default(); nblocks],
@@ -633,6 +640,7 @@ impl LockInBank {
         if frequency_word != self.state.drive.frequency_word() {
             self.state.drive = PhaseAccumulator::from_words(phase, frequency_word);
             self.plan.follow(Oscillator::Drive, frequency_word);
+            self.state.reanchor_moved = true;
         } else {
             self.state.drive.set_phase(phase);
         }
@@ -648,6 +656,7 @@ impl LockInBank {
             self.state.drive2 = PhaseAccumulator::from_words(phase, frequency_word);
             if self.plan.count2 > 0 {
                 self.plan.follow(Oscillator::Drive2, frequency_word);
+                self.state.reanchor_moved = true;
             }
         } else {
             self.state.drive2.set_phase(phase);
@@ -826,16 +835,32 @@ impl LockInBank {
             let centre = fire as i64 - HALF as i64;
             let (centre_phase, centre_phase2) =
                 (st.drive.phase_at(centre), st.drive2.phase_at(centre));
-            for l in 0..plan.count {
-                let phase = match plan.oscillator[l] {
-                    Oscillator::Drive => centre_phase,
-                    Oscillator::Drive2 => centre_phase2,
-                };
-                let theta = phase_to_radians(harmonic_phase(phase, plan.harmonic[l]));
-                let (s, c) = theta.sin_cos();
-                let block = &mut st.blocks[l / BLOCK];
-                block.rot_re[l % BLOCK] = c;
-                block.rot_im[l % BLOCK] = -s;
+            if st.reanchor_moved {
+                let bases = [centre_phase, centre_phase2].map(|p| {
+                    let (s, c) = phase_to_radians(p).sin_cos();
+                    Complex64::new(c, -s)
+                });
+                let mut powers = HarmonicPowers::default();
+                for l in 0..plan.count {
+                    let o = plan.oscillator[l] as usize;
+                    let rot = powers.of(o, bases[o], plan.harmonic[l]);
+                    let block = &mut st.blocks[l / BLOCK];
+                    block.rot_re[l % BLOCK] = rot.re;
+                    block.rot_im[l % BLOCK] = rot.im;
+                }
+                st.reanchor_moved = false;
+            } else {
+                for l in 0..plan.count {
+                    let phase = match plan.oscillator[l] {
+                        Oscillator::Drive => centre_phase,
+                        Oscillator::Drive2 => centre_phase2,
+                    };
+                    let theta = phase_to_radians(harmonic_phase(phase, plan.harmonic[l]));
+                    let (s, c) = theta.sin_cos();
+                    let block = &mut st.blocks[l / BLOCK];
+                    block.rot_re[l % BLOCK] = c;
+                    block.rot_im[l % BLOCK] = -s;
+                }
             }
             st.reanchor_in = REANCHOR_INTERVAL;
         }
@@ -1032,7 +1057,7 @@ impl Plan {
     /// taps too when they no longer hold ([`taps_hold`](Self::taps_hold)). No allocation.
     fn follow(&mut self, oscillator: Oscillator, word: u64) {
         if self.taps_hold(oscillator, word) {
-            self.tune_steps(oscillator, word);
+            self.follow_steps(oscillator, word);
         } else {
             self.retune(oscillator, word);
         }
@@ -1062,6 +1087,25 @@ impl Plan {
         }
     }
 
+    /// [`tune_steps`](Self::tune_steps) for an oscillator that moved while running: each
+    /// lane's step as a power of the oscillator's own (one `sin_cos`, not one a lane;
+    /// within a few 1e-15 of `tune_steps`'). No allocation.
+    fn follow_steps(&mut self, oscillator: Oscillator, word: u64) {
+        let step = word.wrapping_mul(PREDECIMATION as u64);
+        let (s, c) = phase_to_radians(step).sin_cos();
+        let base = Complex64::new(c, -s);
+        let mut powers = HarmonicPowers::default();
+        for (l, (&k, &o)) in self.harmonic.iter().zip(&self.oscillator).enumerate() {
+            if o != oscillator {
+                continue;
+            }
+            let p = powers.of(o as usize, base, k);
+            let (block, i) = (l / BLOCK, l % BLOCK);
+            self.blocks[block].step_re[i] = p.re;
+            self.blocks[block].step_im[i] = p.im;
+        }
+    }
+
     /// [`tune`](Self::tune) for an oscillator that moved while running: each of its lanes'
     /// mixing phasors e^{ikωu} by recurrence from one `sin_cos` (31 complex products, within
     /// a few 1e-15 of `tune`'s), so a PLL whose drive wanders costs the DSP thread about 32
@@ -1076,15 +1120,15 @@ impl Plan {
             let (block, i) = (l / BLOCK, l % BLOCK);
             let rows = &mut self.coef[block * (HALF + 1)..][..HALF + 1];
             let (s, c) = phase_to_radians(harmonic_phase(word, k)).sin_cos();
-            let turn = rustfft::num_complex::Complex64::new(c, s);
-            let mut phasor = rustfft::num_complex::Complex64::new(1.0, 0.0);
+            let turn = Complex64::new(c, s);
+            let mut phasor = Complex64::new(1.0, 0.0);
             for (h, row) in self.taps.iter().zip(rows) {
                 row.0[0][i] = g * h * phasor.re;
                 row.0[1][i] = g * h * phasor.im;
                 phasor *= turn;
             }
         }
-        self.tune_steps(oscillator, word);
+        self.follow_steps(oscillator, word);
     }
 
     /// Recompute everything of `oscillator`'s lanes that depends on its frequency word (no
@@ -1109,9 +1153,49 @@ impl Plan {
     }
 }
 
+/// Powers z^k of one phasor per oscillator for lanes in turn: the next harmonic up is one
+/// product from the last lane's power (the banks' harmonics mostly run 1, 2, 3, …), any
+/// other is taken by squaring. Each within a few 1e-15 of e^{ikφ} by `sin_cos`.
+#[derive(Default)]
+struct HarmonicPowers {
+    /// The last harmonic and its power, per oscillator (0: none yet).
+    last: [(u32, Complex64); 2],
+}
+
+impl HarmonicPowers {
+    fn of(&mut self, oscillator: usize, base: Complex64, k: u32) -> Complex64 {
+        let (last_k, last) = self.last[oscillator];
+        let power = if last_k > 0 && k == last_k + 1 {
+            last * base
+        } else if last_k > 0 && k == last_k {
+            last
+        } else {
+            base.powu(k)
+        };
+        self.last[oscillator] = (k, power);
+        power
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Powers by products against `sin_cos` of the harmonic's phase: harmonics in a run, a
+    /// jump, a repeat and one high harmonic.
+    #[test]
+    fn harmonic_powers_match_sin_cos() {
+        let phase: u64 = 0x1357_9bdf_2468_ace0;
+        let (s, c) = phase_to_radians(phase).sin_cos();
+        let base = Complex64::new(c, -s);
+        let mut powers = HarmonicPowers::default();
+        for k in [0u32, 1, 2, 3, 7, 8, 8, 31, 32, 1000, 10_000] {
+            let (s, c) = phase_to_radians(harmonic_phase(phase, k)).sin_cos();
+            let exact = Complex64::new(c, -s);
+            let p = powers.of(0, base, k);
+            assert!((p - exact).norm() < 1e-12, "k = {k}: {p} against {exact}");
+        }
+    }
 
     fn tone(n: usize, fs: f64, f: f64, amp: f64, phase: f64) -> Vec<f64> {
         let r = f / fs;
