@@ -492,10 +492,15 @@ async fn an_approach_names_the_branch_of_every_point() {
                "/sweeper/averaging": 20}),
     )
     .await;
-    // `status` names the live regime too: deep in (repulsive on either path) and far out.
+    // `status` names the live regime too: deep in and far out. The sweeper put the surface
+    // back at 8 nm, out of reach; the approach to 2.3 nm retraces the sweep's steps, as a
+    // jump from out of reach straight to 2.3 nm can land on either orbit (the drive phase
+    // at which the surface arrives decides, and that is the wall clock's).
     let r = call(&mut ws, json!({"op": "subscribe", "stream": "status"})).await;
     assert_eq!(r["ok"], true, "{r}");
-    for (distance, want) in [(2.3e-9, "repulsive"), (40e-9, "free")] {
+    let steps =
+        [3.9e-9, 3.5e-9, 3.1e-9, 2.7e-9, 2.3e-9].map(|d| (d, (d == 2.3e-9).then_some("repulsive")));
+    for (distance, want) in steps.into_iter().chain([(40e-9, Some("free"))]) {
         let r = call(
             &mut ws,
             json!({"op": "set", "values": {"/surface/distance": distance}}),
@@ -505,7 +510,9 @@ async fn an_approach_names_the_branch_of_every_point() {
         // Settled: 20 ms is 40 of mode 1's and the demodulators' time constants.
         let after = r["t"].as_f64().unwrap() + 0.02;
         let status = first_of(&mut ws, "status", |m| m["t"].as_f64().unwrap() > after).await;
-        assert_eq!(status["regime"], want, "at {distance:e} m: {status}");
+        if let Some(want) = want {
+            assert_eq!(status["regime"], want, "at {distance:e} m: {status}");
+        }
     }
     d.shutdown().await;
     assert_eq!(done["outcome"], "done", "{done}");
