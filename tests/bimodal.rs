@@ -5,6 +5,8 @@
 //! force trace gives independently; and the bimodal AM-FM expressions turn that response
 //! and the first mode's amplitude and phase into the sample's modulus.
 
+mod common;
+
 use std::f64::consts::PI;
 
 use ftafm::config::{Settings, default_settings};
@@ -348,4 +350,54 @@ fn second_excitation_switched_on_rings_up_mode_two() {
     }
     println!("ring-up: worst |envelope − (1 − e^(−t/τ2))| = {worst:.4}, τ2 = {tau:.0} samples");
     assert!(worst < 0.02, "the ring-up departs by {worst}");
+}
+
+/// Through the daemon: a demodulator on oscillator "drive2" reads the second excitation's
+/// tone as the synthesiser made it (the photodiode's steady response through the ADC's
+/// front end, its delay taken out by the reference), while the drive's harmonic 1 beside it
+/// reads the first's; the force inversion and the `demods` stream's format are unchanged.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_daemon_demodulates_each_excitation_against_its_oscillator() {
+    use ftafm::config::Oscillator;
+    use serde_json::json;
+    let mut settings = common::light();
+    settings.noise.enable = false;
+    settings.surface.distance = 1e-6;
+    let lever = ftafm::model::cantilever(&settings).unwrap();
+    settings.drive2.enable = true;
+    settings.drive2.frequency = lever.modes[1].frequency;
+    settings.drive2.free_amplitude = 1e-9;
+    settings.demods[1].oscillator = Oscillator::Drive2;
+    settings.demods[1].harmonic = 1;
+    let plan = SynthPlan::new(&settings).unwrap();
+    let f = |word: u64| word as f64 / 2f64.powi(64);
+    let expected1 = plan.drive.signal * plan.front_end_gain(f(plan.frequency_word));
+    let expected2 = plan.drive2.unwrap().signal * plan.front_end_gain(f(plan.frequency_word2));
+    let daemon = common::Daemon::start(settings.clone()).await;
+    let mut ws = common::connect(daemon.addr).await;
+    let sub = common::call(&mut ws, json!({"op": "subscribe", "stream": "demods"})).await;
+    assert_eq!(sub["ok"], true, "{sub}");
+    // 50 ms in: 100 of the demodulators' time constants, 25 of mode 2's.
+    let frame = common::first_of(&mut ws, "demods", |m| m["t"].as_f64().unwrap() > 0.05).await;
+    let read = |index: u64| {
+        let d = frame["demods"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|d| d["index"] == index)
+            .unwrap();
+        assert!(
+            d.get("oscillator").is_none(),
+            "the stream's format is unchanged: {d}"
+        );
+        Complex64::new(d["x"].as_f64().unwrap(), d["y"].as_f64().unwrap())
+    };
+    for (index, expected) in [(0, expected1), (1, expected2)] {
+        let got = read(index);
+        assert!(
+            (got - expected).norm() < 1e-4 * expected.norm(),
+            "demodulator {index}: {got} against {expected}"
+        );
+    }
+    daemon.shutdown().await;
 }

@@ -727,7 +727,7 @@ fn chain_frames(settings: &Settings, settle: f64, seconds: f64) -> Vec<DemodFram
             frame.values[frame.len] = DemodValue {
                 index: s.demod as u8,
                 harmonic: s.harmonic,
-                oscillator: s.oscillator,
+                oscillator: Default::default(),
                 x: s.x,
                 y: s.y,
             };

@@ -30,7 +30,17 @@ use super::lowpass::MAX_ORDER;
 use super::predecimator::Predecimator;
 use super::simd::F64s;
 use super::{DspError, LowPass};
-pub use crate::config::Oscillator;
+/// The reference a demodulator reads: harmonic k of the drive's phase (the excitation a
+/// PLL moves) or of the second excitation's. The settings' `/demods/N/oscillator` maps onto
+/// it (`pipeline::dsp_plan`), as the DSP stage takes nothing from the settings.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Oscillator {
+    /// The drive: [`LockInBank::align_drive`] moves it.
+    #[default]
+    Drive,
+    /// The second excitation: [`LockInBank::align_drive2`] moves it.
+    Drive2,
+}
 use crate::timebase::{PREDECIMATION, PhaseAccumulator, harmonic_phase, phase_to_radians};
 use rustfft::num_complex::Complex64;
 

@@ -2,6 +2,7 @@
 //! settings: the lock-in bank and the sliding spectrum.
 
 use crate::config::{Oscillator, Settings, SpectrumWindow};
+use crate::dsp::Oscillator as Reference;
 use crate::dsp::{
     Demodulator, DspError, LockInBank, LockInSample, MAX_DEMODULATORS, SPLIT_LANES,
     SlidingSpectrum, SpectrumConfig, Window,
@@ -74,7 +75,7 @@ impl DspPlan {
         let threads = dsp_threads(settings);
         let drive2 = demods
             .iter()
-            .any(|d| d.enable && d.oscillator == Oscillator::Drive2)
+            .any(|d| d.enable && d.oscillator == Reference::Drive2)
             .then_some(settings.drive2.frequency);
         let bank = LockInBank::with_drive2(
             fs,
@@ -176,7 +177,7 @@ impl DspPlan {
                     frame.values[frame.len] = DemodValue {
                         index: demod as u8,
                         harmonic,
-                        oscillator,
+                        oscillator: setting(oscillator),
                         x,
                         y,
                     };
@@ -236,7 +237,7 @@ impl DspPlan {
         let value = |s: &LockInSample| DemodValue {
             index: s.demod as u8,
             harmonic: s.harmonic,
-            oscillator: s.oscillator,
+            oscillator: setting(s.oscillator),
             x: s.x,
             y: s.y,
         };
@@ -313,9 +314,20 @@ pub fn demodulators(settings: &Settings) -> Vec<Demodulator> {
             order: d.order,
             time_constant: d.timeconstant,
             output_rate: d.rate,
-            oscillator: d.oscillator,
+            oscillator: match d.oscillator {
+                Oscillator::Drive => Reference::Drive,
+                Oscillator::Drive2 => Reference::Drive2,
+            },
         })
         .collect()
+}
+
+/// The setting a demodulator's reference stands for, for the values it hands out.
+fn setting(reference: Reference) -> Oscillator {
+    match reference {
+        Reference::Drive => Oscillator::Drive,
+        Reference::Drive2 => Oscillator::Drive2,
+    }
 }
 
 fn window(w: SpectrumWindow) -> Window {
