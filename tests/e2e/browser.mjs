@@ -12,7 +12,7 @@
 // soak measures a dashboard in a session of its own, as a user's desktop runs it.)
 
 import { spawn } from "node:child_process";
-import { mkdtempSync, rmSync } from "node:fs";
+import { existsSync, mkdtempSync, readFileSync, rmSync } from "node:fs";
 import { tmpdir } from "node:os";
 import path from "node:path";
 import { chromium } from "playwright-core";
@@ -72,4 +72,21 @@ export async function launchBrowser({ viewport = { width: 1600, height: 1000 }, 
     }
   };
   return { context, page, close };
+}
+
+/** Serves the dashboard's files from the directory `FTAFM_E2E_WEB` names, where it is set,
+ * in place of the daemon's embedded copy: a page edited in `web/` is tested without
+ * rebuilding the binary. The page itself (/) stays the daemon's: Chromium lets only a page
+ * it loaded from the loopback address open the loopback WebSocket (its local network
+ * access checks). */
+export async function serveWebFrom(page, daemonUrl) {
+  const web = process.env.FTAFM_E2E_WEB;
+  if (!web) return;
+  const origin = new URL(daemonUrl).origin;
+  const types = { ".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8", ".css": "text/css; charset=utf-8", ".svg": "image/svg+xml" };
+  await page.route((url) => url.origin === origin && url.pathname !== "/" && !url.pathname.startsWith("/ws"), (route) => {
+    const file = path.join(web, new URL(route.request().url()).pathname);
+    if (!existsSync(file)) return route.continue();
+    return route.fulfill({ status: 200, contentType: types[path.extname(file)] ?? "application/octet-stream", body: readFileSync(file) });
+  });
 }

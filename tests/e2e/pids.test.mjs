@@ -19,9 +19,7 @@
 
 import { after, before, test } from "node:test";
 import assert from "node:assert/strict";
-import { existsSync, readFileSync } from "node:fs";
-import path from "node:path";
-import { launchBrowser } from "./browser.mjs";
+import { launchBrowser, serveWebFrom } from "./browser.mjs";
 import { daemons, startDaemon, stopDaemon } from "./daemon.mjs";
 
 // Hang guards, not margins: the test waits on replies and on the units' update counts.
@@ -48,18 +46,7 @@ before(async () => {
   ({ context, page, close: closeBrowser } = await launchBrowser());
   context.setDefaultTimeout(WAIT);
   page.on("pageerror", (e) => pageErrors.push(String(e)));
-  const web = process.env.FTAFM_E2E_WEB;
-  if (web) {
-    const origin = new URL(daemon.url).origin;
-    const types = { ".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8", ".css": "text/css; charset=utf-8", ".svg": "image/svg+xml" };
-    // The page itself (/) stays the daemon's: Chromium lets only a page it loaded from the
-    // loopback address open the loopback WebSocket (its local network access checks).
-    await page.route((url) => url.origin === origin && url.pathname !== "/" && !url.pathname.startsWith("/ws"), (route) => {
-      const file = path.join(web, new URL(route.request().url()).pathname);
-      if (!existsSync(file)) return route.continue();
-      return route.fulfill({ status: 200, contentType: types[path.extname(file)] ?? "application/octet-stream", body: readFileSync(file) });
-    });
-  }
+  await serveWebFrom(page, daemon.url);
   await page.goto(daemon.url);
   await page.waitForSelector('#conn[data-state="open"]', { timeout: WAIT });
 });
