@@ -105,6 +105,8 @@ pub fn pid_settings(s: &Settings, index: usize) -> Option<PidSettings> {
         PidTarget::SurfaceDistance => s.surface.distance,
         PidTarget::DriveFrequency => s.drive.frequency,
         PidTarget::DriveAmplitude => s.drive.free_amplitude,
+        PidTarget::Drive2Frequency => s.drive2.frequency,
+        PidTarget::Drive2Amplitude => s.drive2.free_amplitude,
     };
     Some(PidSettings {
         setpoint: pid.setpoint,

@@ -367,6 +367,10 @@ node_table! {
         PidRate "rate", "", Kind::Float(PID_RATE), rate,
             "Largest change of PID {i}'s output per second, in its output's unit per s; 0: no rate limit.";
         PidOutput "output", "", Kind::Text(PidTarget::NAMES), output,
-            "What PID {i} drives (the coupled engine only): \"surface_distance\" (the z piezo: the distance from the tip's rest position to the surface, as the scan's feedback moves it), \"drive_frequency\" (Hz: the excitation's frequency, which the lock-in's reference follows; on the phase of harmonic 1 a PLL) or \"drive_amplitude\" (m: the excitation, as the free tip amplitude it gives at /drive/frequency). At most one enabled PID drives an output, and none while a scan runs or a sweep steps the same node.";
+            "What PID {i} drives (the coupled engine only): \"surface_distance\" (the z piezo: the distance from the tip's rest position to the surface, as the scan's feedback moves it), \"drive_frequency\" (Hz: the excitation's frequency, which the lock-in's reference follows; on the phase of harmonic 1 a PLL), \"drive_amplitude\" (m: the excitation, as the free tip amplitude it gives at /drive/frequency), or \"drive2_frequency\" and \"drive2_amplitude\" (the same of the second excitation, /drive2/enable true: on the phase of harmonic 1 of drive2, mode 2's PLL). At most one enabled PID drives an output, and none while a scan runs or a sweep steps the same node.";
+        PidOscillator "oscillator", "", Kind::Text(Oscillator::NAMES), oscillator,
+            "The oscillator whose harmonic /pids/{i}/harmonic PID {i}'s demodulator reads: \"drive\" (a boxcar of one drive period) or \"drive2\" (the second excitation, /drive2/enable true: a low-pass of /pids/{i}/input_bandwidth, since a boxcar of the drive's period does not reject the tapping's harmonics beside f2).";
+        PidInputBandwidth "input_bandwidth", "Hz", Kind::Float(PID_INPUT_BANDWIDTH), input_bandwidth,
+            "-3 dB bandwidth of PID {i}'s demodulator low-pass (four first-order sections) on \"drive2\", in Hz; at most a quarter of the drive frequency (the PID's update rate) while it reads drive2.";
     }
 }

@@ -162,6 +162,9 @@ pub(crate) const PID_D: Range = Range::closed(-1e6, 1e6);
 /// A PID derivative low-pass's bandwidth in Hz; below half the drive frequency (the PID's
 /// Nyquist frequency) while the unit is enabled.
 pub(crate) const PID_D_BANDWIDTH: Range = Range::above_up_to(0.0, 1e8);
+/// A PID demodulator's low-pass bandwidth in Hz (`/pids/N/input_bandwidth`); the drive
+/// frequency narrows it while the unit reads drive2.
+pub(crate) const PID_INPUT_BANDWIDTH: Range = Range::above_up_to(0.0, 1e8);
 /// A PID's output limits, in its output's unit; the output's own range narrows them
 /// (`/pids/N/output`: the surface distance's 0 … 1 µm).
 pub(crate) const PID_OUTPUT: Range = Range::closed(-1e9, 1e9);

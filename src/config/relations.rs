@@ -88,12 +88,6 @@ fn nyquist(s: &Settings) -> f64 {
     s.synth.sample_rate / 2.0
 }
 
-/// The highest harmonic in band: the largest k with k × `/drive/frequency` <
-/// `/synth/sample_rate` / 2, at most [`MAX_HARMONIC`]. Demodulators above it are out of band.
-pub(crate) fn highest_harmonic(s: &Settings) -> u64 {
-    harmonics_below(s.drive.frequency, nyquist(s))
-}
-
 /// The largest k (at most [`MAX_HARMONIC`]) with k × `drive` < `limit` (Hz).
 fn harmonics_below(drive: f64, limit: f64) -> u64 {
     let max = u64::from(MAX_HARMONIC);
@@ -911,17 +905,53 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
     let mut driven: [Option<usize>; PidTarget::ALL.len()] = [None; PidTarget::ALL.len()];
     for (index, pid) in s.pids.iter().enumerate().filter(|(_, p)| p.enable) {
         let target = pid.output.name();
-        if !harmonic_in_band(s, pid.harmonic) {
+        let second = pid.oscillator == Oscillator::Drive2;
+        if (second || pid.output.on_drive2()) && !s.drive2.enable {
+            let key = if second { "oscillator" } else { "output" };
+            let value = if second {
+                pid.oscillator.name()
+            } else {
+                target
+            };
+            return Err(invalid(
+                format!("/pids/{index}/{key}"),
+                format!(
+                    "/pids/{index}/{key} = \"{value}\" while /pids/{index}/enable is true needs \
+                     the second excitation: set /drive2/enable = true first (and disable the \
+                     PID before /drive2/enable = false)"
+                ),
+            ));
+        }
+        let frequency = s.oscillator_frequency(pid.oscillator);
+        if f64::from(pid.harmonic) * frequency >= nyquist(s) {
+            let node = if second {
+                "/drive2/frequency"
+            } else {
+                "/drive/frequency"
+            };
             return Err(invalid(
                 format!("/pids/{index}/harmonic"),
                 format!(
                     "/pids/{index}/harmonic = {} is out of band while /pids/{index}/enable is \
-                     true: k × /drive/frequency = {} must stay below /synth/sample_rate / 2 = {} \
+                     true: k × {node} = {} must stay below /synth/sample_rate / 2 = {} \
                      (at most {})",
                     pid.harmonic,
-                    quantity(f64::from(pid.harmonic) * s.drive.frequency, "Hz"),
+                    quantity(f64::from(pid.harmonic) * frequency, "Hz"),
                     quantity(nyquist(s), "Hz"),
-                    highest_harmonic(s)
+                    harmonics_below(frequency, nyquist(s))
+                ),
+            ));
+        }
+        // The node's own range keeps the bandwidth a number above 0.
+        if second && pid.input_bandwidth > s.drive.frequency / 4.0 {
+            return Err(invalid(
+                format!("/pids/{index}/input_bandwidth"),
+                format!(
+                    "/pids/{index}/input_bandwidth = {} is too wide for a unit on \"drive2\": \
+                     allowed 0 < value ≤ /drive/frequency / 4 = {} (the unit reads its \
+                     low-pass once per drive period)",
+                    quantity(pid.input_bandwidth, "Hz"),
+                    quantity(s.drive.frequency / 4.0, "Hz")
                 ),
             ));
         }
@@ -970,7 +1000,10 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
                     "the surface distance",
                 )?;
             }
-            PidTarget::DriveFrequency | PidTarget::DriveAmplitude => {
+            PidTarget::DriveFrequency
+            | PidTarget::DriveAmplitude
+            | PidTarget::Drive2Frequency
+            | PidTarget::Drive2Amplitude => {
                 if s.scan.enable {
                     return Err(invalid(
                         format!("/pids/{index}/output"),
@@ -984,11 +1017,12 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
             }
         }
         let swept = match pid.output {
-            PidTarget::SurfaceDistance => SweepParameter::SurfaceDistance,
-            PidTarget::DriveFrequency => SweepParameter::DriveFrequency,
-            PidTarget::DriveAmplitude => SweepParameter::DriveFreeAmplitude,
+            PidTarget::SurfaceDistance => Some(SweepParameter::SurfaceDistance),
+            PidTarget::DriveFrequency => Some(SweepParameter::DriveFrequency),
+            PidTarget::DriveAmplitude => Some(SweepParameter::DriveFreeAmplitude),
+            PidTarget::Drive2Frequency | PidTarget::Drive2Amplitude => None,
         };
-        if s.sweeper.enable && s.sweeper.parameter == swept {
+        if let Some(swept) = swept.filter(|&p| s.sweeper.enable && s.sweeper.parameter == p) {
             return Err(invalid(
                 format!("/pids/{index}/output"),
                 format!(
@@ -1000,12 +1034,18 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
                 ),
             ));
         }
-        if pid.output == PidTarget::DriveFrequency {
-            // Every harmonic read must stay in band wherever the loop takes the drive.
+        if let Some(moved) = pid.output.frequency_of() {
+            // Every harmonic read of the oscillator must stay in band wherever the loop
+            // takes it.
             let highest = (0..DEMODULATOR_COUNT)
-                .filter(|&i| s.demod_active(i))
+                .filter(|&i| s.demod_active(i) && s.demods[i].oscillator == moved)
                 .map(|i| s.demods[i].harmonic)
-                .chain(s.pids.iter().filter(|p| p.enable).map(|p| p.harmonic))
+                .chain(
+                    s.pids
+                        .iter()
+                        .filter(|p| p.enable && p.oscillator == moved)
+                        .map(|p| p.harmonic),
+                )
                 .max()
                 .unwrap_or(1);
             let limit = nyquist(s) / f64::from(highest);
@@ -1017,25 +1057,29 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
                     return Err(invalid(
                         format!("/pids/{index}/{key}"),
                         format!(
-                            "/pids/{index}/{key} = {} is outside the drive frequency's range for \
+                            "/pids/{index}/{key} = {} is outside the {} frequency's range for \
                              /pids/{index}/output = \"{target}\": allowed 0 < value < {} \
-                             (/synth/sample_rate / 2 / {highest}, the highest harmonic an \
-                             enabled demodulator or PID reads)",
+                             (/synth/sample_rate / 2 / {highest}, the highest harmonic of it \
+                             an enabled demodulator or PID reads)",
                             quantity(value, "Hz"),
+                            moved.name(),
                             quantity(limit, "Hz")
                         ),
                     ));
                 }
             }
         }
-        if pid.output == PidTarget::DriveAmplitude {
+        if matches!(
+            pid.output,
+            PidTarget::DriveAmplitude | PidTarget::Drive2Amplitude
+        ) {
             check_pid_range(
                 index,
                 pid,
                 0.0,
                 MAX_PID_DISTANCE,
                 "m",
-                "the drive's free amplitude",
+                "the excitation's free amplitude",
             )?;
         }
         let slot = &mut driven[pid.output as usize];
@@ -1173,6 +1217,7 @@ mod tests {
 
     #[test]
     fn highest_harmonic_agrees_with_the_check() {
+        let highest_harmonic = |s: &Settings| harmonics_below(s.drive.frequency, nyquist(s));
         let mut s = default_settings();
         // 10 MHz sampling, 100 kHz drive: 50 × 100 kHz is exactly Nyquist, so 49.
         assert_eq!(highest_harmonic(&s), 49);

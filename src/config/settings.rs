@@ -656,6 +656,29 @@ named_choice! {
         /// The drive's amplitude, as the free tip amplitude it gives at `/drive/frequency`
         /// (m, `/drive/free_amplitude`'s quantity): the base amplitude in proportion.
         DriveAmplitude = "drive_amplitude",
+        /// The second excitation's frequency (Hz), with the reference of the demodulators
+        /// on `drive2`: a unit on the phase of harmonic 1 of `drive2` is mode 2's PLL
+        /// (bimodal AM-FM). `/drive2/frequency` is the centre it starts from.
+        Drive2Frequency = "drive2_frequency",
+        /// The second excitation's amplitude, as the free tip amplitude it gives at
+        /// `/drive2/frequency` (m, `/drive2/free_amplitude`'s quantity).
+        Drive2Amplitude = "drive2_amplitude",
+    }
+}
+
+impl PidTarget {
+    /// Whether it moves the second excitation (`/drive2`).
+    pub fn on_drive2(self) -> bool {
+        matches!(self, Self::Drive2Frequency | Self::Drive2Amplitude)
+    }
+
+    /// The oscillator whose frequency it moves, if it moves one.
+    pub fn frequency_of(self) -> Option<Oscillator> {
+        match self {
+            Self::DriveFrequency => Some(Oscillator::Drive),
+            Self::Drive2Frequency => Some(Oscillator::Drive2),
+            _ => None,
+        }
     }
 }
 
@@ -688,6 +711,23 @@ pub struct PidUnitSettings {
     pub rate: f64,
     /// What it drives.
     pub output: PidTarget,
+    /// The oscillator whose harmonic k its demodulator reads (absent from older files:
+    /// `/drive`'s).
+    #[serde(default)]
+    pub oscillator: Oscillator,
+    /// −3 dB bandwidth (Hz) of its demodulator's low-pass (four first-order sections) on
+    /// `drive2`, at most a quarter of the drive frequency (its update rate); a unit on
+    /// `drive` reads a boxcar of one drive period instead.
+    #[serde(default = "default_input_bandwidth")]
+    pub input_bandwidth: f64,
+}
+
+/// `/pids/N/input_bandwidth`'s default (Hz): far below the default lever's spacing of f2
+/// from the tapping's nearest harmonic (27 kHz), above a mode-2 PLL's usual bandwidth.
+pub const DEFAULT_PID_INPUT_BANDWIDTH: f64 = 2e3;
+
+fn default_input_bandwidth() -> f64 {
+    DEFAULT_PID_INPUT_BANDWIDTH
 }
 
 impl Default for PidUnitSettings {
@@ -706,6 +746,8 @@ impl Default for PidUnitSettings {
             output_max: 100e-9,
             rate: 0.0,
             output: PidTarget::SurfaceDistance,
+            oscillator: Oscillator::Drive,
+            input_bandwidth: DEFAULT_PID_INPUT_BANDWIDTH,
         }
     }
 }

@@ -301,8 +301,8 @@ fn pid_means(
                 "error": error,
                 "updates": updates,
             });
-            if pid.output == crate::config::PidTarget::DriveFrequency {
-                unit["frequency_shift"] = json!(output - settings.drive.frequency);
+            if let Some(oscillator) = pid.output.frequency_of() {
+                unit["frequency_shift"] = json!(output - settings.oscillator_frequency(oscillator));
             }
             Some(unit)
         })

@@ -14,6 +14,7 @@ use super::counters::{Counters, monotonic_ns};
 use super::dsp_plan::{DspPlan, DspSink};
 use super::dsp_team::DspTeam;
 use super::frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
+use crate::config::Oscillator;
 use crate::synth::noise_pages::PageFactory;
 use crate::synth::{Digitiser, WindowSample};
 
@@ -172,8 +173,8 @@ impl DspWorker {
             let busy = Instant::now();
             let frames_before = self.counters.demod_frames.load(Ordering::Relaxed);
             self.plan.align(header.phase, header.frequency_word);
-            // The second excitation's demodulators: aligned here only, as a loop's
-            // reference changes below move the drive alone.
+            // The second excitation's demodulators, from the header as the drive's; a
+            // loop's reference changes below move either.
             self.plan
                 .align_drive2(header.phase2, header.frequency_word2);
             let len = header.len as usize;
@@ -221,7 +222,12 @@ impl DspWorker {
                 while references > 0 {
                     match self.references.first() {
                         Some(change) if change.index <= pos => {
-                            self.plan.align(change.phase, change.word);
+                            match change.oscillator {
+                                Oscillator::Drive => self.plan.align(change.phase, change.word),
+                                Oscillator::Drive2 => {
+                                    self.plan.align_drive2(change.phase, change.word);
+                                }
+                            }
                             self.references.skip(1);
                             references -= 1;
                         }

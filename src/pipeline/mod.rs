@@ -340,10 +340,10 @@ impl Pipeline {
         let (headers_in, headers_out) =
             HeapRb::<BlockHeader>::new(ring / BLOCK_SAMPLES + 1).split();
         let (demods_in, demods_out) = HeapRb::<DemodFrame>::new(DEMOD_QUEUE).split();
-        // One change of the reference per drive period at most, for drives up to a
-        // sixteenth of the sample rate, for the whole sample ring.
+        // One change of each oscillator's reference per drive period at most, for drives
+        // up to a sixteenth of the sample rate, for the whole sample ring.
         let (references_in, references_out) =
-            HeapRb::<ReferenceChange>::new(ring / 16 + PENDING_REFERENCES).split();
+            HeapRb::<ReferenceChange>::new(ring / 8 + PENDING_REFERENCES).split();
         // Pools sized for the largest spectrum and trace the settings allow, so a live change
         // of /spectrum/size or /scope/length never needs a bigger buffer on the DSP thread.
         let (spectra_in, spectra_out, free_in, free_out) = pool(|| SpectrumBuffer {

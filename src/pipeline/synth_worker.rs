@@ -147,17 +147,21 @@ impl SynthWorker {
             // synthesis by the ADC filter's delay, so the lock-in sees no shift from it;
             // under the loops, their drive's (a PLL moves it).
             let loops = self.plan.scan.is_none() && self.pids.active(&self.plan);
-            let (phase, frequency_word) = if loops {
+            let [(phase, frequency_word), (phase2, frequency_word2)] = if loops {
                 self.pids.begin(&self.plan, &self.state)
             } else {
-                (
-                    self.plan.output_phase(self.state.phase()),
-                    self.plan.frequency_word,
-                )
+                [
+                    (
+                        self.plan.output_phase(self.state.phase()),
+                        self.plan.frequency_word,
+                    ),
+                    (
+                        self.plan
+                            .output_phase_at(self.state.phase2(), self.plan.frequency_word2),
+                        self.plan.frequency_word2,
+                    ),
+                ]
             };
-            let phase2 = self
-                .plan
-                .output_phase_at(self.state.phase2(), self.plan.frequency_word2);
             let clipped_before = self.state.counters.clipped;
             let (refined_before, over_before) =
                 (self.state.counters.refined, self.state.counters.over_budget);
@@ -254,7 +258,7 @@ impl SynthWorker {
                 phase,
                 frequency_word,
                 phase2,
-                frequency_word2: self.plan.frequency_word2,
+                frequency_word2,
                 t_synth_ns: unix_ns(),
                 raster: self.plan.scan.as_ref().and(self.scan.raster),
                 epoch,

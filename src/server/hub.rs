@@ -611,22 +611,26 @@ fn pid_reports(
         .zip(updates)
         .enumerate()
         .map(|(index, (pid, latest))| {
-            let on_frequency = pid.output == crate::config::PidTarget::DriveFrequency;
+            // A unit on an oscillator's frequency: Δf from that oscillator's node.
+            let centre = pid
+                .output
+                .frequency_of()
+                .map(|o| settings.oscillator_frequency(o));
+            let on_frequency = centre.is_some();
             let pll = on_frequency && pid.input == crate::config::PidInput::Phase;
             super::status::PidReport {
                 index,
                 enable: pid.enable,
                 input: pid.input.name(),
                 harmonic: pid.harmonic,
+                oscillator: pid.oscillator.name(),
                 output: pid.output.name(),
                 setpoint: pid.setpoint,
                 latest,
                 locked: latest
                     .filter(|_| pll)
                     .map(|u| !u.limited && u.error.abs() < super::status::PLL_LOCK_PHASE),
-                frequency_shift: latest
-                    .filter(|_| on_frequency)
-                    .map(|u| u.output - settings.drive.frequency),
+                frequency_shift: latest.zip(centre).map(|(u, centre)| u.output - centre),
             }
         })
         .collect()

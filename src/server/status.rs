@@ -167,9 +167,12 @@ pub struct StatusReport {
     /// The PID units (`/pids/N`), by index: what each runs on and its latest update.
     pub pids: Vec<PidReport>,
     /// The outputs a PID unit holds away from their nodes (`"surface_distance"`,
-    /// `"drive_frequency"`, `"drive_amplitude"`): one runs on it, or one ran and left it
-    /// where it put it, as a z piezo or an oscillator holds. A new value of the node
-    /// (`/surface/distance`, `/drive/frequency`, `/drive/free_amplitude`) takes it back.
+    /// `"drive_frequency"`, `"drive_amplitude"`, `"drive2_frequency"`,
+    /// `"drive2_amplitude"`): one runs on it, or one ran and left it where it put it, as a
+    /// z piezo or an oscillator holds. A new value of the node (`/surface/distance`,
+    /// `/drive/frequency`, `/drive/free_amplitude`, `/drive2/frequency`,
+    /// `/drive2/free_amplitude`) takes it back; turning the second excitation off lets go of
+    /// it too.
     pub pid_held: Vec<&'static str>,
 }
 
@@ -188,19 +191,23 @@ pub struct PidReport {
     pub input: &'static str,
     /// `/pids/N/harmonic`.
     pub harmonic: u32,
-    /// `/pids/N/output`: `"surface_distance"`, `"drive_frequency"` or `"drive_amplitude"`.
+    /// `/pids/N/oscillator`: `"drive"` or `"drive2"`.
+    pub oscillator: &'static str,
+    /// `/pids/N/output`: `"surface_distance"`, `"drive_frequency"`, `"drive_amplitude"`,
+    /// `"drive2_frequency"` or `"drive2_amplitude"`.
     pub output: &'static str,
     /// `/pids/N/setpoint` in force (the input's unit).
     pub setpoint: f64,
     /// The latest update the synthesiser made (its epoch says under which settings);
     /// `None` before the unit's first. A disabled unit keeps its last.
     pub latest: Option<crate::pipeline::PidUpdate>,
-    /// A PLL's lock (a unit on the phase driving the drive frequency): its latest update
-    /// within [`PLL_LOCK_PHASE`] of the set-point and not limited. `None` for other units
-    /// and before the first update.
+    /// A PLL's lock (a unit on the phase driving either excitation's frequency): its
+    /// latest update within [`PLL_LOCK_PHASE`] of the set-point and not limited. `None`
+    /// for other units and before the first update.
     pub locked: Option<bool>,
-    /// A unit on the drive frequency: its latest output less `/drive/frequency` (Hz), the
-    /// frequency shift Δf. `None` for other units and before the first update.
+    /// A unit on an excitation's frequency: its latest output less that excitation's
+    /// `/drive/frequency` or `/drive2/frequency` (Hz), the frequency shift Δf (Δf₂).
+    /// `None` for other units and before the first update.
     pub frequency_shift: Option<f64>,
 }
 

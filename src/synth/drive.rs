@@ -10,6 +10,7 @@ use std::f64::consts::PI;
 
 use rustfft::num_complex::Complex64;
 
+use crate::config::Oscillator;
 use crate::physics::beam::{Cantilever, MAX_MODES, Mode};
 use crate::timebase::TWO_POW_64;
 
@@ -139,12 +140,15 @@ fn unit_response(cantilever: &Cantilever, omega: f64) -> [Complex64; MAX_MODES] 
     unit
 }
 
-/// A change of the lock-in's reference: from output sample `index` on, the reference is
-/// at drive phase `phase` (2^64 = one period) and steps `word` per sample. A loop that
-/// moves the drive's frequency at sample i makes one at i + ⌈D⌉ (D the ADC filter's delay,
-/// 21.5 samples; 0 without it), where the samples taken under the new frequency begin.
+/// A change of the lock-in's reference of one oscillator: from output sample `index` on,
+/// the reference is at phase `phase` (2^64 = one period) and steps `word` per sample. A
+/// loop that moves the oscillator's frequency at sample i makes one at i + ⌈D⌉ (D the ADC
+/// filter's delay, 21.5 samples; 0 without it), where the samples taken under the new
+/// frequency begin.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ReferenceChange {
+    /// The oscillator whose reference changes: `/drive`'s or the second excitation's.
+    pub oscillator: Oscillator,
     /// Index of the first output sample of the new reference.
     pub index: u64,
     /// The drive phase at which that sample was taken.

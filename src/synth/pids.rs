@@ -23,6 +23,15 @@
 //! ([`ReferenceChange`]); the units' own demodulators and the DSP thread's bank read the
 //! same changes.
 //!
+//! On the second excitation (`/pids/N/oscillator = "drive2"`: bimodal AFM's mode-2 loops)
+//! a unit's demodulator is a low-pass of four first-order sections per sample
+//! (`/pids/N/input_bandwidth`) of the samples mixed with k times θ₂ as they were taken:
+//! a boxcar of the drive's period would pass the tapping's harmonics of f1 that lie
+//! beside f2. It is read at the same updates, once its sections have settled from the
+//! unit's start (ten section time constants). Its outputs (`drive2_frequency`,
+//! `drive2_amplitude`) move the second excitation as those on the drive move the first, and
+//! its reference changes are the second oscillator's.
+//!
 //! Nothing here allocates, locks, logs or blocks (`tests/synth_no_alloc.rs`).
 
 use std::f64::consts::{PI, TAU};
@@ -31,16 +40,17 @@ use rustfft::num_complex::Complex64;
 
 use super::coupled::CoupledKernel;
 use super::drive::{Drive, ReferenceChange};
+use super::pid_plan::LOW_PASS_SECTIONS;
 use super::plan::SynthPlan;
 use super::scan::samples_until;
 use super::synthesizer::{Output, SynthState};
-use crate::config::{PID_COUNT, PidInput, PidTarget};
+use crate::config::{Oscillator, PID_COUNT, PidInput, PidTarget};
 use crate::control::{Pid, PidSettings};
 use crate::timebase::{TWO_POW_64, frequency_word, harmonic_phase, phase_to_radians};
 
-/// Reference changes made and not yet reached: at most one per update, and the updates
-/// are at least two samples apart, so ⌈D⌉ = 22 samples hold at most 11.
-pub const PENDING_REFERENCES: usize = 16;
+/// Reference changes made and not yet reached: at most one an oscillator per update, and
+/// the updates are at least two samples apart, so ⌈D⌉ = 22 samples hold at most 22.
+pub const PENDING_REFERENCES: usize = 32;
 
 /// One update of one unit, handed out of the synthesiser as it happens.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -106,7 +116,14 @@ struct Unit {
     enabled: bool,
     input: PidInput,
     harmonic: u32,
+    oscillator: Oscillator,
     output: PidTarget,
+    /// On `Drive2`: the low-pass's section coefficient and its sections' states, the
+    /// mixed samples s·e^{−ikθ₂} filtered ([`super::pid_plan::LOW_PASS_SECTIONS`]).
+    alpha: f64,
+    low_pass: [Complex64; LOW_PASS_SECTIONS],
+    /// Samples the low-pass still needs to settle before the unit reads it.
+    settling: u32,
     /// The boxcar's sum Σ s·e^{−ikθ} over the period in progress.
     acc: Complex64,
     /// Σ e^{−2ikθ} over the same samples: the boxcar's image of −kΩ, which a period of a
@@ -146,6 +163,11 @@ pub struct PidRuntime {
     word_held: Option<u64>,
     /// The base amplitude a loop set (m), held alike; `None`: the plan's.
     base_held: Option<f64>,
+    /// The second excitation in force (the plan's, unless a loop moved it) and what the
+    /// loops hold of it, alike.
+    drive2: Option<Drive>,
+    word2_held: Option<u64>,
+    base2_held: Option<f64>,
     /// Drive phase word at which the loops update ([`super::PidPlan::update_phase`],
     /// moved with the drive).
     update_phase: u64,
@@ -153,6 +175,9 @@ pub struct PidRuntime {
     /// and the word per sample.
     reference_phase: u64,
     reference_word: u64,
+    /// The same of the second excitation's θ₂.
+    reference_phase2: u64,
+    reference_word2: u64,
     /// Reference changes ahead of the next output sample, oldest first (a ring).
     pending: [ReferenceChange; PENDING_REFERENCES],
     pending_head: usize,
@@ -179,7 +204,11 @@ impl PidRuntime {
             enabled: false,
             input: PidInput::R,
             harmonic: 1,
+            oscillator: Oscillator::Drive,
             output: PidTarget::SurfaceDistance,
+            alpha: 0.0,
+            low_pass: [Complex64::new(0.0, 0.0); LOW_PASS_SECTIONS],
+            settling: 0,
             acc: Complex64::new(0.0, 0.0),
             image: Complex64::new(0.0, 0.0),
             sums: PidSums::default(),
@@ -197,9 +226,14 @@ impl PidRuntime {
             drive: plan.drive,
             word_held: None,
             base_held: None,
+            drive2: plan.drive2,
+            word2_held: None,
+            base2_held: None,
             update_phase: plan.pids.update_phase,
             reference_phase: 0,
             reference_word: plan.frequency_word,
+            reference_phase2: 0,
+            reference_word2: plan.frequency_word2,
             pending: [ReferenceChange::default(); PENDING_REFERENCES],
             pending_head: 0,
             pending_len: 0,
@@ -213,9 +247,12 @@ impl PidRuntime {
         plan.coupled.is_some() && (plan.pids.any_enabled() || self.held || self.drive_held())
     }
 
-    /// Whether a loop holds the drive away from the plan's `/drive/*`.
+    /// Whether a loop holds either excitation away from the plan's `/drive/*`, `/drive2/*`.
     fn drive_held(&self) -> bool {
-        self.word_held.is_some() || self.base_held.is_some()
+        self.word_held.is_some()
+            || self.base_held.is_some()
+            || self.word2_held.is_some()
+            || self.base2_held.is_some()
     }
 
     /// Each unit's running sums (by index).
@@ -230,12 +267,15 @@ impl PidRuntime {
         bit(self.held, PidTarget::SurfaceDistance)
             | bit(self.word_held.is_some(), PidTarget::DriveFrequency)
             | bit(self.base_held.is_some(), PidTarget::DriveAmplitude)
+            | bit(self.word2_held.is_some(), PidTarget::Drive2Frequency)
+            | bit(self.base2_held.is_some(), PidTarget::Drive2Amplitude)
     }
 
     /// Readies the loops for the next block of `plan` from `state`'s next sample, and
-    /// returns the lock-in's reference there: the drive phase word at which that sample is
-    /// taken and the word per sample (what the block's header carries).
-    pub fn begin(&mut self, plan: &SynthPlan, state: &SynthState) -> (u64, u64) {
+    /// returns the lock-in's references there, the drive's and θ₂'s: the phase word at
+    /// which that sample is taken and the word per sample (what the block's header
+    /// carries).
+    pub fn begin(&mut self, plan: &SynthPlan, state: &SynthState) -> [(u64, u64); 2] {
         if !self.running || self.reference_stale {
             if !self.running {
                 self.restart(state.sample_index());
@@ -243,10 +283,21 @@ impl PidRuntime {
             self.reference_stale = false;
             self.reference_phase = plan.output_phase_at(state.phase(), self.drive.word);
             self.reference_word = self.drive.word;
+            self.reference_word2 = self.word2(plan);
+            self.reference_phase2 = plan.output_phase_at(state.phase2(), self.reference_word2);
             self.pending_len = 0;
             self.running = true;
         }
-        (self.reference_phase, self.reference_word)
+        [
+            (self.reference_phase, self.reference_word),
+            (self.reference_phase2, self.reference_word2),
+        ]
+    }
+
+    /// θ₂'s word per sample in force: the loops' second excitation's, else
+    /// `/drive2/frequency`'s.
+    fn word2(&self, plan: &SynthPlan) -> u64 {
+        self.drive2.map_or(plan.frequency_word2, |d| d.word)
     }
 
     /// Puts the modes back under `plan`'s own drive before a change of plan, which moves
@@ -256,6 +307,10 @@ impl PidRuntime {
         if self.drive != plan.drive {
             state.redrive(&plan.modes, &self.drive, &plan.drive);
             self.drive = plan.drive;
+        }
+        if self.drive2 != plan.drive2 {
+            state.redrive2(&plan.modes, self.drive2.as_ref(), plan.drive2.as_ref());
+            self.drive2 = plan.drive2;
         }
     }
 
@@ -281,6 +336,7 @@ impl PidRuntime {
         // A copy: fixed-size lanes, no allocation.
         self.coupled.clone_from(&new.coupled);
         self.drive = new.drive;
+        self.drive2 = new.drive2;
         // A loop that keeps running on an output holds it through the change (one that
         // starts with it starts from the new value).
         let continuing = |target: PidTarget| {
@@ -302,6 +358,14 @@ impl PidRuntime {
         {
             self.base_held = None;
         }
+        if new.frequency_word2 != old.frequency_word2 && !continuing(PidTarget::Drive2Frequency) {
+            self.word2_held = None;
+        }
+        if new.pids.free_amplitude2 != old.pids.free_amplitude2
+            && !continuing(PidTarget::Drive2Amplitude)
+        {
+            self.base2_held = None;
+        }
         for (unit, plan) in self.units.iter_mut().zip(&new.pids.units) {
             match plan {
                 Some(plan) => {
@@ -320,13 +384,40 @@ impl PidRuntime {
                                 let base = self.base_held.unwrap_or(new.drive.base_amplitude);
                                 base / new.pids.base_per_free
                             }
+                            // The settings allow these only while the second excitation
+                            // drives; were it not to, the controller's centre stands.
+                            PidTarget::Drive2Frequency => self
+                                .word2_held
+                                .or(new.drive2.map(|d| d.word))
+                                .map_or(plan.pid.output(), |word| {
+                                    word as f64 / TWO_POW_64 * new.sample_rate
+                                }),
+                            PidTarget::Drive2Amplitude => {
+                                match (new.drive2, new.pids.base_per_free2) {
+                                    (Some(d), Some(per)) => {
+                                        self.base2_held.unwrap_or(d.base_amplitude) / per
+                                    }
+                                    _ => plan.pid.output(),
+                                }
+                            }
                         };
                         unit.pid.enable(present);
                         unit.partial = true;
                     }
-                    unit.partial |= unit.harmonic != plan.harmonic;
+                    let reread = unit.harmonic != plan.harmonic
+                        || unit.oscillator != plan.oscillator
+                        || unit.alpha != plan.alpha;
+                    unit.partial |= reread;
+                    if plan.oscillator == Oscillator::Drive2 && (reread || unit.partial) {
+                        unit.low_pass = [Complex64::new(0.0, 0.0); LOW_PASS_SECTIONS];
+                        // Ten section time constants: e^{−10}·(a polynomial of degree 3)
+                        // of the start's step is left, under 1 % of it.
+                        unit.settling = (10.0 / plan.alpha.max(1e-12)).ceil() as u32;
+                    }
                     unit.input = plan.input;
                     unit.harmonic = plan.harmonic;
+                    unit.oscillator = plan.oscillator;
+                    unit.alpha = plan.alpha;
                     unit.output = plan.output;
                 }
                 None => {
@@ -346,12 +437,26 @@ impl PidRuntime {
                 PidTarget::DriveAmplitude => {
                     self.base_held.get_or_insert(new.drive.base_amplitude);
                 }
+                PidTarget::Drive2Frequency => {
+                    if let Some(d) = &new.drive2 {
+                        self.word2_held.get_or_insert(d.word);
+                    }
+                }
+                PidTarget::Drive2Amplitude => {
+                    if let Some(d) = &new.drive2 {
+                        self.base2_held.get_or_insert(d.base_amplitude);
+                    }
+                }
             }
         }
         // Another engine, or a scan (which sets the surface itself and reads the drive
-        // as configured), takes the outputs back to the plan's.
+        // as configured), takes the outputs back to the plan's; without the second
+        // excitation, nothing of it is held.
         if new.coupled.is_none() || new.scan.is_some() {
             (self.held, self.word_held, self.base_held) = (false, None, None);
+        }
+        if new.coupled.is_none() || new.scan.is_some() || new.drive2.is_none() {
+            (self.word2_held, self.base2_held) = (None, None);
         }
         if !self.held {
             self.distance = new.pids.surface_distance;
@@ -384,6 +489,7 @@ impl PidRuntime {
         index: u64,
         reference: &mut impl FnMut(ReferenceChange),
     ) {
+        self.take_drive2(plan, state, index, reference);
         let word = self.word_held.unwrap_or(plan.drive.word);
         let base = self.base_held.unwrap_or(plan.drive.base_amplitude);
         if word == self.drive.word && base == self.drive.base_amplitude {
@@ -400,15 +506,53 @@ impl PidRuntime {
             self.update_phase = super::pid_plan::highest_phase(coupled.free_tip);
         }
         if to.word != self.drive.word {
-            let change = plan.reference_change(state.phase(), index, to.word);
-            if self.pending_len < PENDING_REFERENCES {
-                self.pending[(self.pending_head + self.pending_len) % PENDING_REFERENCES] = change;
-                self.pending_len += 1;
-            }
+            let change = plan.reference_change(Oscillator::Drive, state.phase(), index, to.word);
+            self.pend(change);
             reference(change);
             self.period = TWO_POW_64 / to.word.max(1) as f64;
         }
         self.drive = to;
+    }
+
+    /// [`take_drive`](Self::take_drive) for the second excitation, where it drives.
+    fn take_drive2(
+        &mut self,
+        plan: &SynthPlan,
+        state: &mut SynthState,
+        index: u64,
+        reference: &mut impl FnMut(ReferenceChange),
+    ) {
+        let (Some(own), Some(from)) = (plan.drive2, self.drive2) else {
+            return;
+        };
+        let word = self.word2_held.unwrap_or(own.word);
+        let base = self.base2_held.unwrap_or(own.base_amplitude);
+        if word == from.word && base == from.base_amplitude {
+            return;
+        }
+        let to = if word == own.word && base == own.base_amplitude {
+            own
+        } else {
+            Drive::new(&plan.cantilever, plan.sample_rate, word, base)
+        };
+        state.redrive2(&plan.modes, Some(&from), Some(&to));
+        if let Some(coupled) = &mut self.coupled {
+            coupled.set_second_drive(&plan.cantilever.modes, plan.h, Some(&to));
+        }
+        if to.word != from.word {
+            let change = plan.reference_change(Oscillator::Drive2, state.phase2(), index, to.word);
+            self.pend(change);
+            reference(change);
+        }
+        self.drive2 = Some(to);
+    }
+
+    /// Queues `change` for the units' own demodulators.
+    fn pend(&mut self, change: ReferenceChange) {
+        if self.pending_len < PENDING_REFERENCES {
+            self.pending[(self.pending_head + self.pending_len) % PENDING_REFERENCES] = change;
+            self.pending_len += 1;
+        }
     }
 
     /// The boxcars start afresh at `index`; the first, partial period is not fed to the
@@ -435,8 +579,16 @@ impl PidRuntime {
             let at = index + done as u64;
             while self.pending_len > 0 && self.pending[self.pending_head].index <= at {
                 let change = self.pending[self.pending_head];
-                self.reference_phase = change.phase;
-                self.reference_word = change.word;
+                match change.oscillator {
+                    Oscillator::Drive => {
+                        self.reference_phase = change.phase;
+                        self.reference_word = change.word;
+                    }
+                    Oscillator::Drive2 => {
+                        self.reference_phase2 = change.phase;
+                        self.reference_word2 = change.word;
+                    }
+                }
                 self.pending_head = (self.pending_head + 1) % PENDING_REFERENCES;
                 self.pending_len -= 1;
             }
@@ -451,7 +603,11 @@ impl PidRuntime {
             // harmonic 1): each harmonic's mixing runs once.
             let mut harmonics = [0u32; PID_COUNT];
             let mut count = 0;
-            for unit in self.units.iter().filter(|u| u.enabled) {
+            for unit in self
+                .units
+                .iter()
+                .filter(|u| u.enabled && u.oscillator == Oscillator::Drive)
+            {
                 if !harmonics[..count].contains(&unit.harmonic) {
                     harmonics[count] = unit.harmonic;
                     count += 1;
@@ -470,18 +626,67 @@ impl PidRuntime {
                 }
                 let image = image_sum(rho0, step, turn, piece.len() as u64);
                 for unit in self.units.iter_mut() {
-                    if unit.enabled && unit.harmonic == harmonic {
+                    if unit.enabled
+                        && unit.oscillator == Oscillator::Drive
+                        && unit.harmonic == harmonic
+                    {
                         unit.acc += acc;
                         unit.image += image;
                     }
                 }
             }
+            self.low_pass2(piece);
             self.reference_phase = self
                 .reference_phase
                 .wrapping_add(word.wrapping_mul(piece.len() as u64));
+            self.reference_phase2 = self
+                .reference_phase2
+                .wrapping_add(self.reference_word2.wrapping_mul(piece.len() as u64));
             done = until;
         }
         self.acc_count += segment.len() as u32;
+    }
+
+    /// Runs the low-passes of the units on the second excitation over `piece`, output
+    /// samples from θ₂'s reference on. Units at one harmonic and bandwidth share one filter:
+    /// the later unit takes the earlier's sections.
+    fn low_pass2(&mut self, piece: &[f64]) {
+        for i in 0..PID_COUNT {
+            let unit = &self.units[i];
+            if !unit.enabled || unit.oscillator != Oscillator::Drive2 {
+                continue;
+            }
+            let shared = (0..i).find(|&j| {
+                let other = &self.units[j];
+                other.enabled
+                    && other.oscillator == Oscillator::Drive2
+                    && other.harmonic == unit.harmonic
+                    && other.alpha == unit.alpha
+            });
+            if let Some(j) = shared {
+                let (low_pass, settling) = (self.units[j].low_pass, self.units[j].settling);
+                let unit = &mut self.units[i];
+                (unit.low_pass, unit.settling) = (low_pass, settling);
+                continue;
+            }
+            let unit = &mut self.units[i];
+            let theta = harmonic_phase(self.reference_phase2, unit.harmonic);
+            let turn = self.reference_word2.wrapping_mul(u64::from(unit.harmonic));
+            let mut rho = Complex64::from_polar(1.0, -phase_to_radians(theta));
+            let step = Complex64::from_polar(1.0, -phase_to_radians(turn));
+            let alpha = unit.alpha;
+            let mut y = unit.low_pass;
+            for &s in piece {
+                let mut x = rho * s;
+                for section in &mut y {
+                    *section += (x - *section) * alpha;
+                    x = *section;
+                }
+                rho *= step;
+            }
+            unit.low_pass = y;
+            unit.settling = unit.settling.saturating_sub(piece.len() as u32);
+        }
     }
 }
 
@@ -527,6 +732,7 @@ impl SynthPlan {
             let segment = &mut out[done..done + n];
             self.process_with(
                 &rt.drive,
+                rt.drive2.as_ref(),
                 self.pulse.as_ref(),
                 rt.coupled.as_ref(),
                 state,
@@ -555,13 +761,25 @@ impl SynthPlan {
                 if !unit.enabled || unit.partial {
                     continue;
                 }
-                // The least-squares sinusoid at kΩ over the period's samples: the boxcar
-                // z = a + ā·c, c its image's share (zero over a whole number of samples
-                // per period, up to 1/N otherwise, which would ripple a PLL's phase as
-                // the drive frequency moves), solved for a.
-                let z = unit.acc * scale;
-                let c = unit.image / f64::from(rt.acc_count);
-                let z = (z - c * z.conj()) / (1.0 - c.norm_sqr());
+                let z = match unit.oscillator {
+                    Oscillator::Drive => {
+                        // The least-squares sinusoid at kΩ over the period's samples: the
+                        // boxcar z = a + ā·c, c its image's share (zero over a whole number
+                        // of samples per period, up to 1/N otherwise, which would ripple a
+                        // PLL's phase as the drive frequency moves), solved for a.
+                        let z = unit.acc * scale;
+                        let c = unit.image / f64::from(rt.acc_count);
+                        (z - c * z.conj()) / (1.0 - c.norm_sqr())
+                    }
+                    Oscillator::Drive2 => {
+                        if unit.settling > 0 {
+                            continue;
+                        }
+                        // The low-pass holds half the phasor (the image at −kΩ₂ is
+                        // filtered out).
+                        unit.low_pass[LOW_PASS_SECTIONS - 1] * 2.0
+                    }
+                };
                 let measurement = match unit.input {
                     PidInput::R => z.norm(),
                     PidInput::Phase => z.im.atan2(z.re),
@@ -590,6 +808,16 @@ impl SynthPlan {
                     }
                     PidTarget::DriveAmplitude => {
                         rt.base_held = Some(output * self.pids.base_per_free);
+                    }
+                    PidTarget::Drive2Frequency => {
+                        if let Ok(word) = frequency_word(output, self.sample_rate) {
+                            rt.word2_held = Some(word);
+                        }
+                    }
+                    PidTarget::Drive2Amplitude => {
+                        if let Some(per) = self.pids.base_per_free2 {
+                            rt.base2_held = Some(output * per);
+                        }
                     }
                 }
                 let error = unit.pid.error();

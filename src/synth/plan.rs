@@ -14,7 +14,7 @@ use super::pid_plan::PidPlan;
 use super::pulse::{PulseKernel, PulseTrain};
 use super::scan_plan::{ScanBase, ScanPlan, TapTables};
 use super::window::{ModeWindow, Moments};
-use crate::config::{Engine, Settings, SourceKind};
+use crate::config::{Engine, Oscillator, Settings, SourceKind};
 use crate::model;
 use crate::physics::beam::{BeamError, MAX_MODES};
 use crate::physics::impact::ImpactError;
@@ -361,6 +361,7 @@ impl SynthPlan {
             settings,
             coupled.as_ref().map(|c| c.free_tip),
             drive.base_amplitude,
+            drive2.as_ref().map(|d| d.base_amplitude),
         )?;
         Ok(Self {
             scan,
@@ -405,17 +406,24 @@ impl SynthPlan {
         }
     }
 
-    /// The lock-in's reference after the drive changes to `word` words per sample at
-    /// sample `index`, drive phase `phase`: the samples taken under the new frequency
+    /// The lock-in's reference of `oscillator` after it changes to `word` words per sample
+    /// at sample `index`, its phase `phase`: the samples taken under the new frequency
     /// begin ⌈D⌉ samples on (D the ADC filter's delay; 0 without it), at the phase the
-    /// drive had D samples before.
-    pub(crate) fn reference_change(&self, phase: u64, index: u64, word: u64) -> ReferenceChange {
+    /// oscillator had D samples before.
+    pub(crate) fn reference_change(
+        &self,
+        oscillator: Oscillator,
+        phase: u64,
+        index: u64,
+        word: u64,
+    ) -> ReferenceChange {
         let lag = if self.anti_alias.is_some() {
             adc::DELAY_HALF_SAMPLES.div_ceil(2)
         } else {
             0
         };
         ReferenceChange {
+            oscillator,
             index: index + lag,
             phase: self.output_phase_at(phase.wrapping_add(word.wrapping_mul(lag)), word),
             word,
@@ -506,15 +514,21 @@ impl SynthPlan {
 /// [`SynthPlan::free_signal`] through the ADC's front end, without building a plan (no
 /// orbit, no tables: cheap enough for every `status`). `None` for settings no plan accepts.
 pub fn free_reading(settings: &Settings) -> Option<Complex64> {
+    free_reading_of(settings, Oscillator::Drive)
+}
+
+/// [`free_reading`] of either excitation alone: what a demodulator at harmonic 1 of
+/// `oscillator` reads of the free lever driven by it at its `/drive/*` or `/drive2/*`
+/// frequency and free amplitude (whether or not `/drive2/enable` is set).
+pub fn free_reading_of(settings: &Settings, oscillator: Oscillator) -> Option<Complex64> {
     let cantilever = model::cantilever(settings).ok()?;
     let sample_rate = settings.synth.sample_rate;
-    let word = frequency_word(settings.drive.frequency, sample_rate).ok()?;
-    let drive = Drive::with_free_amplitude(
-        &cantilever,
-        sample_rate,
-        word,
-        settings.drive.free_amplitude,
-    );
+    let (frequency, free_amplitude) = match oscillator {
+        Oscillator::Drive => (settings.drive.frequency, settings.drive.free_amplitude),
+        Oscillator::Drive2 => (settings.drive2.frequency, settings.drive2.free_amplitude),
+    };
+    let word = frequency_word(frequency, sample_rate).ok()?;
+    let drive = Drive::with_free_amplitude(&cantilever, sample_rate, word, free_amplitude);
     let gain = if settings.synth.anti_alias {
         adc::gain(&adc::grid_taps(), drive.frequency / sample_rate)
     } else {

@@ -175,6 +175,7 @@ impl SynthPlan {
             match &rt.coupled {
                 Some(coupled) => self.process_with(
                     &self.drive,
+                    self.drive2.as_ref(),
                     None,
                     Some(coupled),
                     state,
@@ -182,6 +183,7 @@ impl SynthPlan {
                 ),
                 None => self.process_with(
                     &self.drive,
+                    None,
                     Some(&rt.pulse),
                     None,
                     state,

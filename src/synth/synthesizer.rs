@@ -290,6 +290,30 @@ impl SynthState {
         }
     }
 
+    /// [`redrive`](Self::redrive) for the second excitation: the modes move from its
+    /// drive `from` to `to` (either `None`: not driving) at the next sample, against θ₂.
+    /// What mode 2's PLL or amplitude loop does to it. Allocation-free.
+    pub(crate) fn redrive2(
+        &mut self,
+        modes: &[ModalKernel],
+        from: Option<&Drive>,
+        to: Option<&Drive>,
+    ) {
+        let rho2 = Complex64::from_polar(1.0, phase_to_radians(self.phase2));
+        let particular =
+            |d: Option<&Drive>, m: usize| d.map_or((0.0, 0.0), |d| d.particular(m, rho2));
+        for (m, kernel) in modes.iter().enumerate() {
+            let (yh, vh) = kernel.displacement_velocity(self.q(m));
+            let (y0, v0) = particular(from, m);
+            let (y1, v1) = particular(to, m);
+            self.set_q(m, kernel.state_of(yh + y0 - y1, vh + v0 - v1));
+        }
+        self.rho2 = rho2;
+        if self.window.forced {
+            self.window.valid = false;
+        }
+    }
+
     /// Moves from `old` to `new` without a jump: the modal displacements and velocities
     /// stay continuous, so a change of drive, sample or cantilever shows as a physical
     /// transient. Modes that `new` adds start at rest; modes it drops are gone. A new seed
@@ -341,6 +365,7 @@ impl SynthPlan {
     pub fn process(&self, state: &mut SynthState, out: &mut [f64]) {
         self.process_with(
             &self.drive,
+            self.drive2.as_ref(),
             self.pulse.as_ref(),
             self.coupled.as_ref(),
             state,
@@ -366,6 +391,7 @@ impl SynthPlan {
         };
         self.process_with(
             &self.drive,
+            self.drive2.as_ref(),
             self.pulse.as_ref(),
             self.coupled.as_ref(),
             state,
@@ -379,6 +405,7 @@ impl SynthPlan {
     pub(crate) fn process_with(
         &self,
         drive: &Drive,
+        drive2: Option<&Drive>,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
@@ -387,10 +414,12 @@ impl SynthPlan {
         match state.build {
             // SAFETY: `build` names an instruction set only where the CPU has it.
             #[cfg(target_arch = "x86_64")]
-            Build::Avx512 => unsafe { self.process_avx512(drive, pulse, coupled, state, out) },
+            Build::Avx512 => unsafe {
+                self.process_avx512(drive, drive2, pulse, coupled, state, out)
+            },
             #[cfg(target_arch = "x86_64")]
-            Build::Avx2 => unsafe { self.process_avx2(drive, pulse, coupled, state, out) },
-            _ => self.process_modes::<Portable<8>>(drive, pulse, coupled, state, out),
+            Build::Avx2 => unsafe { self.process_avx2(drive, drive2, pulse, coupled, state, out) },
+            _ => self.process_modes::<Portable<8>>(drive, drive2, pulse, coupled, state, out),
         }
     }
 
@@ -402,13 +431,14 @@ impl SynthPlan {
     unsafe fn process_avx512(
         &self,
         drive: &Drive,
+        drive2: Option<&Drive>,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
         out: Output<'_>,
     ) {
         crate::cpu::align_frame();
-        self.process_modes::<Avx512x8>(drive, pulse, coupled, state, out);
+        self.process_modes::<Avx512x8>(drive, drive2, pulse, coupled, state, out);
     }
 
     /// [`process_with`](Self::process_with) compiled for AVX2 and FMA: the same operations
@@ -421,13 +451,14 @@ impl SynthPlan {
     unsafe fn process_avx2(
         &self,
         drive: &Drive,
+        drive2: Option<&Drive>,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
         out: Output<'_>,
     ) {
         crate::cpu::align_frame();
-        self.process_modes::<Avx8>(drive, pulse, coupled, state, out);
+        self.process_modes::<Avx8>(drive, drive2, pulse, coupled, state, out);
     }
 
     /// Up to eight modes: the loop on eight lanes of `V`; more: on an array of all lanes.
@@ -435,15 +466,16 @@ impl SynthPlan {
     fn process_modes<V: Lanes>(
         &self,
         drive: &Drive,
+        drive2: Option<&Drive>,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
         out: Output<'_>,
     ) {
         if self.modes.len() <= 8 {
-            self.process_engines::<V>(drive, pulse, coupled, state, out);
+            self.process_engines::<V>(drive, drive2, pulse, coupled, state, out);
         } else {
-            self.process_engines::<Portable<MAX_MODES>>(drive, pulse, coupled, state, out);
+            self.process_engines::<Portable<MAX_MODES>>(drive, drive2, pulse, coupled, state, out);
         }
     }
 
@@ -454,6 +486,7 @@ impl SynthPlan {
     fn process_engines<V: Lanes>(
         &self,
         drive: &Drive,
+        drive2: Option<&Drive>,
         pulse: Option<&PulseKernel>,
         coupled: Option<&CoupledKernel>,
         state: &mut SynthState,
@@ -461,7 +494,7 @@ impl SynthPlan {
     ) {
         // A second excitation drives only the coupled engine (the settings refuse it on
         // the paper engine's).
-        let two = self.drive2.as_ref().filter(|_| coupled.is_some());
+        let two = drive2.filter(|_| coupled.is_some());
         match (coupled, self.anti_alias.is_some(), two) {
             (Some(c), true, None) => self.process_lanes::<V, Complex64, true, true>(
                 drive,
@@ -522,7 +555,9 @@ impl SynthPlan {
         // The second excitation's amplitudes (zero where it does not drive; a single
         // drive's phasors leave them out).
         let zero = Complex64::new(0.0, 0.0);
-        let word2 = self.frequency_word2;
+        // θ₂ runs at the second excitation's word where it drives (a loop may move it),
+        // else at `/drive2/frequency`'s, as the reference of demodulators on it.
+        let word2 = drive2.map_or(self.frequency_word2, |d| d.word);
         let step = P::new(
             rotation(drive.word),
             drive2.map_or(zero, |_| rotation(word2)),
@@ -1029,6 +1064,7 @@ impl SynthPlan {
         let mut scratch = [0.0; BEFORE];
         quiet.process_with(
             &quiet.drive,
+            quiet.drive2.as_ref(),
             quiet.pulse.as_ref(),
             quiet.coupled.as_ref(),
             &mut temp,
@@ -1088,6 +1124,7 @@ mod tests {
             plan.process(&mut eight, &mut a);
             plan.process_engines::<Portable<MAX_MODES>>(
                 &plan.drive,
+                plan.drive2.as_ref(),
                 plan.pulse.as_ref(),
                 plan.coupled.as_ref(),
                 &mut sixteen,

@@ -13,13 +13,17 @@
 //!   amplitude answers its drive far less).
 //!
 //! Both behind the units' own demodulator ([`Demodulator::pid_unit`]): no filter, one
-//! update per drive period, a period and the ADC filter's delay of dead time.
+//! update per drive period, a period and the ADC filter's delay of dead time. The same two
+//! on the second excitation (oscillator `drive2`, outputs `drive2_frequency` and
+//! `drive2_amplitude`: bimodal AFM's mode-2 loops) take mode 2's Q and f2, behind the unit's
+//! low-pass of four sections at `/pids/N/input_bandwidth` ([`Demodulator::new`] run per
+//! sample) read once per drive period.
 
 use serde::{Deserialize, Deserializer};
 use serde_json::{Map, Value, json};
 
 use super::{Context, parse_with, reply};
-use crate::config::{PID_COUNT, PidInput, PidTarget, Settings};
+use crate::config::{Oscillator, PID_COUNT, PidInput, PidTarget, Settings};
 use crate::control::loop_model::ADC_DELAY_SAMPLES;
 use crate::control::{Advice, AdvisorError, Demodulator, Kind, LoopModel, Plant, advise};
 use crate::server::protocol::fields::{Fields, bad, describe, quote};
@@ -182,13 +186,16 @@ pub(crate) fn model_of(
         ProtocolError::new(
             ErrorCode::InvalidValue,
             format!(
-                "/pids/{unit} reads {} on harmonic {} and drives {}, which op \"pid_advise\" \
-                 does not model: it advises a PLL (/pids/{unit}/input = \"phase\", harmonic 1, \
-                 output \"drive_frequency\") and an amplitude loop on the drive (input \"r\", \
-                 harmonic 1, output \"drive_amplitude\"); the surface distance's plant is the \
-                 tapping orbit's, which it has no model of",
+                "/pids/{unit} reads {} on harmonic {} of {} and drives {}, which op \
+                 \"pid_advise\" does not model: it advises a PLL (/pids/{unit}/input = \
+                 \"phase\", harmonic 1, output \"drive_frequency\", or on oscillator \
+                 \"drive2\" \"drive2_frequency\") and an amplitude loop on an excitation \
+                 (input \"r\", harmonic 1, output \"drive_amplitude\", or on \"drive2\" \
+                 \"drive2_amplitude\"); the surface distance's plant is the tapping orbit's, \
+                 which it has no model of",
                 quote(u.input.name()),
                 u.harmonic,
+                quote(u.oscillator.name()),
                 quote(u.output.name())
             ),
         )
@@ -196,8 +203,10 @@ pub(crate) fn model_of(
     if u.harmonic != 1 {
         return Err(unsupported());
     }
-    let f1 = settings.cantilever.f1;
-    let q = settings.cantilever.q.first().copied().unwrap_or(f64::NAN);
+    let second = u.oscillator == Oscillator::Drive2;
+    if second != u.output.on_drive2() {
+        return Err(unsupported());
+    }
     let invalid = |e: crate::control::ModelError| {
         ProtocolError::new(
             ErrorCode::InvalidValue,
@@ -209,32 +218,70 @@ pub(crate) fn model_of(
     } else {
         0.0
     };
-    let demodulator =
-        Demodulator::pid_unit(settings.drive.frequency, settings.synth.sample_rate, adc)
+    // The mode the loop acts on: the first, or the second for the second excitation.
+    let (mode, free) = if second {
+        (1, settings.drive2.free_amplitude)
+    } else {
+        (0, settings.drive.free_amplitude)
+    };
+    let lever = crate::model::cantilever(settings).map_err(|e| {
+        ProtocolError::new(
+            ErrorCode::InvalidValue,
+            format!("the loop of /pids/{unit} cannot be modelled: {e}"),
+        )
+    })?;
+    let Some(m) = lever.modes.get(mode) else {
+        return Err(unsupported());
+    };
+    let (q, f0) = (m.q, m.frequency);
+    let (demodulator, filter) = if second {
+        // Four sections of the unit's low-pass, run per sample, read once per drive period
+        // behind the ADC's delay.
+        let alpha =
+            crate::synth::pid_plan::low_pass_alpha(u.input_bandwidth, settings.synth.sample_rate);
+        let tau = -1.0 / ((1.0 - alpha).ln() * settings.synth.sample_rate);
+        let d = Demodulator::new(
+            crate::synth::pid_plan::LOW_PASS_SECTIONS as u32,
+            tau,
+            settings.drive.frequency,
+            adc / settings.synth.sample_rate,
+        )
+        .and_then(|d| d.with_filter_rate(settings.synth.sample_rate))
+        .map_err(invalid)?;
+        let words = format!(
+            "a low-pass of {} sections of τ {tau:.4e} s ({} Hz)",
+            crate::synth::pid_plan::LOW_PASS_SECTIONS,
+            u.input_bandwidth
+        );
+        (d, words)
+    } else {
+        let d = Demodulator::pid_unit(settings.drive.frequency, settings.synth.sample_rate, adc)
             .map_err(invalid)?;
+        (d, "no filter".to_owned())
+    };
+    let oscillator = if second { "f2" } else { "f1" };
     let (plant, sign, words) = match (u.input, u.output) {
-        (PidInput::Phase, PidTarget::DriveFrequency) => {
-            let plant = Plant::resonator(q, f1).map_err(invalid)?;
+        (PidInput::Phase, PidTarget::DriveFrequency | PidTarget::Drive2Frequency) => {
+            let plant = Plant::resonator(q, f0).map_err(invalid)?;
             let words = format!(
-                "the driven lever's phase, −(2Q/f1)/(1 + s·τ_c) rad/Hz (Q {q}, f1 {f1} Hz, \
-                 τ_c {:.4e} s), through the unit's demodulator (no filter, updates at \
-                 {} Hz, delay {:.4e} s)",
+                "the driven lever's phase, −(2Q/{oscillator})/(1 + s·τ_c) rad/Hz (Q {q}, \
+                 {oscillator} {f0} Hz, τ_c {:.4e} s), through the unit's demodulator \
+                 ({filter}, updates at {} Hz, delay {:.4e} s)",
                 plant.time_constant().unwrap_or(f64::NAN),
                 settings.drive.frequency,
                 demodulator.total_delay()
             );
             (plant, -1.0, words)
         }
-        (PidInput::R, PidTarget::DriveAmplitude) => {
-            let free = settings.drive.free_amplitude;
-            let reading = crate::synth::plan::free_reading(settings)
+        (PidInput::R, PidTarget::DriveAmplitude | PidTarget::Drive2Amplitude) => {
+            let reading = crate::synth::plan::free_reading_of(settings, u.oscillator)
                 .map(|z| z.norm())
                 .unwrap_or(f64::NAN);
-            let plant = Plant::amplitude(reading / free, q, f1).map_err(invalid)?;
+            let plant = Plant::amplitude(reading / free, q, f0).map_err(invalid)?;
             let words = format!(
                 "the free lever's amplitude, G0/(1 + s·τ_c) with G0 {:.4e} m of photodiode \
-                 amplitude per m of drive (Q {q}, f1 {f1} Hz, τ_c {:.4e} s), through the \
-                 unit's demodulator (no filter, updates at {} Hz, delay {:.4e} s)",
+                 amplitude per m of drive (Q {q}, {oscillator} {f0} Hz, τ_c {:.4e} s), \
+                 through the unit's demodulator ({filter}, updates at {} Hz, delay {:.4e} s)",
                 reading / free,
                 plant.time_constant().unwrap_or(f64::NAN),
                 settings.drive.frequency,
