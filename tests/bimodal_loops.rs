@@ -149,14 +149,11 @@ fn a_pll_on_mode_two_locks_to_its_resonance() {
     );
 }
 
-/// The bimodal AM-FM set-up with its three loops on the coupled engine, tapping a 1 GPa
-/// sample with the lever matched to it, tap150 (noise on): unit 0 holds mode 1's amplitude at 2/3
-/// of its free one by the surface distance, unit 1 is mode 2's PLL, unit 2 holds mode 2's
-/// amplitude at its free 0.2 nm by the second excitation. The PLL's Δf2 from the free
-/// resonance, with A1 and φ1 from the photodiode, give E* by the bimodal expressions within
-/// 10 % of the configured contact's; the amplitude loops hold their set-points.
-#[test]
-fn am_fm_loops_give_the_modulus_live() {
+/// Bimodal AM-FM on tap150 tapping a 1 GPa sample: unit 0 holds mode 1's amplitude at 2/3
+/// of its free one by the surface distance, unit 1 is mode 2's PLL (300 Hz), unit 2 holds
+/// mode 2's amplitude at its free 0.2 nm by the second excitation (200 Hz). With f2 and the
+/// free readings at harmonic 1 of each excitation.
+fn am_fm() -> (Settings, f64, Complex64, Complex64) {
     let mut s = ftafm::config::load_with_presets(&["tap150".to_owned()], None).unwrap();
     s.sample.youngs_modulus = 1e9;
     s.surface.distance = 0.8 * s.drive.free_amplitude;
@@ -175,6 +172,18 @@ fn am_fm_loops_give_the_modulus_live() {
     pid.output = PidTarget::SurfaceDistance;
     mode_two_pll(&mut s, 1, free2.arg(), 300.0);
     mode_two_amplitude(&mut s, 2, free2.norm(), free2.norm() / a2, 200.0);
+    (s, f2, free1, free2)
+}
+
+/// The bimodal AM-FM set-up with its three loops on the coupled engine, tapping a 1 GPa
+/// sample with the lever matched to it, tap150 (noise on): unit 0 holds mode 1's amplitude at 2/3
+/// of its free one by the surface distance, unit 1 is mode 2's PLL, unit 2 holds mode 2's
+/// amplitude at its free 0.2 nm by the second excitation. The PLL's Δf2 from the free
+/// resonance, with A1 and φ1 from the photodiode, give E* by the bimodal expressions within
+/// 10 % of the configured contact's; the amplitude loops hold their set-points.
+#[test]
+fn am_fm_loops_give_the_modulus_live() {
+    let (s, f2, free1, free2) = am_fm();
     let (plan, mut state, mut rt) = start(&s, 3);
     let seconds = 0.04;
     let (readings, _, samples) = run_traced(&plan, &mut state, &mut rt, seconds);
@@ -490,4 +499,69 @@ fn the_advised_mode_two_pll_steps_as_the_advisor_predicts() {
             advice.step.settling_time
         );
     }
+}
+
+/// Through the daemon: the `bimodal` stream turns each demodulator frame and mode 2's PLL
+/// into the estimate, stamped with the settings epoch; over 10 ms after the loops settle,
+/// its E* is the configured contact's within 10 %, as the synthesiser-level test finds.
+/// Before mode 2's PLL runs, each message says why there is no estimate.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_bimodal_stream_gives_the_modulus_live() {
+    let (mut s, _, _, _) = am_fm();
+    // Only what the estimate reads: harmonic 1 of the drive, no spectrum or scope.
+    for (i, d) in s.demods.iter_mut().enumerate() {
+        d.enable = i == 0;
+    }
+    s.demods[0].harmonic = 1;
+    s.spectrum.enable = false;
+    s.scope.enable = false;
+    s.inversion.enable = false;
+    let truth = {
+        let (t, m) = (&s.tip, &s.sample);
+        1.0 / ((1.0 - t.poisson * t.poisson) / t.youngs_modulus
+            + (1.0 - m.poisson * m.poisson) / m.youngs_modulus)
+    };
+    let mut idle = s.clone();
+    idle.pids[1].enable = false;
+    let daemon = common::Daemon::start(idle).await;
+    let mut ws = common::connect(daemon.addr).await;
+    let sub = common::call(&mut ws, json!({"op": "subscribe", "stream": "bimodal"})).await;
+    assert_eq!(sub["ok"], true, "{sub}");
+    let first = common::first_of(&mut ws, "bimodal", |_| true).await;
+    assert!(first["reduced_modulus"].is_null(), "{first}");
+    assert!(
+        first["reason"].as_str().unwrap().contains("mode 2's PLL"),
+        "{first}"
+    );
+    let set = common::call(
+        &mut ws,
+        json!({"op": "set", "path": "/pids/1/enable", "value": true}),
+    )
+    .await;
+    assert_eq!(set["ok"], true, "{set}");
+    let epoch = set["epoch"].as_u64().unwrap();
+    let start = common::first_of(&mut ws, "bimodal", |m| m["epoch"] == epoch).await;
+    let t0 = start["t"].as_f64().unwrap();
+    let mut moduli = Vec::new();
+    let mut last = json!(null);
+    while moduli.len() < 10 {
+        let m =
+            common::first_of(&mut ws, "bimodal", |m| m["t"].as_f64().unwrap() > t0 + 0.03).await;
+        assert_eq!(m["epoch"], epoch, "{m}");
+        assert!(m["reason"].is_null(), "{m}");
+        moduli.push(m["reduced_modulus"].as_f64().unwrap());
+        last = m;
+    }
+    let mean = moduli.iter().sum::<f64>() / moduli.len() as f64;
+    eprintln!("a bimodal message: {last}");
+    eprintln!(
+        "bimodal stream: E* {mean:.4e} Pa over {} frames against {truth:.4e} Pa ({:+.1} %)",
+        moduli.len(),
+        100.0 * (mean / truth - 1.0)
+    );
+    assert!(
+        (mean / truth - 1.0).abs() < 0.1,
+        "E* {mean:e} against {truth:e}"
+    );
+    daemon.shutdown().await;
 }

@@ -9,9 +9,11 @@
 //!   stream's worker. Both follow the commits and stamp their outputs with the epoch.
 //! - `sweeper`: steps a node through a sweep's points as a client of `change()`, each sweep
 //!   keyed by the request that started it; `tap`: what the hub hands a running sweep.
+//! - `bimodal`: the bimodal AM-FM estimate from a frame and mode 2's PLL, per epoch.
 //! - `build_budget`: the CPU those rebuilds may take; `latest`: the slot that keeps only the
 //!   newest settings to build for.
 
+pub(crate) mod bimodal;
 mod build_budget;
 pub mod control;
 pub(crate) mod force;

@@ -298,6 +298,7 @@ pub(crate) async fn run(
     let mut status_count: u64 = 0;
     let mut swept = false;
     let mut last_counters = CountersSnapshot::default();
+    let mut calibration: Option<crate::instrument::bimodal::Calibration> = None;
     // Frames left in the ring when the last pass spent its budget.
     let mut more = false;
     loop {
@@ -321,6 +322,19 @@ pub(crate) async fn run(
             state.update_force_stride();
         }
         let force_wanted = state.subscribed(StreamKind::Force) || sweeping;
+        // The bimodal estimate's calibration, for the settings in force.
+        let bimodal = if state.subscribed(StreamKind::Bimodal) {
+            let current = state.control.current();
+            if calibration
+                .as_ref()
+                .is_none_or(|c| c.epoch != current.epoch || c.t_known() != current.t.is_some())
+            {
+                calibration = Some(crate::instrument::bimodal::Calibration::of(&current));
+            }
+            calibration.as_ref()
+        } else {
+            None
+        };
         let mut newest = None;
         // A budget per pass: at a demodulator's top rate the frames come faster than they
         // are serialised, and an unbounded drain would starve the other streams, the
@@ -335,6 +349,19 @@ pub(crate) async fn run(
             state.sweep_frames.offer(&frame);
             if force_wanted {
                 state.force.offer(&frame);
+            }
+            if let Some(c) = bimodal {
+                let pll = c
+                    .pll_unit()
+                    .and_then(|unit| state.control.pid_updates()[unit]);
+                let fields = c.fields(&frame, pll);
+                publish_envelope(
+                    &state,
+                    StreamKind::Bimodal,
+                    frame.t,
+                    (frame.t_synth_ns, frame.t_dsp_ns),
+                    fields,
+                );
             }
             synth_to_dsp.record(frame.t_dsp_ns as i64 - frame.t_synth_ns as i64);
             distribute_points(
@@ -573,26 +600,54 @@ fn behind_warning(
 
 /// Sends one `sweep` message with `fields` after the envelope (the sweeper's messages).
 pub(crate) fn publish_sweep(state: &AppState, t: f64, t_synth_ns: u64, fields: Map<String, Value>) {
-    distribute(
+    publish_envelope(
         state,
         StreamKind::Sweep,
+        t,
         (t_synth_ns, 0),
-        |seq| sweep_envelope(seq, t, t_synth_ns, &fields),
+        Value::Object(fields),
+    );
+}
+
+/// Sends one message of a JSON-only `stream` with `fields` (an object) after the envelope
+/// (`stream`, `seq`, `t`, `t_synth_ns`); in binary, the same JSON behind the header.
+fn publish_envelope(
+    state: &AppState,
+    stream: StreamKind,
+    t: f64,
+    stamps: (u64, u64),
+    fields: Value,
+) {
+    let Value::Object(fields) = fields else {
+        return;
+    };
+    let t_synth_ns = stamps.0;
+    distribute(
+        state,
+        stream,
+        stamps,
+        |seq| envelope(stream, seq, t, t_synth_ns, &fields),
         |seq| {
             protocol::json_binary(
-                StreamKind::Sweep,
+                stream,
                 seq,
                 t,
                 t_synth_ns,
-                &sweep_envelope(seq, t, t_synth_ns, &fields),
+                &envelope(stream, seq, t, t_synth_ns, &fields),
             )
         },
     );
 }
 
-fn sweep_envelope(seq: u64, t: f64, t_synth_ns: u64, fields: &Map<String, Value>) -> String {
+fn envelope(
+    stream: StreamKind,
+    seq: u64,
+    t: f64,
+    t_synth_ns: u64,
+    fields: &Map<String, Value>,
+) -> String {
     let mut m = Map::new();
-    m.insert("stream".into(), json!("sweep"));
+    m.insert("stream".into(), json!(stream.name()));
     m.insert("seq".into(), json!(seq));
     m.insert("t".into(), json!(t));
     m.insert("t_synth_ns".into(), json!(t_synth_ns));

@@ -16,7 +16,7 @@ use super::status::{ClientReport, LatencySummary, ProcessMemory, StatusReport};
 use crate::instrument::Control;
 
 /// Streams in the order of [`StreamKind::ALL`]; indexes per-stream arrays.
-pub(crate) const STREAMS: usize = 7;
+pub(crate) const STREAMS: usize = 8;
 
 pub(crate) fn stream_index(s: StreamKind) -> usize {
     match s {
@@ -27,6 +27,7 @@ pub(crate) fn stream_index(s: StreamKind) -> usize {
         StreamKind::Force => 4,
         StreamKind::Image => 5,
         StreamKind::Sweep => 6,
+        StreamKind::Bimodal => 7,
     }
 }
 

@@ -399,6 +399,46 @@ class SweepResult:
         return self.phase[:, self.column(harmonic)]
 
 
+@dataclass
+class BimodalData(StreamData):
+    """The bimodal AM-FM estimate, one row per demodulator frame (docs/protocol.md,
+    ``bimodal``): mode 1's amplitude (m) and phase lag (rad), mode 2's frequency shift
+    (Hz), and the expressions' mean force (N), mean contact stiffness (N/m), indentation
+    (m), reduced modulus and the sample's Young's modulus (Pa); NaN where a frame gave no
+    estimate, ``reason`` saying why."""
+
+    amplitude1: np.ndarray = field(default_factory=lambda: np.empty(0))
+    phase_lag1: np.ndarray = field(default_factory=lambda: np.empty(0))
+    frequency_shift2: np.ndarray = field(default_factory=lambda: np.empty(0))
+    mean_force: np.ndarray = field(default_factory=lambda: np.empty(0))
+    mean_stiffness: np.ndarray = field(default_factory=lambda: np.empty(0))
+    indentation: np.ndarray = field(default_factory=lambda: np.empty(0))
+    reduced_modulus: np.ndarray = field(default_factory=lambda: np.empty(0))
+    youngs_modulus: np.ndarray = field(default_factory=lambda: np.empty(0))
+    #: The settings epoch each row's calibration is for.
+    epoch: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+    reason: list[str | None] = field(default_factory=list)
+
+    @classmethod
+    def from_messages(cls, messages: Sequence[dict[str, Any]]) -> "BimodalData":
+        def col(k: str) -> np.ndarray:
+            return _floats([m.get(k) for m in messages])
+
+        return cls(
+            **cls._common("bimodal", messages),
+            amplitude1=col("amplitude1"),
+            phase_lag1=col("phase_lag1"),
+            frequency_shift2=col("frequency_shift2"),
+            mean_force=col("mean_force"),
+            mean_stiffness=col("mean_stiffness"),
+            indentation=col("indentation"),
+            reduced_modulus=col("reduced_modulus"),
+            youngs_modulus=col("youngs_modulus"),
+            epoch=np.array([m.get("epoch", 0) for m in messages], dtype=np.int64),
+            reason=[m.get("reason") for m in messages],
+        )
+
+
 _KINDS: dict[str, type[StreamData]] = {
     "demods": DemodData,
     "spectrum": SpectrumData,
@@ -407,6 +447,7 @@ _KINDS: dict[str, type[StreamData]] = {
     "status": StatusData,
     "image": ImageData,
     "sweep": StreamData,
+    "bimodal": BimodalData,
 }
 
 #: The streams the daemon offers.

@@ -63,7 +63,11 @@ impl BinaryHeader {
             StreamKind::Demods => count * DEMOD_RECORD_BYTES,
             StreamKind::Spectrum => 8 + 4 * count,
             StreamKind::Scope => 24 + 4 * count,
-            StreamKind::Status | StreamKind::Force | StreamKind::Image | StreamKind::Sweep => count,
+            StreamKind::Status
+            | StreamKind::Force
+            | StreamKind::Image
+            | StreamKind::Sweep
+            | StreamKind::Bimodal => count,
         }
     }
 }

@@ -64,11 +64,13 @@ pub enum StreamKind {
     Image,
     /// Sweeper results, one message per point and a final one.
     Sweep,
+    /// The bimodal AM-FM estimate, one message per demodulator frame.
+    Bimodal,
 }
 
 impl StreamKind {
     /// Every stream, in the order of their binary codes.
-    pub const ALL: [StreamKind; 7] = [
+    pub const ALL: [StreamKind; 8] = [
         StreamKind::Demods,
         StreamKind::Spectrum,
         StreamKind::Scope,
@@ -76,6 +78,7 @@ impl StreamKind {
         StreamKind::Force,
         StreamKind::Image,
         StreamKind::Sweep,
+        StreamKind::Bimodal,
     ];
 
     /// The name used in requests and in the `stream` field of data messages.
@@ -88,6 +91,7 @@ impl StreamKind {
             StreamKind::Force => "force",
             StreamKind::Image => "image",
             StreamKind::Sweep => "sweep",
+            StreamKind::Bimodal => "bimodal",
         }
     }
 
@@ -97,7 +101,7 @@ impl StreamKind {
     }
 
     /// The stable code in byte 6 of the binary header: demods 1, spectrum 2, scope 3,
-    /// status 4, force 5, image 6, sweep 7.
+    /// status 4, force 5, image 6, sweep 7, bimodal 8.
     pub const fn code(self) -> u8 {
         match self {
             StreamKind::Demods => 1,
@@ -107,6 +111,7 @@ impl StreamKind {
             StreamKind::Force => 5,
             StreamKind::Image => 6,
             StreamKind::Sweep => 7,
+            StreamKind::Bimodal => 8,
         }
     }
 

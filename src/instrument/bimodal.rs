@@ -1,0 +1,202 @@
+//! The live bimodal AM-FM estimate (the `bimodal` stream, docs/loops.md): the sample's
+//! modulus and the indentation from what the loops of bimodal AFM read, frame by frame.
+//!
+//! Mode 1 is read off the demodulator frame (the first demodulator at harmonic 1 of
+//! `"drive"`): its amplitude A1 = A01·|s1|/|s01| and phase lag φ1 = π/2 − arg(s1/s01)
+//! against the free lever's reading s01 at the settings in force
+//! ([`crate::synth::plan::free_reading`]), A01 = `/drive/free_amplitude`. Mode 2's frequency
+//! shift is mode 2's PLL's (the enabled unit on the phase of harmonic 1 of `"drive2"`
+//! driving `drive2_frequency`): its latest output less `/drive2/frequency`, which the user
+//! sets at the free resonance. [`crate::physics::bimodal::estimate`] turns them into ⟨F⟩,
+//! ⟨k_ts⟩, d and E*; the sample's Young's modulus follows from E* with the tip's.
+//!
+//! A frame synthesised before the settings in force, or a PLL update made under other
+//! settings, gives no estimate: the message says why, so nothing stale passes as current.
+
+use std::f64::consts::FRAC_PI_2;
+
+use rustfft::num_complex::Complex64;
+use serde_json::{Value, json};
+
+use super::Current;
+use crate::config::{Oscillator, PidInput, PidTarget, Settings};
+use crate::physics::bimodal::{self, BimodalLever, BimodalReading};
+use crate::pipeline::{DemodFrame, PidUpdate};
+
+/// What the estimate needs of one epoch's settings, computed once per epoch.
+#[derive(Clone, Debug)]
+pub struct Calibration {
+    /// The settings epoch it is for.
+    pub epoch: u64,
+    /// The simulated time (s) from which the stream runs under those settings.
+    t: Option<f64>,
+    /// The lever's constants, or why the estimate cannot be made at these settings.
+    setup: Result<Setup, String>,
+}
+
+#[derive(Clone, Debug)]
+struct Setup {
+    lever: BimodalLever,
+    /// The free lever's reading at harmonic 1 of the drive (m, X + iY).
+    free1: Complex64,
+    /// `/drive/free_amplitude` (m).
+    free_amplitude: f64,
+    /// N of mode 2's PLL `/pids/N`.
+    pll: usize,
+    /// `/drive2/frequency` (Hz): the centre Δf2 is taken from.
+    centre2: f64,
+    /// The tip's 1/E contribution (1 − ν_t²)/E_t and the sample's 1 − ν_s².
+    tip_term: f64,
+    sample_poisson_term: f64,
+}
+
+impl Calibration {
+    /// The calibration for `current`'s settings.
+    pub fn of(current: &Current) -> Self {
+        Self {
+            epoch: current.epoch,
+            t: current.t,
+            setup: setup(&current.settings),
+        }
+    }
+
+    /// The `bimodal` message's fields for `frame` (after the envelope), with `pll` the PLL
+    /// unit's latest update, looked up by [`pll_unit`](Self::pll_unit).
+    pub fn fields(&self, frame: &DemodFrame, pll: Option<PidUpdate>) -> Value {
+        let mut fields = json!({ "epoch": self.epoch });
+        match self.reading(frame, pll) {
+            Ok((reading, setup, pll)) => {
+                fields["amplitude1"] = json!(reading.amplitude);
+                fields["phase_lag1"] = json!(reading.phase_lag);
+                fields["frequency_shift2"] = json!(reading.frequency_shift);
+                fields["pll_unit"] = json!(setup.pll);
+                fields["pll_limited"] = json!(pll.limited);
+                match bimodal::estimate(&setup.lever, &reading) {
+                    Ok(e) => {
+                        fields["mean_force"] = json!(e.mean_force);
+                        fields["mean_stiffness"] = json!(e.mean_stiffness);
+                        fields["indentation"] = json!(e.indentation);
+                        fields["reduced_modulus"] = json!(e.reduced_modulus);
+                        let sample = 1.0 / e.reduced_modulus - setup.tip_term;
+                        fields["youngs_modulus"] = if sample > 0.0 {
+                            json!(setup.sample_poisson_term / sample)
+                        } else {
+                            Value::Null
+                        };
+                        fields["reason"] = Value::Null;
+                    }
+                    Err(e) => fields["reason"] = json!(e.to_string()),
+                }
+            }
+            Err(reason) => fields["reason"] = json!(reason),
+        }
+        for key in [
+            "amplitude1",
+            "phase_lag1",
+            "frequency_shift2",
+            "pll_unit",
+            "pll_limited",
+            "mean_force",
+            "mean_stiffness",
+            "indentation",
+            "reduced_modulus",
+            "youngs_modulus",
+        ] {
+            if fields.get(key).is_none() {
+                fields[key] = Value::Null;
+            }
+        }
+        fields
+    }
+
+    /// Whether it knew when the settings took effect in the stream (a calibration made
+    /// before the synthesiser said is made again once it has).
+    pub fn t_known(&self) -> bool {
+        self.t.is_some()
+    }
+
+    /// N of mode 2's PLL at these settings, if there is one.
+    pub fn pll_unit(&self) -> Option<usize> {
+        self.setup.as_ref().ok().map(|s| s.pll)
+    }
+
+    fn reading(
+        &self,
+        frame: &DemodFrame,
+        pll: Option<PidUpdate>,
+    ) -> Result<(BimodalReading, &Setup, PidUpdate), String> {
+        let setup = self.setup.as_ref().map_err(Clone::clone)?;
+        if self.t.is_none_or(|t| frame.t < t) {
+            return Err(format!(
+                "the frame at t = {} s was synthesised before the settings of epoch {}",
+                frame.t, self.epoch
+            ));
+        }
+        let h1 = frame
+            .values()
+            .iter()
+            .find(|v| v.on_drive() && v.harmonic == 1)
+            .ok_or("no demodulator at harmonic 1 of \"drive\" is enabled: mode 1 is read there")?;
+        let pll = pll.filter(|u| u.epoch == self.epoch).ok_or_else(|| {
+            format!(
+                "/pids/{} has made no update under the settings of epoch {}",
+                setup.pll, self.epoch
+            )
+        })?;
+        let s1 = Complex64::new(h1.x, h1.y);
+        let reading = BimodalReading {
+            free_amplitude: setup.free_amplitude,
+            amplitude: setup.free_amplitude * s1.norm() / setup.free1.norm(),
+            // A lead of the tapping lever over the free one is a smaller lag.
+            phase_lag: FRAC_PI_2 - (s1 / setup.free1).arg(),
+            frequency_shift: pll.output - setup.centre2,
+        };
+        Ok((reading, setup, pll))
+    }
+}
+
+/// The constants of `s`, or why there is no estimate at them.
+fn setup(s: &Settings) -> Result<Setup, String> {
+    if !s.drive2.enable {
+        return Err(
+            "the second excitation is off (/drive2/enable): bimodal AFM reads mode 2's PLL on it"
+                .to_owned(),
+        );
+    }
+    let pll = s
+        .pids
+        .iter()
+        .position(|p| {
+            p.enable
+                && p.oscillator == Oscillator::Drive2
+                && p.input == PidInput::Phase
+                && p.harmonic == 1
+                && p.output == PidTarget::Drive2Frequency
+        })
+        .ok_or(
+            "no PID unit is mode 2's PLL (enabled, input \"phase\", harmonic 1 of oscillator \
+             \"drive2\", output \"drive2_frequency\")",
+        )?;
+    let cantilever = crate::model::cantilever(s).map_err(|e| e.to_string())?;
+    let (Some(m1), Some(m2)) = (cantilever.modes.first(), cantilever.modes.get(1)) else {
+        return Err("the lever has no second mode".to_owned());
+    };
+    let free1 = crate::synth::plan::free_reading(s)
+        .filter(|z| z.norm() > 0.0)
+        .ok_or("the free lever's reading at these settings is not defined")?;
+    Ok(Setup {
+        lever: BimodalLever {
+            k1: m1.tip_stiffness(),
+            q1: m1.q,
+            k2: m2.tip_stiffness(),
+            f2: s.drive2.frequency,
+            tip_radius: s.cantilever.tip_radius,
+        },
+        free1,
+        free_amplitude: s.drive.free_amplitude,
+        pll,
+        centre2: s.drive2.frequency,
+        tip_term: (1.0 - s.tip.poisson * s.tip.poisson) / s.tip.youngs_modulus,
+        sample_poisson_term: 1.0 - s.sample.poisson * s.sample.poisson,
+    })
+}
