@@ -792,3 +792,67 @@ async fn pid_advise_replies_with_the_gains_and_refuses_naming_the_key() {
     }
     daemon.shutdown().await;
 }
+
+/// The lock detector: a PLL at its resonance acquires the lock after
+/// `PLL_LOCK_UPDATES` updates in the window; when the resonance leaves its range (the lever's
+/// f1 moved 3 % up, the output limits at ±2 %) it pins at `output_max`, limited, and the loss
+/// is counted once; back in range it locks again, the count kept.
+#[test]
+fn a_pll_reports_the_loss_of_its_lock_and_locks_again() {
+    use ftafm::synth::PLL_LOCK_UPDATES;
+    let mut settings = pll(0.0, 500.0);
+    settings.drive.frequency = phase_pi_frequency(&settings);
+    let (mut plan, mut state, mut rt) = start(&settings, 13);
+    let locked = run_traced(&plan, &mut state, &mut rt, 0.005).0;
+    let first = locked
+        .iter()
+        .position(|r| r.locked == Some(true))
+        .expect("locks");
+    assert!(
+        first + 1 >= PLL_LOCK_UPDATES as usize,
+        "locked at update {first}"
+    );
+    assert!(locked[first..].iter().all(|r| r.locked == Some(true)));
+    assert_eq!(locked.last().unwrap().lock_losses, 0);
+
+    let f1 = settings.cantilever.f1;
+    let mut away = settings.clone();
+    away.cantilever.f1 = 1.03 * f1;
+    change(&mut plan, &mut state, &mut rt, &away);
+    let lost = run_traced(&plan, &mut state, &mut rt, 0.01).0;
+    let last = lost.last().unwrap();
+    assert_eq!(
+        last.output, settings.pids[0].output_max,
+        "pinned at the range's end"
+    );
+    assert!(last.limited);
+    assert_eq!(last.locked, Some(false));
+    assert_eq!(last.lock_losses, 1, "one loss, counted once");
+
+    change(&mut plan, &mut state, &mut rt, &settings);
+    let again = run_traced(&plan, &mut state, &mut rt, 0.01).0;
+    let last = again.last().unwrap();
+    eprintln!(
+        "lock at update {first}; away: pinned at {} Hz; back: locked {:?} at {} Hz, {} loss(es)",
+        lost.last().unwrap().output,
+        last.locked,
+        last.output,
+        last.lock_losses
+    );
+    assert_eq!(last.locked, Some(true), "locks again");
+    assert_eq!(last.lock_losses, 1, "the count is kept");
+    // Units that are no PLL have no lock.
+    let mut amplitude = settings.clone();
+    amplitude.pids[0].enable = false;
+    amplitude.pids[1] = settings.pids[0].clone();
+    amplitude.pids[1].input = PidInput::R;
+    amplitude.pids[1].setpoint = 1e-9;
+    amplitude.pids[1].output = PidTarget::DriveAmplitude;
+    amplitude.pids[1].output_min = 0.0;
+    amplitude.pids[1].output_max = 20e-9;
+    amplitude.pids[1].p = 0.0;
+    amplitude.pids[1].i = 100.0;
+    let (plan, mut state, mut rt) = start(&amplitude, 13);
+    let other = run_traced(&plan, &mut state, &mut rt, 0.001).0;
+    assert!(!other.is_empty() && other.iter().all(|r| r.locked.is_none()));
+}

@@ -26,6 +26,9 @@ struct Slot {
     error: AtomicU64,
     output: AtomicU64,
     limited: AtomicU64,
+    /// A PLL's lock: 0 none (not a PLL), 1 unlocked, 2 locked.
+    locked: AtomicU64,
+    lock_losses: AtomicU64,
     updates: AtomicU64,
 }
 
@@ -53,6 +56,11 @@ pub struct PidUpdate {
     pub output: f64,
     /// Whether a limit held the output: `/pids/N/output_min`, `output_max` or `rate`.
     pub limited: bool,
+    /// A PLL's lock after this update ([`PidReading::locked`]); `None` for other units.
+    pub locked: Option<bool>,
+    /// A PLL's losses of lock since the pipeline started, every one counted however brief
+    /// (0 for other units).
+    pub lock_losses: u64,
     /// Updates of this unit since the pipeline started.
     pub updates: u64,
 }
@@ -79,6 +87,10 @@ impl PidBoard {
             .store(reading.output.to_bits(), Ordering::Relaxed);
         slot.limited
             .store(u64::from(reading.limited), Ordering::Relaxed);
+        let locked = reading.locked.map_or(0, |l| 1 + u64::from(l));
+        slot.locked.store(locked, Ordering::Relaxed);
+        slot.lock_losses
+            .store(reading.lock_losses, Ordering::Relaxed);
         let updates = slot.updates.load(Ordering::Relaxed);
         slot.updates.store(updates + 1, Ordering::Relaxed);
         slot.sequence
@@ -121,6 +133,11 @@ impl PidBoard {
                 error: f(&slot.error),
                 output: f(&slot.output),
                 limited: slot.limited.load(Ordering::Relaxed) != 0,
+                locked: match slot.locked.load(Ordering::Relaxed) {
+                    0 => None,
+                    l => Some(l == 2),
+                },
+                lock_losses: slot.lock_losses.load(Ordering::Relaxed),
                 updates: slot.updates.load(Ordering::Relaxed),
             };
             // The fields are read before the sequence is read again.
@@ -154,6 +171,8 @@ mod tests {
                             error: -x,
                             output: 2.0 * x,
                             limited: n % 2 == 1,
+                            locked: (n % 3 != 0).then_some(n % 3 == 2),
+                            lock_losses: n / 7,
                         },
                         n,
                     );
@@ -170,6 +189,8 @@ mod tests {
                 assert_eq!(u.error, -(n as f64));
                 assert_eq!(u.output, 2.0 * n as f64);
                 assert_eq!(u.limited, n % 2 == 1);
+                assert_eq!(u.locked, (n % 3 != 0).then_some(n % 3 == 2));
+                assert_eq!(u.lock_losses, n / 7);
                 assert_eq!(u.updates, n + 1);
                 seen += 1;
             }

@@ -682,9 +682,8 @@ fn pid_reports(
                 output: pid.output.name(),
                 setpoint: pid.setpoint,
                 latest,
-                locked: latest
-                    .filter(|_| pll)
-                    .map(|u| !u.limited && u.error.abs() < super::status::PLL_LOCK_PHASE),
+                locked: latest.filter(|_| pll).and_then(|u| u.locked),
+                lock_losses: latest.filter(|_| pll).map(|u| u.lock_losses),
                 frequency_shift: latest.zip(centre).map(|(u, centre)| u.output - centre),
             }
         })

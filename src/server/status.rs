@@ -176,10 +176,6 @@ pub struct StatusReport {
     pub pid_held: Vec<&'static str>,
 }
 
-/// The largest phase error (rad) at which a PLL counts as locked (and its output within
-/// its limits).
-pub const PLL_LOCK_PHASE: f64 = 0.1;
-
 /// One PID unit in `status`: its settings in force and its latest update.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct PidReport {
@@ -201,10 +197,15 @@ pub struct PidReport {
     /// The latest update the synthesiser made (its epoch says under which settings);
     /// `None` before the unit's first. A disabled unit keeps its last.
     pub latest: Option<crate::pipeline::PidUpdate>,
-    /// A PLL's lock (a unit on the phase driving either excitation's frequency): its
-    /// latest update within [`PLL_LOCK_PHASE`] of the set-point and not limited. `None`
-    /// for other units and before the first update.
+    /// A PLL's lock (a unit on the phase driving either excitation's frequency) after its
+    /// latest update: acquired after [`crate::synth::PLL_LOCK_UPDATES`] updates in a row
+    /// within [`crate::synth::PLL_LOCK_PHASE`] of the set-point and not limited, lost at
+    /// the first that is not. `None` for other units and before the first update.
     pub locked: Option<bool>,
+    /// A PLL's losses of lock since the pipeline started, each counted however brief
+    /// (the synthesiser counts them at every update). `None` for other units and before
+    /// the first update.
+    pub lock_losses: Option<u64>,
     /// A unit on an excitation's frequency: its latest output less that excitation's
     /// `/drive/frequency` or `/drive2/frequency` (Hz), the frequency shift Δf (Δf₂).
     /// `None` for other units and before the first update.

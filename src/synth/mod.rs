@@ -27,7 +27,9 @@ pub use coupled::{CoupledKernel, CoupledTrace, DEFAULT_SUBSTEP_BUDGET, DEFAULT_S
 pub use digitiser::{Digitiser, DigitiserInput};
 pub use drive::{Drive, ReferenceChange};
 pub use pid_plan::{PidPlan, PidUnitPlan};
-pub use pids::{PENDING_REFERENCES, PidReading, PidRuntime, PidSums};
+pub use pids::{
+    PENDING_REFERENCES, PLL_LOCK_PHASE, PLL_LOCK_UPDATES, PidReading, PidRuntime, PidSums,
+};
 pub use plan::{BOLTZMANN, PlanError, SynthPlan, TapForce};
 pub use pulse::PulseTrain;
 pub use raster::{PixelId, Raster};

@@ -52,6 +52,14 @@ use crate::timebase::{TWO_POW_64, frequency_word, harmonic_phase, phase_to_radia
 /// the updates are at least two samples apart, so ⌈D⌉ = 22 samples hold at most 22.
 pub const PENDING_REFERENCES: usize = 32;
 
+/// A PLL is in lock while its phase error stays within this of its set-point (rad) and no
+/// limit holds its output.
+pub const PLL_LOCK_PHASE: f64 = 0.1;
+
+/// Consecutive updates within [`PLL_LOCK_PHASE`] (and not limited) that acquire the lock:
+/// a PLL sweeping through its set-point on the way is not yet locked.
+pub const PLL_LOCK_UPDATES: u32 = 16;
+
 /// One update of one unit, handed out of the synthesiser as it happens.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PidReading {
@@ -67,6 +75,37 @@ pub struct PidReading {
     pub output: f64,
     /// Whether a limit held the output (its limits or its rate limit).
     pub limited: bool,
+    /// A PLL's lock after this update (a unit on the phase driving an excitation's
+    /// frequency): acquired after [`PLL_LOCK_UPDATES`] updates in a row within
+    /// [`PLL_LOCK_PHASE`] of the set-point and not limited, lost at the first that is not.
+    /// `None` for other units.
+    pub locked: Option<bool>,
+    /// The PLL's losses of lock since the pipeline started (0 for other units).
+    pub lock_losses: u64,
+}
+
+/// A PLL's lock detector ([`PidReading::locked`]).
+#[derive(Clone, Copy, Debug, Default)]
+struct Lock {
+    locked: bool,
+    /// Updates in a row in the lock window.
+    streak: u32,
+    losses: u64,
+}
+
+impl Lock {
+    /// Takes one update: `inside` whether it is within the window and not limited.
+    fn update(&mut self, inside: bool) {
+        if inside {
+            self.streak = self.streak.saturating_add(1);
+            self.locked |= self.streak >= PLL_LOCK_UPDATES;
+        } else {
+            if self.locked {
+                self.losses += 1;
+            }
+            (self.locked, self.streak) = (false, 0);
+        }
+    }
 }
 
 /// A unit's running sums since the pipeline started: means over any stretch are the
@@ -131,6 +170,9 @@ struct Unit {
     image: Complex64,
     /// Every update's sums.
     sums: PidSums,
+    /// A PLL's lock (kept through a stop and a start: its losses count from the start of
+    /// the pipeline).
+    lock: Lock,
     /// Whether the unit started, or changed its harmonic, during the period in progress:
     /// its boxcar then holds part of a period (or of another harmonic), which the next
     /// update does not feed to its controller.
@@ -212,6 +254,7 @@ impl PidRuntime {
             acc: Complex64::new(0.0, 0.0),
             image: Complex64::new(0.0, 0.0),
             sums: PidSums::default(),
+            lock: Lock::default(),
             partial: false,
         };
         Self {
@@ -403,6 +446,8 @@ impl PidRuntime {
                         };
                         unit.pid.enable(present);
                         unit.partial = true;
+                        // A start acquires the lock afresh.
+                        (unit.lock.locked, unit.lock.streak) = (false, 0);
                     }
                     let reread = unit.harmonic != plan.harmonic
                         || unit.oscillator != plan.oscillator
@@ -821,14 +866,21 @@ impl SynthPlan {
                     }
                 }
                 let error = unit.pid.error();
+                let limited = unit.pid.is_limited();
                 unit.sums.add(measurement, error, output);
+                let pll = unit.input == PidInput::Phase && unit.output.frequency_of().is_some();
+                if pll {
+                    unit.lock.update(!limited && error.abs() < PLL_LOCK_PHASE);
+                }
                 reading(PidReading {
                     unit: unit_index,
                     sample: index,
                     measurement,
                     error,
                     output,
-                    limited: unit.pid.is_limited(),
+                    limited,
+                    locked: pll.then_some(unit.lock.locked),
+                    lock_losses: unit.lock.losses,
                 });
             }
         }
