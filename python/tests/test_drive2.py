@@ -248,3 +248,37 @@ def test_a_unit_on_drive2_needs_the_second_excitation(
     assert unit.nodes.enable() is False and unit.input_bandwidth() == 1000.0
     with pytest.raises(TypeError, match="/pids/2 has no setting bandwidth"):
         unit.configure(bandwidth=1e3)
+
+
+def test_a_live_change_of_drive2_alone_moves_mode_two(ftafm_instrument: ftafm.Instrument) -> None:
+    """The second excitation's nodes changed alone (no other node in the batch) reach the
+    synthesis and the demodulators on drive2: mode 2 rings up at f2 when /drive2/enable
+    is switched on; a quarter of its linewidth above f2 its phase is atan(1/2) lower (the
+    excitation keeps the free amplitude /drive2/free_amplitude at the new frequency); it
+    stops when switched off."""
+    inst = ftafm_instrument
+    f2 = float(inst.get("/drive2/frequency"))
+
+    def reading(t: float | None) -> tuple[float, float]:
+        assert t is not None
+        inst.wait_until(t + 0.02)  # a hundred of mode 2's envelope time constants
+        frames = inst.poll("demods", 0.02)
+        return float(frames.r[:, 7].mean()), float(frames.phase[:, 7].mean())
+
+    quiet, _ = reading(inst.set_many({
+        "/surface/distance": 1e-6,
+        "/demods/7/enable": True,
+        "/demods/7/oscillator": "drive2",
+        "/demods/7/harmonic": 1,
+    }))
+    r_on, phase_on = reading(inst.set("/drive2/enable", True))
+    # A quarter linewidth above: 2·Q2·Δf/f2 = 1/2.
+    r_up, phase_up = reading(inst.set("/drive2/frequency", f2 * (1.0 + 1.0 / (4.0 * Q2))))
+    r_off, _ = reading(inst.set("/drive2/enable", False))
+    print(f"off {quiet} m; on {r_on} m, {phase_on} rad; above {r_up} m, {phase_up} rad; "
+          f"off again {r_off} m")
+    assert quiet < 1e-10, "mode 2 is still before the excitation"
+    assert r_on > 1e-9, f"mode 2 rings at f2 once /drive2/enable is on: {r_on} m"
+    assert r_up == pytest.approx(r_on, rel=0.02), "the same free amplitude"
+    assert phase_up - phase_on == pytest.approx(-math.atan(0.5), abs=0.02)
+    assert r_off < 1e-10, f"mode 2 dies down once /drive2/enable is off: {r_off} m"
