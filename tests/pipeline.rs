@@ -228,6 +228,55 @@ fn every_synthesis_node_reaches_the_running_chain() {
     pipeline.stop();
 }
 
+/// The second excitation's nodes changed by themselves (`/drive2/enable`, then
+/// `/drive2/free_amplitude`) reach the running chain: each builds a synthesis plan, and a
+/// demodulator on `drive2` reads mode 2 rung up at f2, then at twice the amplitude (once a
+/// change of `/drive2` alone was no input of the plan, and mode 2 stayed still).
+#[test]
+fn a_change_of_the_second_excitation_alone_reaches_the_running_chain() {
+    let mut settings = default_settings(); // the coupled engine, which drives /drive2
+    settings.noise.enable = false;
+    settings.synth.realtime = false;
+    settings.surface.distance = 1e-6;
+    settings.demods[7].enable = true;
+    settings.demods[7].harmonic = 1;
+    settings.demods[7].oscillator = ftafm::config::Oscillator::Drive2;
+    let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
+    let r2 = |f: &DemodFrame| f.values()[7].r();
+    let still = r2(&run_until(&mut output, 0.01));
+    let mut next = settings.clone();
+    let mut readings = vec![];
+    for change in [
+        (|s: &mut Settings| s.drive2.enable = true) as fn(&mut Settings),
+        |s| s.drive2.free_amplitude *= 2.0,
+    ] {
+        change(&mut next);
+        let epoch = pipeline.apply(&next).unwrap();
+        let index = pipeline
+            .effective_index(epoch, Duration::from_secs(60))
+            .unwrap_or_else(|| panic!("the change of /drive2 never took effect"));
+        // 10 ms: fifty of mode 2's envelope time constants (0.21 ms) and the filters'.
+        let t = index as f64 / settings.synth.sample_rate + 0.01;
+        readings.push(r2(&run_until(&mut output, t)));
+    }
+    eprintln!("mode 2 at f2: {still:e} m still, {readings:?} m");
+    assert!(
+        still < 1e-11,
+        "mode 2 still before the excitation: {still:e} m"
+    );
+    assert!(
+        readings[0] > 1e-9,
+        "mode 2 rings at f2: {:e} m",
+        readings[0]
+    );
+    assert!(
+        (readings[1] / readings[0] - 2.0).abs() < 0.01,
+        "twice the free amplitude, twice the reading: {readings:?}"
+    );
+    assert_eq!(pipeline.counters().synth_plans_applied, 2);
+    pipeline.stop();
+}
+
 /// A change applied at once after the start, before the synthesiser's thread may have run
 /// at all, still takes effect and says where: the thread stamps it on its first block
 /// rather than taking it for the epoch it started with.

@@ -6,8 +6,12 @@
 // and the chosen unit's error and output against simulated time, one point per status
 // message (the latest update each carries), over the last TRACE points. A unit drives one
 // of OUTPUTS: the surface distance, or the drive (its frequency: a unit on the phase of
-// harmonic 1 is then a PLL, its lock and frequency shift Δf in the table; or its amplitude);
-// the outputs a loop holds away from their nodes (status's `pid_held`) are named in the foot.
+// harmonic 1 is then a PLL, its lock and frequency shift Δf in the table; or its amplitude),
+// or the same two of the second excitation (drive2_*: on the phase of harmonic 1 of
+// oscillator "drive2", mode 2's PLL of bimodal AM-FM, its Δf₂ from /drive2/frequency); a
+// unit reads harmonic k of its oscillator (drive, or drive2 through a low-pass of its input
+// bandwidth); the outputs a loop holds away from their nodes (status's `pid_held`) are
+// named in the foot.
 
 import { Control } from "./controls.js";
 import { Plot, StickyRange } from "./plot.js";
@@ -15,11 +19,15 @@ import { si } from "./units.js";
 
 export const PID_COUNT = 4;
 /** What a unit can drive (/pids/N/output), and the unit of each one's values. */
-export const OUTPUTS = { surface_distance: "m", drive_frequency: "Hz", drive_amplitude: "m" };
+export const OUTPUTS = {
+  surface_distance: "m", drive_frequency: "Hz", drive_amplitude: "m", drive2_frequency: "Hz", drive2_amplitude: "m",
+};
 const ITEMS = [
   { key: "enable", label: "Enabled" },
   { key: "input", label: "Input", options: ["r", "phase", "x", "y"] },
   { key: "harmonic", label: "Harmonic k" },
+  { key: "oscillator", label: "Oscillator", options: ["drive", "drive2"] },
+  { key: "input_bandwidth", label: "Input bandwidth (on drive2)" },
   { key: "output", label: "Output", options: Object.keys(OUTPUTS) },
   { key: "setpoint", label: "Set-point" },
   { key: "p", label: "Proportional gain P" },
@@ -41,11 +49,11 @@ function esc(s) {
 /** The input's unit: rad for the phase, else m (peak). */
 const inputUnit = (input) => (input === "phase" ? "rad" : "m");
 
-/** The output's unit: Hz for the drive frequency, else m. */
+/** The output's unit: Hz for either drive frequency, else m. */
 const outputUnit = (output) => OUTPUTS[output] ?? "m";
 
 /** The unit a unit's node is in where `list` gives none (it depends on the input, or on the
- * output: m for the surface distance and the drive amplitude, Hz for the drive frequency):
+ * output: m for the surface distance and either drive amplitude, Hz for either drive frequency):
  * values typed and shown with SI prefixes ("16.7 nm", "99.5 kHz"). */
 function unitOf(node, nodes) {
   if (node.unit) return node.unit;
@@ -109,8 +117,9 @@ export class PidsPanel {
       if (!l || !trace || !(rate > 0)) continue;
       const t = l.sample / rate;
       if (trace.length && trace[trace.length - 1].t >= t) continue; // no update since
-      // A unit moved to another output (or input) starts a new trace: no metres beside hertz.
-      const route = `${u.input}|${u.output}`;
+      // A unit moved to another output (or input, or oscillator) starts a new trace: no
+      // metres beside hertz, no mode 2's phase beside mode 1's.
+      const route = `${u.input}|${u.oscillator ?? "drive"}|${u.output}`;
       if (trace.length && trace[trace.length - 1].route !== route) {
         trace.length = 0;
         if (u.index === this.unit) { this.eRange.reset(); this.oRange.reset(); }
@@ -216,7 +225,7 @@ export class PidsPanel {
     const pids = this.pids;
     if (!pids) return;
     this.reunit();
-    const head = `<tr><th>N</th><th>on</th><th>input → output</th><th>set-point</th><th>measured</th><th>error</th><th>output</th><th>limited</th><th title="a PLL (phase → drive_frequency): its phase error within 0.1 rad and not limited">lock</th><th title="a unit on the drive frequency: its output less /drive/frequency">Δf</th><th>epoch</th><th>updates</th></tr>`;
+    const head = `<tr><th>N</th><th>on</th><th>input → output</th><th>set-point</th><th>measured</th><th>error</th><th>output</th><th>limited</th><th title="a PLL (phase → drive_frequency or drive2_frequency): its phase error within 0.1 rad and not limited">lock</th><th title="a unit on an excitation's frequency: its output less /drive/frequency (drive2_frequency: less /drive2/frequency, Δf₂)">Δf</th><th>epoch</th><th>updates</th></tr>`;
     const keys = ["index", "enable", "route", "setpoint", "measurement", "error", "output", "limited", "locked", "frequency_shift", "epoch", "updates"];
     const rows = pids.map((u) => {
       const l = u.latest;
@@ -225,7 +234,8 @@ export class PidsPanel {
       const cells = [
         u.index,
         u.enable ? "on" : "off",
-        `${esc(u.input)} H${u.harmonic} → ${esc(u.output)}`,
+        // "phase H1 → drive_frequency"; on the second excitation "phase H1 of drive2 → …".
+        `${esc(u.input)} H${u.harmonic}${u.oscillator && u.oscillator !== "drive" ? ` of ${esc(u.oscillator)}` : ""} → ${esc(u.output)}`,
         si(u.setpoint, unit),
         l ? si(l.measurement, unit) : "–",
         l ? si(l.error, unit) : "–",

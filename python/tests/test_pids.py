@@ -67,6 +67,7 @@ def amplitude_loop(inst: ftafm.Instrument, setpoint: float) -> PidStatus:
     first = unit.wait()
     assert first.latest is not None
     assert first.enable and first.input == "r" and first.harmonic == 1
+    assert first.oscillator == "drive"
     assert first.setpoint == setpoint
     assert first.latest.epoch >= inst.epoch
     return unit.wait(updates=first.latest.updates + SETTLE_UPDATES)

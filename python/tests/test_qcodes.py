@@ -14,6 +14,7 @@ pytest.importorskip("qcodes", reason="the [qcodes] extra")
 from qcodes.instrument import ChannelList  # noqa: E402
 
 import ftafm  # noqa: E402
+import ftafm.pids  # noqa: E402
 from ftafm.qcodes import FTAFM, label, parameter_name  # noqa: E402
 from ftafm.testing import Daemon  # noqa: E402
 
@@ -144,12 +145,20 @@ def test_pid_units_as_a_channel_list_reading_their_latest_update(afm: FTAFM) -> 
     assert unit.setpoint is afm.by_path["/pids/0/setpoint"]
     assert (unit.i.label, unit.i.unit) == ("PID 0 i", "1/s")
     assert unit.input.vals is not None and "phase" in repr(unit.input.vals)
-    # The outputs the daemon offers: the surface distance and the drive (a PLL).
+    # The outputs the daemon offers: the surface distance and either excitation (a PLL).
     assert unit.output.vals is not None
-    for output in ("surface_distance", "drive_frequency", "drive_amplitude"):
+    for output in ftafm.pids.OUTPUTS:
         unit.output.vals.validate(output)
+    assert "drive2_frequency" in ftafm.pids.OUTPUTS
     with pytest.raises(ValueError):
         unit.output.vals.validate("z")
+    # The oscillator its demodulator reads and the low-pass of a unit on drive2: nodes.
+    assert unit.oscillator is afm.by_path["/pids/0/oscillator"]
+    assert unit.oscillator() == "drive" and unit.oscillator.vals is not None
+    unit.oscillator.vals.validate("drive2")
+    with pytest.raises(ValueError):
+        unit.oscillator.vals.validate("drive3")
+    assert (unit.input_bandwidth.unit, unit.input_bandwidth()) == ("Hz", 2000.0)
     assert (unit.frequency_shift.unit, unit.locked.cache.get()) == ("Hz", None)
     # Its nodes set through the client's path; the same values read back.
     afm.surface.distance(20e-9)

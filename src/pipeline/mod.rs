@@ -530,6 +530,9 @@ impl Pipeline {
             || settings.tip != old.tip
             || settings.sample != old.sample
             || settings.drive != old.drive
+            // The second excitation: its steady motion, and the phase word every
+            // demodulator on it is aligned to at each block (no DSP plan needed).
+            || settings.drive2 != old.drive2
             || settings.surface != old.surface
             || settings.adhesion != old.adhesion
             || settings.noise != old.noise

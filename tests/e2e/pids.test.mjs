@@ -9,6 +9,12 @@
 // the free lever's resonance from 1 % off it: the table shows it locked, its frequency
 // shift Δf and its output in kHz, the foot names the drive frequency as held by a loop,
 // and an upper limit beyond the drive frequency's range is refused under its field.
+// Mode 2's PLL set up from the panel (unit 2 on the phase of harmonic 1 of oscillator
+// "drive2", its output drive2_frequency): enabled while the second excitation is off, it is
+// refused under the enable field, naming /pids/2/oscillator; with the excitation switched on
+// from the bimodal controls and started 0.4 % above mode 2's resonance, it locks there:
+// the row reads "phase H1 of drive2 → drive2_frequency", locked, and Δf₂ from
+// /drive2/frequency; with /drive2/frequency set to the resonance, Δf₂ near 0.
 //
 //   cargo build --release && (cd tests/e2e && npm ci) && node --test tests/e2e/pids.test.mjs
 //
@@ -157,11 +163,11 @@ test("a PLL set up and enabled from the panel locks to the resonance, and the pa
   // The free lever driven 1 % above its resonance (what a script beside the dashboard sets).
   await request("set", { values: { "/surface/distance": 1e-6, "/drive/free_amplitude": 10e-9, "/drive/follow_f1": false, "/drive/frequency": drive } });
 
-  // Unit 1 from the select; its output selector offers the three outputs.
+  // Unit 1 from the select; its output selector offers the five outputs.
   await page.selectOption("#pid-select", "1");
   await until(() => window.ftafm.pids().unit === 1 && document.querySelector('#pid-controls select[data-path="/pids/1/output"]'), null, "unit 1's controls");
   const outputs = await page.$$eval('#pid-controls select[data-path="/pids/1/output"] option', (os) => os.map((o) => o.value));
-  assert.deepEqual([...outputs].sort(), ["drive_amplitude", "drive_frequency", "surface_distance"]);
+  assert.deepEqual([...outputs].sort(), ["drive2_amplitude", "drive2_frequency", "drive_amplitude", "drive_frequency", "surface_distance"]);
   await choose("output", "drive_frequency", 1);
   await choose("input", "phase", 1);
   // The limits and the rate follow the output: hertz now, the set-point radians.
@@ -220,6 +226,107 @@ test("a PLL set up and enabled from the panel locks to the resonance, and the pa
   await page.locator('#pid-controls input[type="checkbox"][data-path="/pids/1/enable"]').uncheck();
   await until(() => window.ftafm.pids().pids?.[1]?.enable === false, null, "the unit reported off");
   await request("set", { path: "/drive/frequency", value: f1 });
+  await until(() => window.ftafm.pids().held?.length === 0 && !document.querySelector("#pids-held"), null, "no output held");
+  assert.deepEqual(pageErrors, []);
+});
+
+test("mode 2's PLL set up from the panel on the second excitation locks, and the panel shows it", TEST, async (t) => {
+  await page.locator("#p-pids").scrollIntoViewIfNeeded();
+  await until(() => window.ftafm.pids().pids?.length === 4, null, "the four units from status");
+  const f2 = await (async () => (await request("get", { path: "/drive2/frequency" })).value)();
+  assert.equal(f2, 626.689e3, "the default lever's f2 (ftafm info)");
+  assert.equal((await request("get", { path: "/drive2/enable" })).value, false);
+  await request("set", { values: { "/surface/distance": 1e-6 } });
+
+  // Unit 2: the oscillator and the input bandwidth among its controls, built from list.
+  await page.selectOption("#pid-select", "2");
+  await until(() => window.ftafm.pids().unit === 2 && document.querySelector('#pid-controls select[data-path="/pids/2/oscillator"]') &&
+    document.querySelector('#pid-controls input[data-path="/pids/2/input_bandwidth"]')?.value, null, "unit 2's controls");
+  const oscillators = await page.$$eval('#pid-controls select[data-path="/pids/2/oscillator"] option', (os) => os.map((o) => o.value));
+  assert.deepEqual(oscillators, ["drive", "drive2"]);
+  assert.equal(await page.inputValue('#pid-controls input[data-path="/pids/2/input_bandwidth"]'), "2 kHz");
+  await choose("oscillator", "drive2", 2);
+  await choose("input", "phase", 2);
+  await choose("output", "drive2_frequency", 2);
+  await until(() => ["output_min", "output_max"].every((k) => document.querySelector(`#pid-controls input[data-path="/pids/2/${k}"]`)?.value.endsWith("Hz")),
+    null, "the limits in Hz");
+  await typeAndWait("input_bandwidth", "1.5 kHz", 1500, 2);
+  await typeAndWait("input_bandwidth", "2 kHz", 2000, 2);
+  // PI gains for a 300 Hz crossover on mode 2's phase response (tests/bimodal_loops.rs).
+  const q2 = 417;
+  const i = (-2 * Math.PI * 300) / ((2 * q2) / f2);
+  const p = (i * q2) / (Math.PI * f2);
+  await typeAndWait("i", `${i}`, i, 2);
+  await typeAndWait("p", `${p}`, p, 2);
+  await typeAndWait("output_min", `${(0.99 * f2) / 1e3} kHz`, 0.99 * f2, 2);
+  await typeAndWait("output_max", `${(1.01 * f2) / 1e3} kHz`, 1.01 * f2, 2);
+
+  // Enabled while the second excitation is off: refused under the field, naming the node.
+  const enable = page.locator('#pid-controls input[type="checkbox"][data-path="/pids/2/enable"]');
+  const rejects = await page.evaluate(() => window.ftafm.stats.rejects);
+  await enable.click(); // not check(): the box goes back off with the refusal
+  await until((n) => window.ftafm.stats.rejects > n, rejects, "the refusal");
+  const error = await page.textContent('#pid-controls .error[data-for="/pids/2/enable"]');
+  t.diagnostic(error);
+  assert.match(error, /\/pids\/2\/oscillator = "drive2".*\/drive2\/enable/);
+  assert.equal((await request("get", { path: "/pids/2/enable" })).value, false);
+  await until(() => !document.querySelector('#pid-controls input[type="checkbox"][data-path="/pids/2/enable"]').checked, null, "the box back off");
+
+  // The second excitation on from the bimodal controls; the set-point is the phase mode 2
+  // reads at its resonance, from a demodulator on drive2 (a script beside the page).
+  await page.locator('#controls input[type="checkbox"][data-path="/drive2/enable"]').check();
+  await until(() => window.ftafm.app.nodes.get("/drive2/enable")?.value === true, null, "the second excitation on");
+  const on = await request("set", { values: { "/demods/7/enable": true, "/demods/7/oscillator": "drive2", "/demods/7/harmonic": 1 } });
+  await until((t) => window.ftafm.app.history.tNow >= t + 0.3, on.t, "0.3 s of data on drive2");
+  const setpoint = await page.evaluate(() => window.ftafm.app.history.mean(7, 0.2).phase);
+  t.diagnostic(`mode 2's phase at f2: ${setpoint} rad`);
+  assert.ok(Number.isFinite(setpoint));
+  await type("setpoint", `${setpoint}`, 2);
+  await until((v) => Math.abs(window.ftafm.app.nodes.get("/pids/2/setpoint")?.value - v) <= 1e-12, setpoint, "the set-point's reply");
+
+  // Started 0.4 % above the resonance (2.7 of mode 2's linewidths).
+  const off = 1.004 * f2;
+  await request("set", { path: "/drive2/frequency", value: off });
+  await enable.check();
+  await until(() => window.ftafm.app.nodes.get("/pids/2/enable")?.value === true, null, "the enable's reply");
+  const first = await until(() => {
+    const u = window.ftafm.pids().pids?.[2];
+    return u?.enable && u.oscillator === "drive2" && u.latest ? u.latest : null;
+  }, null, "mode 2's PLL's first update").then((h) => h.jsonValue());
+  const locked = await until((n) => {
+    const u = window.ftafm.pids().pids?.[2];
+    return u?.latest && u.latest.updates >= n + 2000 && u.locked === true ? u : null;
+  }, first.updates, "mode 2's PLL locked, 2000 updates on").then((h) => h.jsonValue());
+  t.diagnostic(`locked: ${JSON.stringify(locked)}`);
+  assert.ok(Math.abs(locked.latest.output - f2) < 10, `mode 2's PLL at ${locked.latest.output} Hz, f2 = ${f2} Hz`);
+  assert.ok(Math.abs(locked.frequency_shift - (locked.latest.output - off)) < 1e-6, `Δf₂ ${locked.frequency_shift} Hz`);
+  await until((n) => Number(document.querySelector('#pids-table tr[data-unit="2"] td[data-key="updates"]')?.textContent) >= n &&
+    document.querySelector('#pids-table tr[data-unit="2"] td[data-key="locked"]')?.textContent === "locked", locked.latest.updates, "the table's row drawn locked");
+  const cell = (key) => page.textContent(`#pids-table tr[data-unit="2"] td[data-key="${key}"]`);
+  const shown = { route: await cell("route"), output: await cell("output"), shift: await cell("frequency_shift") };
+  t.diagnostic(JSON.stringify(shown));
+  assert.equal(shown.route, "phase H1 of drive2 → drive2_frequency");
+  assert.match(shown.output, /^626\.6\d+ kHz$/);
+  assert.match(shown.shift, /^−2\.50\d+ kHz$/);
+  await until(() => document.querySelector("#pids-held")?.textContent.includes("drive2_frequency"), null, "the held output named");
+
+  // /drive2/frequency set to the resonance: the PLL holds it there, Δf₂ near 0.
+  const back = await request("set", { path: "/drive2/frequency", value: f2 });
+  const near = await until(([n, epoch]) => {
+    const u = window.ftafm.pids().pids?.[2];
+    return u?.latest && u.latest.epoch >= epoch && u.latest.updates >= n + 2000 && u.locked === true ? u : null;
+  }, [locked.latest.updates, back.epoch], "mode 2's PLL locked at f2").then((h) => h.jsonValue());
+  t.diagnostic(`at f2: ${JSON.stringify(near)}`);
+  assert.ok(Math.abs(near.frequency_shift) < 10, `Δf₂ ${near.frequency_shift} Hz at f2`);
+  await until((n) => Number(document.querySelector('#pids-table tr[data-unit="2"] td[data-key="updates"]')?.textContent) >= n, near.latest.updates, "the row redrawn");
+  const small = await cell("frequency_shift");
+  t.diagnostic(small);
+  assert.match(small, /^−?\d+(\.\d+)? m?Hz$/, "a shift of hertz or less");
+
+  // Off from the panel, and the second excitation off: nothing held.
+  await enable.uncheck();
+  await until(() => window.ftafm.pids().pids?.[2]?.enable === false, null, "the unit reported off");
+  await request("set", { path: "/drive2/enable", value: false });
   await until(() => window.ftafm.pids().held?.length === 0 && !document.querySelector("#pids-held"), null, "no output held");
   assert.deepEqual(pageErrors, []);
 });

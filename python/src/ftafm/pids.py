@@ -11,13 +11,19 @@ Each unit reads its own demodulator once per drive period and drives one output
 engine), the drive frequency (a unit on the phase of harmonic 1 with this output is a
 PLL: the drive and the lock-in's reference follow it; :attr:`PidStatus.locked`,
 :attr:`PidStatus.frequency_shift`) or the drive amplitude (as the free amplitude it gives
-at ``/drive/frequency``). Its settings are nodes (``configure`` sets any of
+at ``/drive/frequency``), or the same two of the second excitation (``drive2_frequency``,
+``drive2_amplitude``; ``/drive2/enable``). Its demodulator reads harmonic ``harmonic`` of
+``/pids/N/oscillator`` (:data:`OSCILLATORS`): the drive, or the second excitation through
+a low-pass of ``/pids/N/input_bandwidth`` (Hz). A unit on the phase of harmonic 1 of
+``drive2`` driving ``drive2_frequency`` is mode 2's PLL (bimodal AM-FM, docs/loops.md
+"Mode 2's loops"). Its settings are nodes (``configure`` sets any of
 them in one ``set_many``, all or nothing); its updates reach a client through the
 ``status`` stream (every 0.5 s of wall time), each stamped with the settings epoch it ran
 under and a running count, so a caller waits on those, not on the clock
 (:meth:`PidUnit.wait`). The daemon refuses bad settings (a gain of the wrong sign, a
 derivative bandwidth above the PID's Nyquist frequency, limits outside the output's
-range, a drive output during a scan) with :class:`ftafm.InstrumentError`, whose message names the node and the range.
+range, a drive output during a scan, a unit on ``drive2`` while ``/drive2/enable`` is
+false) with :class:`ftafm.InstrumentError`, whose message names the node and the range.
 """
 
 from __future__ import annotations
@@ -50,10 +56,14 @@ SETTINGS = (
     "output_max",
     "rate",
     "output",
+    "oscillator",
+    "input_bandwidth",
 )
 
 #: What a unit can drive (``/pids/N/output``).
-PidOutput = Literal["surface_distance", "drive_frequency", "drive_amplitude"]
+PidOutput = Literal[
+    "surface_distance", "drive_frequency", "drive_amplitude", "drive2_frequency", "drive2_amplitude"
+]
 
 #: The outputs, and the unit each one's value is in (``output``, ``output_min``,
 #: ``output_max``; ``rate`` is in this unit per second).
@@ -61,8 +71,14 @@ OUTPUT_UNITS: dict[str, str] = {
     "surface_distance": "m",
     "drive_frequency": "Hz",
     "drive_amplitude": "m",
+    "drive2_frequency": "Hz",
+    "drive2_amplitude": "m",
 }
 OUTPUTS: tuple[str, ...] = tuple(OUTPUT_UNITS)
+
+#: The oscillator whose harmonic a unit's demodulator reads (``/pids/N/oscillator``).
+PidOscillator = Literal["drive", "drive2"]
+OSCILLATORS: tuple[str, ...] = ("drive", "drive2")
 
 
 def output_unit(output: str) -> str:
@@ -89,7 +105,7 @@ class PidUpdate:
     is ``sample / sample_rate`` s); ``epoch``: the settings epoch the synthesiser ran
     under; ``measurement`` and ``error`` (set-point minus measurement): the input's unit,
     m for ``r``, ``x``, ``y`` and rad for ``phase``; ``output``: the output's value, m for
-    the surface distance and the drive amplitude, Hz for the drive frequency
+    the surface distance and either drive amplitude, Hz for either drive frequency
     (:data:`OUTPUT_UNITS`); ``limited``: whether ``output_min``, ``output_max`` or ``rate`` held the
     output; ``updates``: the unit's updates since the daemon started.
     """
@@ -120,15 +136,16 @@ class PidUpdate:
 @dataclass(frozen=True)
 class PidStatus:
     """One unit in one ``status`` message: the settings in force (``enable``, ``input``,
-    ``harmonic``, ``output``, ``setpoint`` in the input's unit) and ``latest``, its
-    latest update (``None`` before its first; a disabled unit keeps its last). ``t`` is
-    the status message's simulated time (s).
+    ``harmonic``, ``output``, ``setpoint`` in the input's unit, ``oscillator``: ``"drive"``
+    or ``"drive2"``) and ``latest``, its latest update (``None`` before its first; a
+    disabled unit keeps its last). ``t`` is the status message's simulated time (s).
 
-    ``locked``: for a PLL (a unit on the phase driving the drive frequency), whether its
-    latest update was within 0.1 rad of the set-point and not held by a limit; ``None``
-    for other units and before the first update. ``frequency_shift``: for a unit on the
-    drive frequency, its latest output less ``/drive/frequency`` (Hz, the frequency shift
-    Δf); ``None`` otherwise."""
+    ``locked``: for a PLL (a unit on the phase driving ``drive_frequency`` or
+    ``drive2_frequency``), whether its latest update was within 0.1 rad of the set-point
+    and not held by a limit; ``None`` for other units and before the first update.
+    ``frequency_shift``: for a unit on either frequency, its latest output less
+    ``/drive/frequency`` (or ``/drive2/frequency`` for ``drive2_frequency``: Δf₂), in Hz,
+    the frequency shift Δf; ``None`` otherwise."""
 
     index: int
     enable: bool
@@ -140,10 +157,11 @@ class PidStatus:
     t: float
     locked: bool | None = None
     frequency_shift: float | None = None
+    oscillator: str = "drive"
 
     @property
     def output_unit(self) -> str:
-        """The unit of the output's values: m, or Hz for the drive frequency."""
+        """The unit of the output's values: m, or Hz for either drive frequency."""
         return OUTPUT_UNITS.get(self.output, "")
 
     @classmethod
@@ -162,6 +180,8 @@ class PidStatus:
             t=t,
             locked=None if locked is None else bool(locked),
             frequency_shift=None if shift is None else float(shift),
+            # A daemon before the second excitation's units has only the drive.
+            oscillator=str(m.get("oscillator", "drive")),
         )
 
 
@@ -175,7 +195,8 @@ def from_status(message: Mapping[str, Any]) -> list[PidStatus]:
 def held_from_status(message: Mapping[str, Any]) -> list[str]:
     """The outputs a PID unit holds away from their nodes in one ``status`` message
     (``pid_held``: one runs on it, or one ran and left it there until the node is set
-    again), e.g. ``["drive_frequency"]``; ``[]`` from a daemon without them."""
+    again), e.g. ``["drive_frequency"]`` or ``["drive2_frequency"]``; ``[]`` from a daemon
+    without them."""
     return [str(o) for o in message.get("pid_held", [])]
 
 
@@ -242,7 +263,7 @@ class PidUnit:
     def configure(self, **settings: Any) -> float | None:
         """Sets any of the unit's nodes (``input``, ``harmonic``, ``setpoint``, ``p``,
         ``i``, ``d``, ``d_bandwidth``, ``output_min``, ``output_max``, ``rate``,
-        ``output``, ``enable``; units in docs/configuration.md) in one ``set_many``: one
+        ``output``, ``oscillator``, ``input_bandwidth``, ``enable``; units in docs/configuration.md) in one ``set_many``: one
         change at one sample boundary, all or nothing. Returns the simulated time (s) it
         took effect (``None`` inside ``set_transaction``). A refused value raises
         :class:`ftafm.InstrumentError` naming the node and its range; an unknown name

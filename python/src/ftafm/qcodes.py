@@ -126,11 +126,13 @@ _PID_PARTS: dict[str, tuple[str, str | None, str]] = {
 
 
 #: A PID unit's PLL readings, read from ``status`` (fields of
-#: :class:`ftafm.pids.PidStatus`, ``None`` for a unit that is no PLL, or not on the drive
-#: frequency): parameter → (unit, label).
+#: :class:`ftafm.pids.PidStatus`, ``None`` for a unit that is no PLL, or not on either
+#: excitation's frequency): parameter → (unit, label).
 _PID_PLL: dict[str, tuple[str, str]] = {
     "locked": ("", "PLL locked"),
-    "frequency_shift": ("Hz", "frequency shift Δf (output − /drive/frequency)"),
+    "frequency_shift": (
+        "Hz", "frequency shift Δf (output − /drive/frequency, or /drive2/frequency)"
+    ),
 }
 
 
@@ -331,13 +333,14 @@ class DemodChannel(InstrumentChannel):
 
 class PidChannel(InstrumentChannel):
     """PID unit N (``/pids/N``): its nodes (``setpoint``, ``p``, ``enable``, ``output``,
-    ...) and its latest update from the ``status`` stream, read-only: ``measurement`` and
-    ``error`` (the input's unit: m, or rad for the phase), ``value`` (the output's value,
-    m for the surface distance and the drive amplitude, Hz for the drive frequency;
-    LabOne's ``pids/N/value``: ``output`` is the node naming what it drives), ``limited``,
-    ``updates``, ``update_epoch`` and ``update_sample``; and for a unit on the drive
-    frequency ``frequency_shift`` (Hz, the output less ``/drive/frequency``) and, for a
-    PLL (a unit on the phase), ``locked``. Every get of one reads one status message
+    ``oscillator``, ``input_bandwidth``, ...) and its latest update from the ``status``
+    stream, read-only: ``measurement`` and ``error`` (the input's unit: m, or rad for the
+    phase), ``value`` (the output's value, m for the surface distance and either drive
+    amplitude, Hz for either drive frequency; LabOne's ``pids/N/value``: ``output`` is the
+    node naming what it drives), ``limited``, ``updates``, ``update_epoch`` and
+    ``update_sample``; and for a unit on either excitation's frequency ``frequency_shift``
+    (Hz, the output less ``/drive/frequency`` or ``/drive2/frequency``) and, for a PLL (a
+    unit on the phase), ``locked``. Every get of one reads one status message
     (within 0.5 s) and fills the others' caches from it (:meth:`read_status`); NaN
     (``None`` for ``limited``) before the unit's first update; ``locked`` and
     ``frequency_shift`` are ``None`` for a unit they do not apply to."""
