@@ -66,7 +66,9 @@ function unitOf(node, nodes) {
 }
 
 /** A PLL's lock as the table shows it ("–" for a unit that is no PLL, or before its first update). */
-const lockText = (locked) => (locked === true ? "locked" : locked === false ? "unlocked" : "–");
+/** A PLL's lock, and its losses of lock since the daemon started where there were any. */
+const lockText = (locked, losses) =>
+  (locked === true ? "locked" : locked === false ? "unlocked" : "–") + (losses ? ` (${losses} lost)` : "");
 
 export class PidsPanel {
   constructor(app) {
@@ -225,7 +227,7 @@ export class PidsPanel {
     const pids = this.pids;
     if (!pids) return;
     this.reunit();
-    const head = `<tr><th>N</th><th>on</th><th>input → output</th><th>set-point</th><th>measured</th><th>error</th><th>output</th><th>limited</th><th title="a PLL (phase → drive_frequency or drive2_frequency): its phase error within 0.1 rad and not limited">lock</th><th title="a unit on an excitation's frequency: its output less /drive/frequency (drive2_frequency: less /drive2/frequency, Δf₂)">Δf</th><th>epoch</th><th>updates</th></tr>`;
+    const head = `<tr><th>N</th><th>on</th><th>input → output</th><th>set-point</th><th>measured</th><th>error</th><th>output</th><th>limited</th><th title="a PLL (phase → drive_frequency or drive2_frequency): locked after 16 updates in a row within 0.1 rad and not limited, unlocked at the first that is not; its losses of lock since the daemon started, each counted however brief">lock</th><th title="a unit on an excitation's frequency: its output less /drive/frequency (drive2_frequency: less /drive2/frequency, Δf₂)">Δf</th><th>epoch</th><th>updates</th></tr>`;
     const keys = ["index", "enable", "route", "setpoint", "measurement", "error", "output", "limited", "locked", "frequency_shift", "epoch", "updates"];
     const rows = pids.map((u) => {
       const l = u.latest;
@@ -242,7 +244,7 @@ export class PidsPanel {
         // A frequency to eight digits (99.999678 kHz: a millihertz), a distance to four.
         l ? si(l.output, out, out === "Hz" ? 8 : 4) : "–",
         l ? (l.limited ? "limited" : "no") : "–",
-        lockText(u.locked),
+        lockText(u.locked, u.lock_losses),
         u.frequency_shift == null ? "–" : si(u.frequency_shift, "Hz", 6), // six digits: a kHz shift to 10 mHz
         l ? l.epoch : "–",
         l ? l.updates : "–",

@@ -90,6 +90,7 @@ def test_an_amplitude_loop_holds_the_distance_whose_amplitude_it_is_given(
     assert not latest.limited
     # No PLL: no lock, no frequency shift; the loop holds the surface distance.
     assert settled.locked is None and settled.frequency_shift is None
+    assert settled.lock_losses is None
     assert settled.output == "surface_distance" and settled.output_unit == "m"
     assert inst.pid_held() == ["surface_distance"]
     # The other units never ran in this test's settings; all four are reported.
@@ -229,6 +230,7 @@ def test_a_pll_locks_the_drive_to_the_resonance_and_bad_limits_are_refused(
     for s in seen:
         assert s.latest is not None
         assert s.locked is True, f"not locked: {s}"
+        assert s.lock_losses == 0, f"the lock never lost: {s}"
         assert not s.latest.limited
         assert abs(s.latest.error) < 0.1
         assert s.frequency_shift is not None

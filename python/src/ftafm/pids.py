@@ -141,8 +141,10 @@ class PidStatus:
     disabled unit keeps its last). ``t`` is the status message's simulated time (s).
 
     ``locked``: for a PLL (a unit on the phase driving ``drive_frequency`` or
-    ``drive2_frequency``), whether its latest update was within 0.1 rad of the set-point
-    and not held by a limit; ``None`` for other units and before the first update.
+    ``drive2_frequency``), its lock after its latest update: acquired after 16 updates in a
+    row within 0.1 rad of the set-point and not held by a limit, lost at the first that is
+    not; ``lock_losses``: its losses of lock since the daemon started, each counted however
+    brief. Both ``None`` for other units and before the first update.
     ``frequency_shift``: for a unit on either frequency, its latest output less
     ``/drive/frequency`` (or ``/drive2/frequency`` for ``drive2_frequency``: Δf₂), in Hz,
     the frequency shift Δf; ``None`` otherwise."""
@@ -158,6 +160,7 @@ class PidStatus:
     locked: bool | None = None
     frequency_shift: float | None = None
     oscillator: str = "drive"
+    lock_losses: int | None = None
 
     @property
     def output_unit(self) -> str:
@@ -182,6 +185,7 @@ class PidStatus:
             frequency_shift=None if shift is None else float(shift),
             # A daemon before the second excitation's units has only the drive.
             oscillator=str(m.get("oscillator", "drive")),
+            lock_losses=None if m.get("lock_losses") is None else int(m["lock_losses"]),
         )
 
 
