@@ -454,3 +454,76 @@ async fn status_reports_each_units_update_under_the_epoch_it_ran() {
     assert!(status["pids"][1]["latest"].is_null());
     daemon.shutdown().await;
 }
+
+/// The `pids` stream: every update of every unit, in columns, none skipped (each unit's
+/// updates a drive period apart, `dropped` 0), stamped with the epoch it ran under, and
+/// equal to what the synthesiser-level runtime computes (measurement − set-point = −error).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_pids_stream_carries_every_update() {
+    let settings = common::light();
+    let rate = settings.synth.sample_rate;
+    let period = rate / settings.drive.frequency;
+    let daemon = common::Daemon::start(settings).await;
+    let mut ws = common::connect(daemon.addr).await;
+    let sub = common::call(&mut ws, json!({"op": "subscribe", "stream": "pids"})).await;
+    assert_eq!(sub["ok"], true, "{sub}");
+    let setpoint = amplitude_at(19e-9);
+    let reply = common::call(
+        &mut ws,
+        json!({"op": "set", "values": {"/pids/0/setpoint": setpoint, "/pids/0/enable": true}}),
+    )
+    .await;
+    assert_eq!(reply["ok"], true, "{reply}");
+    let epoch = reply["epoch"].as_u64().unwrap();
+    let mut samples: Vec<u64> = Vec::new();
+    while samples.len() < 2000 {
+        let m = common::first_of(&mut ws, "pids", |_| true).await;
+        if samples.is_empty() {
+            eprintln!(
+                "a pids message: seq {}, t {}, {} updates, first: sample {} output {} error {}",
+                m["seq"],
+                m["t"],
+                m["unit"].as_array().unwrap().len(),
+                m["sample"][0],
+                m["output"][0],
+                m["error"][0]
+            );
+        }
+        assert_eq!(m["dropped"], 0, "nothing dropped: {m}");
+        let n = m["unit"].as_array().unwrap().len();
+        assert!(n > 0);
+        for key in [
+            "sample",
+            "epoch",
+            "measurement",
+            "error",
+            "output",
+            "limited",
+            "locked",
+        ] {
+            assert_eq!(m[key].as_array().unwrap().len(), n, "{key}");
+        }
+        for i in 0..n {
+            assert_eq!(m["unit"][i], 0);
+            assert_eq!(m["epoch"][i], epoch);
+            assert!(m["locked"][i].is_null(), "no PLL");
+            let (measured, error) = (
+                m["measurement"][i].as_f64().unwrap(),
+                m["error"][i].as_f64().unwrap(),
+            );
+            assert!(
+                (setpoint - measured - error).abs() < 1e-18,
+                "{measured} {error}"
+            );
+            samples.push(m["sample"][i].as_u64().unwrap());
+        }
+        let last = *samples.last().unwrap();
+        assert!((m["t"].as_f64().unwrap() - last as f64 / rate).abs() < 1e-12);
+    }
+    // Every update, one a drive period.
+    for pair in samples.windows(2) {
+        let gap = (pair[1] - pair[0]) as f64;
+        assert!((gap - period).abs() <= 1.0, "updates {gap} samples apart");
+    }
+    daemon.shutdown().await;
+}

@@ -168,11 +168,11 @@ fn constants_and_names() {
     assert_eq!(
         names,
         [
-            "demods", "spectrum", "scope", "status", "force", "image", "sweep", "bimodal"
+            "demods", "spectrum", "scope", "status", "force", "image", "sweep", "bimodal", "pids"
         ]
     );
     let codes: Vec<_> = StreamKind::ALL.iter().map(|s| s.code()).collect();
-    assert_eq!(codes, [1, 2, 3, 4, 5, 6, 7, 8]);
+    assert_eq!(codes, [1, 2, 3, 4, 5, 6, 7, 8, 9]);
     for s in StreamKind::ALL {
         assert_eq!(StreamKind::from_name(s.name()), Some(s));
         assert_eq!(StreamKind::from_code(s.code()), Some(s));
@@ -180,7 +180,7 @@ fn constants_and_names() {
     }
     assert_eq!(StreamKind::from_name("Demods"), None);
     assert_eq!(StreamKind::from_code(0), None);
-    assert_eq!(StreamKind::from_code(9), None);
+    assert_eq!(StreamKind::from_code(10), None);
 
     assert_eq!(Format::default(), Format::Json);
     assert_eq!(Format::from_name("json"), Some(Format::Json));
@@ -1171,7 +1171,7 @@ fn decode_header_rejects_what_is_not_a_header() {
     let mut bad_magic = good.clone();
     bad_magic[0] = b'X';
     assert_eq!(decode_header(&bad_magic), None);
-    for code in [0u8, 9, 255] {
+    for code in [0u8, 10, 255] {
         let mut bad_stream = good.clone();
         bad_stream[6] = code;
         assert_eq!(decode_header(&bad_stream), None, "code {code}");

@@ -13,6 +13,7 @@ import math
 import time
 from typing import Any
 
+import numpy as np
 import pytest
 
 import ftafm
@@ -288,3 +289,23 @@ def test_the_async_clients_units_run_a_pll(ftafm_daemon: Daemon) -> None:
                 await inst.request("load_settings", toml=saved)
 
     asyncio.run(main())
+
+
+def test_the_pids_stream_gives_every_update_as_rows(ftafm_instrument: ftafm.Instrument) -> None:
+    """``poll("pids")``: a row per update of the enabled unit, a drive period apart, none
+    dropped, its measurement and error adding to the set-point."""
+    from ftafm.data import PidsData
+
+    inst = ftafm_instrument
+    setpoint = 25e-9  # above the orbit's amplitude at 20 nm: the loop pulls the surface away
+    inst.set_many({"/pids/0/setpoint": setpoint, "/pids/0/enable": True})
+    data = inst.poll("pids", 0.002)
+    assert isinstance(data, PidsData)
+    rows = data.of(0)
+    assert len(rows) > 10 and len(data.unit) == len(rows)
+    assert int(data.dropped.max()) == 0
+    period = inst.get("/synth/sample_rate") / inst.get("/drive/frequency")
+    gaps = np.diff(data.sample[rows])
+    assert np.all(np.abs(gaps - period) <= 1.0), gaps
+    assert np.allclose(data.measurement + data.error, setpoint, rtol=0, atol=1e-15)
+    assert np.all(np.isnan(data.locked))

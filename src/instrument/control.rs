@@ -194,6 +194,13 @@ impl Control {
         std::array::from_fn(|unit| self.counters.as_ref().and_then(|c| c.pids().latest(unit)))
     }
 
+    /// Has the synthesiser queue every PID update for the `pids` stream, or stop.
+    pub fn stream_pid_updates(&self, on: bool) {
+        if let Some(c) = &self.counters {
+            c.pids().set_streaming(on);
+        }
+    }
+
     /// The outputs a PID unit holds away from their nodes (empty without a pipeline).
     pub fn pid_held(&self) -> Vec<crate::config::PidTarget> {
         self.counters

@@ -41,6 +41,8 @@ pub struct Counters {
     pub(crate) ring_fill_max: AtomicU64,
     pub(crate) topography_pixels: AtomicU64,
     pub(crate) topography_pixels_dropped: AtomicU64,
+    pub(crate) pid_updates: AtomicU64,
+    pub(crate) pid_updates_dropped: AtomicU64,
     pub(crate) pixels: AtomicU64,
     pub(crate) pixels_dropped: AtomicU64,
     pub(crate) noise_pages_drawn_ahead: AtomicU64,
@@ -102,6 +104,8 @@ impl Counters {
             ring_fill_max: r(&self.ring_fill_max),
             topography_pixels: r(&self.topography_pixels),
             topography_pixels_dropped: r(&self.topography_pixels_dropped),
+            pid_updates: r(&self.pid_updates),
+            pid_updates_dropped: r(&self.pid_updates_dropped),
             pixels: r(&self.pixels),
             pixels_dropped: r(&self.pixels_dropped),
             noise_pages_drawn_ahead: r(&self.noise_pages_drawn_ahead),
@@ -171,6 +175,10 @@ pub struct CountersSnapshot {
     pub topography_pixels: u64,
     /// Scan pixels whose topography no consumer took in time.
     pub topography_pixels_dropped: u64,
+    /// PID updates the synthesiser handed to the `pids` stream (while it has subscribers).
+    pub pid_updates: u64,
+    /// PID updates for the `pids` stream that found its queue full.
+    pub pid_updates_dropped: u64,
     /// Scan pixels whose harmonics the DSP handed out.
     pub pixels: u64,
     /// Scan pixels the DSP lost: cut or skipped by a gap in the stream (an overrun), left

@@ -54,7 +54,7 @@ pub use feed::{
 };
 pub use frame_signal::FrameSignal;
 pub use frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
-pub use pid_board::{PidBoard, PidUpdate};
+pub use pid_board::{PID_EVENT_QUEUE, PidBoard, PidEvent, PidUpdate};
 pub use scope::MAX_SCOPE_SAMPLES;
 pub use stall::{StallEvent, StallMeter};
 pub use synth_worker::BLOCK_SAMPLES;
@@ -175,6 +175,9 @@ pub struct PipelineOutput {
     pub pixels: HeapCons<PixelHarmonics>,
     /// Scan pixels' height and amplitude from the synthesiser, in scan order.
     pub topography: HeapCons<PixelTopography>,
+    /// Every PID update while the `pids` stream has subscribers
+    /// ([`PidBoard::set_streaming`]), in time order.
+    pub pid_events: HeapCons<PidEvent>,
     /// Signalled by the DSP thread after each block that produced demodulator frames
     /// (`None` where the system has no such signal: poll instead).
     pub signal: Option<Arc<FrameSignal>>,
@@ -358,6 +361,7 @@ impl Pipeline {
             pool(|| ScopeBuffer::with_capacity(MAX_SCOPE_SAMPLES));
         let (pixels_in, pixels_out) = HeapRb::<PixelHarmonics>::new(PIXEL_QUEUE).split();
         let (topography_in, topography_out) = HeapRb::<PixelTopography>::new(PIXEL_QUEUE).split();
+        let (pid_events_in, pid_events_out) = HeapRb::<PidEvent>::new(PID_EVENT_QUEUE).split();
         let (synth_link, synth_plans_in, synth_plans_out) = plan_link();
         let (dsp_link, dsp_plans_in, dsp_plans_out) = plan_link();
 
@@ -382,6 +386,7 @@ impl Pipeline {
             scan,
             pids,
             topography: topography_in,
+            pid_events: pid_events_in,
             samples: samples_in,
             headers: headers_in,
             references: references_in,
@@ -464,6 +469,7 @@ impl Pipeline {
             free_scopes: free_scopes_in,
             pixels: pixels_out,
             topography: topography_out,
+            pid_events: pid_events_out,
             signal,
             inlet,
         };

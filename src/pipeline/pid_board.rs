@@ -4,7 +4,7 @@
 //! consistent copy of one update: its measurement, error, output, limit flag, sample and
 //! the settings epoch it ran under.
 
-use std::sync::atomic::{AtomicU64, Ordering, fence};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering, fence};
 
 use serde::Serialize;
 
@@ -38,6 +38,21 @@ pub struct PidBoard {
     slots: [Slot; PID_COUNT],
     /// The outputs a loop holds away from their nodes, bit `PidTarget as usize` each.
     held: AtomicU64,
+    /// Whether the `pids` stream has subscribers: the synthesiser then queues every update.
+    streaming: AtomicBool,
+}
+
+/// Updates the `pids` stream's queue holds (0.16 s of four units at 100 kHz).
+pub const PID_EVENT_QUEUE: usize = 1 << 16;
+
+/// One update of one unit as the `pids` stream carries it: the reading and the settings
+/// epoch the synthesiser ran under.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PidEvent {
+    /// The update.
+    pub reading: PidReading,
+    /// The settings epoch it was made under.
+    pub epoch: u64,
 }
 
 /// A unit's latest update as the board holds it.
@@ -95,6 +110,18 @@ impl PidBoard {
         slot.updates.store(updates + 1, Ordering::Relaxed);
         slot.sequence
             .store(sequence.wrapping_add(2), Ordering::Release);
+    }
+
+    /// Whether the synthesiser should queue every update for the `pids` stream.
+    #[inline]
+    pub(crate) fn streaming(&self) -> bool {
+        self.streaming.load(Ordering::Relaxed)
+    }
+
+    /// Turns the queueing of every update on or off (the hub, as the `pids` stream gains
+    /// or loses its subscribers).
+    pub(crate) fn set_streaming(&self, on: bool) {
+        self.streaming.store(on, Ordering::Relaxed);
     }
 
     /// Records which outputs the loops hold ([`crate::synth::PidRuntime::held_outputs`]).

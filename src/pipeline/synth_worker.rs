@@ -32,6 +32,8 @@ pub(crate) struct SynthWorker {
     pub pids: PidRuntime,
     /// Finished pixels' topography, to the consumer.
     pub topography: HeapProd<PixelTopography>,
+    /// Every PID update, while the `pids` stream has subscribers.
+    pub pid_events: HeapProd<super::PidEvent>,
     /// The signal through the ADC's window, which the DSP thread finishes.
     pub samples: HeapProd<WindowSample>,
     pub headers: HeapProd<BlockHeader>,
@@ -183,11 +185,23 @@ impl SynthWorker {
                 // The loops read the finished samples, so they are finished here.
                 let board = &self.counters.pids;
                 let (changes, counters) = (&mut self.reference_changes, &self.counters);
+                let events = &mut self.pid_events;
+                let streaming = board.streaming();
                 self.plan.process_pids(
                     &mut self.state,
                     &mut self.pids,
                     &mut finished,
-                    &mut |r| board.publish(&r, epoch),
+                    &mut |r| {
+                        board.publish(&r, epoch);
+                        if streaming {
+                            let event = super::PidEvent { reading: r, epoch };
+                            if events.try_push(event).is_ok() {
+                                Counters::add(&counters.pid_updates, 1);
+                            } else {
+                                Counters::add(&counters.pid_updates_dropped, 1);
+                            }
+                        }
+                    },
                     &mut |c| {
                         // A change per update, the updates a period (at least two
                         // samples) apart: a block's and the ⌈D⌉ samples' past it fit the

@@ -382,6 +382,11 @@ pub(crate) async fn run(
         {
             *latest = newest;
         }
+        // Every PID update, while the stream has subscribers; the synthesiser queues them only
+        // then, and what it queued before the last one left is dropped here.
+        let pids_wanted = state.subscribed(StreamKind::Pids);
+        state.control.stream_pid_updates(pids_wanted);
+        publish_pid_events(&state, &mut output.pid_events, pids_wanted);
         // Topography first: a pixel's height is handed out before its harmonics.
         while let Some(t) = output.topography.try_pop() {
             state.image.topography(&t);
@@ -607,6 +612,49 @@ pub(crate) fn publish_sweep(state: &AppState, t: f64, t_synth_ns: u64, fields: M
         (t_synth_ns, 0),
         Value::Object(fields),
     );
+}
+
+/// Updates a `pids` message gathers at most (one pass of the hub takes the rest next).
+const PID_EVENTS_PER_MESSAGE: usize = 4096;
+
+/// Sends the queued PID updates as `pids` messages of at most [`PID_EVENTS_PER_MESSAGE`],
+/// each a column per field; without subscribers they are taken and dropped.
+fn publish_pid_events(
+    state: &AppState,
+    events: &mut ringbuf::HeapCons<crate::pipeline::PidEvent>,
+    wanted: bool,
+) {
+    use ringbuf::traits::{Consumer, Observer};
+    while !events.is_empty() {
+        let batch: Vec<crate::pipeline::PidEvent> =
+            events.pop_iter().take(PID_EVENTS_PER_MESSAGE).collect();
+        if !wanted {
+            continue;
+        }
+        let Some(last) = batch.last() else {
+            break;
+        };
+        let rate = state.control.current().settings.synth.sample_rate;
+        let column = |f: &dyn Fn(&crate::pipeline::PidEvent) -> Value| -> Value {
+            Value::Array(batch.iter().map(f).collect())
+        };
+        let fields = json!({
+            "unit": column(&|e| json!(e.reading.unit)),
+            "sample": column(&|e| json!(e.reading.sample)),
+            "epoch": column(&|e| json!(e.epoch)),
+            "measurement": column(&|e| json!(e.reading.measurement)),
+            "error": column(&|e| json!(e.reading.error)),
+            "output": column(&|e| json!(e.reading.output)),
+            "limited": column(&|e| json!(e.reading.limited)),
+            "locked": column(&|e| json!(e.reading.locked)),
+            "dropped": state
+                .control
+                .counters()
+                .map_or(0, |c| c.pid_updates_dropped),
+        });
+        let t = last.reading.sample as f64 / rate;
+        publish_envelope(state, StreamKind::Pids, t, (0, 0), fields);
+    }
 }
 
 /// Sends one message of a JSON-only `stream` with `fields` (an object) after the envelope

@@ -16,7 +16,7 @@ use super::status::{ClientReport, LatencySummary, ProcessMemory, StatusReport};
 use crate::instrument::Control;
 
 /// Streams in the order of [`StreamKind::ALL`]; indexes per-stream arrays.
-pub(crate) const STREAMS: usize = 8;
+pub(crate) const STREAMS: usize = 9;
 
 pub(crate) fn stream_index(s: StreamKind) -> usize {
     match s {
@@ -28,6 +28,7 @@ pub(crate) fn stream_index(s: StreamKind) -> usize {
         StreamKind::Image => 5,
         StreamKind::Sweep => 6,
         StreamKind::Bimodal => 7,
+        StreamKind::Pids => 8,
     }
 }
 

@@ -439,6 +439,49 @@ class BimodalData(StreamData):
         )
 
 
+@dataclass
+class PidsData(StreamData):
+    """Every update of the PID units (docs/protocol.md, ``pids``), one row per update, in
+    time order: ``unit`` (N of ``/pids/N``), ``sample`` (from which its output took
+    effect), ``epoch``, ``measurement`` and ``error`` (the input's unit), ``output`` (the
+    output's unit), ``limited``, ``locked`` (NaN for units that are no PLL, else 0 or 1),
+    and ``dropped``, the updates the daemon's queue had no room for, per message. ``t``
+    is per message (its newest update's); an update's own time is ``sample`` over the
+    sample rate."""
+
+    unit: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+    sample: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+    epoch: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+    measurement: np.ndarray = field(default_factory=lambda: np.empty(0))
+    error: np.ndarray = field(default_factory=lambda: np.empty(0))
+    output: np.ndarray = field(default_factory=lambda: np.empty(0))
+    limited: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=bool))
+    locked: np.ndarray = field(default_factory=lambda: np.empty(0))
+    dropped: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+
+    @classmethod
+    def from_messages(cls, messages: Sequence[dict[str, Any]]) -> "PidsData":
+        def cat(k: str) -> list[Any]:
+            return [v for m in messages for v in m.get(k, [])]
+
+        return cls(
+            **cls._common("pids", messages),
+            unit=np.array(cat("unit"), dtype=np.int64),
+            sample=np.array(cat("sample"), dtype=np.int64),
+            epoch=np.array(cat("epoch"), dtype=np.int64),
+            measurement=_floats(cat("measurement")),
+            error=_floats(cat("error")),
+            output=_floats(cat("output")),
+            limited=np.array(cat("limited"), dtype=bool),
+            locked=_floats([None if v is None else float(v) for v in cat("locked")]),
+            dropped=np.array([m.get("dropped", 0) for m in messages], dtype=np.int64),
+        )
+
+    def of(self, unit: int) -> np.ndarray:
+        """The rows of ``unit``'s updates (an index array)."""
+        return np.flatnonzero(self.unit == unit)
+
+
 _KINDS: dict[str, type[StreamData]] = {
     "demods": DemodData,
     "spectrum": SpectrumData,
@@ -448,6 +491,7 @@ _KINDS: dict[str, type[StreamData]] = {
     "image": ImageData,
     "sweep": StreamData,
     "bimodal": BimodalData,
+    "pids": PidsData,
 }
 
 #: The streams the daemon offers.

@@ -67,7 +67,8 @@ impl BinaryHeader {
             | StreamKind::Force
             | StreamKind::Image
             | StreamKind::Sweep
-            | StreamKind::Bimodal => count,
+            | StreamKind::Bimodal
+            | StreamKind::Pids => count,
         }
     }
 }

@@ -66,11 +66,13 @@ pub enum StreamKind {
     Sweep,
     /// The bimodal AM-FM estimate, one message per demodulator frame.
     Bimodal,
+    /// Every PID unit update, gathered into one message per pass of the hub.
+    Pids,
 }
 
 impl StreamKind {
     /// Every stream, in the order of their binary codes.
-    pub const ALL: [StreamKind; 8] = [
+    pub const ALL: [StreamKind; 9] = [
         StreamKind::Demods,
         StreamKind::Spectrum,
         StreamKind::Scope,
@@ -79,6 +81,7 @@ impl StreamKind {
         StreamKind::Image,
         StreamKind::Sweep,
         StreamKind::Bimodal,
+        StreamKind::Pids,
     ];
 
     /// The name used in requests and in the `stream` field of data messages.
@@ -92,6 +95,7 @@ impl StreamKind {
             StreamKind::Image => "image",
             StreamKind::Sweep => "sweep",
             StreamKind::Bimodal => "bimodal",
+            StreamKind::Pids => "pids",
         }
     }
 
@@ -101,7 +105,7 @@ impl StreamKind {
     }
 
     /// The stable code in byte 6 of the binary header: demods 1, spectrum 2, scope 3,
-    /// status 4, force 5, image 6, sweep 7, bimodal 8.
+    /// status 4, force 5, image 6, sweep 7, bimodal 8, pids 9.
     pub const fn code(self) -> u8 {
         match self {
             StreamKind::Demods => 1,
@@ -112,6 +116,7 @@ impl StreamKind {
             StreamKind::Image => 6,
             StreamKind::Sweep => 7,
             StreamKind::Bimodal => 8,
+            StreamKind::Pids => 9,
         }
     }
 
