@@ -11,10 +11,10 @@ mod common;
 
 use std::f64::consts::PI;
 
-use common::loops::{run_traced, start};
+use common::loops::{assert_step_as_advised, change, measured_step, refused, run_traced, start};
 use ftafm::config::{Oscillator, PidInput, PidTarget, Settings, default_settings};
 use ftafm::physics::bimodal::{self, BimodalLever, BimodalReading};
-use ftafm::synth::{PidReading, SynthPlan};
+use ftafm::synth::PidReading;
 use ftafm::timebase::phase_to_radians;
 use rustfft::num_complex::Complex64;
 use serde_json::json;
@@ -24,12 +24,9 @@ use serde_json::json;
 /// modes' analytic response, no synthesis.
 fn second_reading(settings: &Settings, frequency: f64, free: f64) -> Complex64 {
     let mut s = settings.clone();
-    s.drive2.enable = true;
     s.drive2.frequency = frequency;
     s.drive2.free_amplitude = free;
-    let plan = SynthPlan::new(&s).unwrap();
-    let f = plan.frequency_word2 as f64 / 2f64.powi(64);
-    plan.drive2.unwrap().signal * plan.front_end_gain(f)
+    ftafm::synth::plan::free_reading_of(&s, Oscillator::Drive2).unwrap()
 }
 
 /// The lever's second resonance (Hz).
@@ -327,20 +324,6 @@ fn mode_two_loops_are_continuous_and_deterministic() {
     assert!(curvature < bound, "{curvature:e} against {bound:e}");
 }
 
-/// The error of `changes` applied together to `settings`: by `set_many`'s checks, or by
-/// the model's.
-fn refused(settings: &Settings, changes: &[(&str, serde_json::Value)]) -> ftafm::config::NodeError {
-    let mut next = settings.clone();
-    let values: Vec<(String, serde_json::Value)> = changes
-        .iter()
-        .map(|(p, v)| (p.to_string(), v.clone()))
-        .collect();
-    match next.set_many(&values) {
-        Err(e) => e,
-        Ok(_) => ftafm::model::check(&next).expect_err("accepted"),
-    }
-}
-
 #[test]
 fn a_unit_on_the_second_excitation_needs_it_and_names_the_node() {
     let s = default_settings();
@@ -453,7 +436,7 @@ fn the_advised_mode_two_pll_steps_as_the_advisor_predicts() {
         let before = settled.last().unwrap().output;
         settings.cantilever.f1 += 8.0;
         let after = phase_frequency(&settings, setpoint, f2 + 50.0);
-        common::loops::change(&mut plan, &mut state, &mut rt, &settings);
+        change(&mut plan, &mut state, &mut rt, &settings);
         let from = state.sample_index();
         let (readings, _, _) = run_traced(
             &plan,
@@ -462,16 +445,7 @@ fn the_advised_mode_two_pll_steps_as_the_advisor_predicts() {
             (10.0 * advice.step.settling_time).max(0.01),
         );
         let step = after - before;
-        let peak = readings
-            .iter()
-            .map(|r| (r.output - before) / step)
-            .fold(f64::MIN, f64::max);
-        let overshoot = (peak - 1.0).max(0.0);
-        let last_out = readings
-            .iter()
-            .rposition(|r| ((r.output - before) / step - 1.0).abs() > 0.02)
-            .expect("the step leaves the band");
-        let settling = (readings[last_out + 1].sample - from) as f64 / plan.sample_rate;
+        let (overshoot, settling) = measured_step(&readings, from, plan.sample_rate, before, after);
         let last = readings.last().unwrap().output;
         eprintln!(
             "advised mode-2 PLL {kind:?} {target} Hz: step {step:.2} Hz; bandwidth {:.1} Hz, \
@@ -487,16 +461,12 @@ fn the_advised_mode_two_pll_steps_as_the_advisor_predicts() {
         );
         assert!((before - f2).abs() < 0.01, "locked at {before}, not {f2}");
         assert!((last - after).abs() < 0.05, "ends at {last}, not {after}");
-        assert!(
-            (overshoot - advice.step.overshoot).abs() <= 0.1 * advice.step.overshoot.max(0.1),
-            "{kind:?} {target} Hz: overshoot {overshoot}, predicted {}",
-            advice.step.overshoot
-        );
-        assert!(
-            (settling - advice.step.settling_time).abs()
-                <= (0.1 * advice.step.settling_time).max(2.0 * update),
-            "{kind:?} {target} Hz: settling {settling} s, predicted {}",
-            advice.step.settling_time
+        assert_step_as_advised(
+            &format!("mode 2's PLL, {kind:?} {target} Hz"),
+            &advice,
+            overshoot,
+            settling,
+            update,
         );
     }
 }

@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::loops::{change, run, start};
+use common::loops::{change, refused, run, start};
 use ftafm::config::{PidInput, Settings, default_settings};
 use ftafm::synth::{PidReading, SynthPlan};
 use serde_json::json;
@@ -282,19 +282,6 @@ fn files_set_the_units_by_index() {
 
 /// A change refused: the nodes set, the node the error names, words its message has.
 type Case<'a> = (&'a [(&'a str, serde_json::Value)], &'a str, &'a [&'a str]);
-
-/// `set` on `settings` then the model's check, as a running daemon takes a change.
-fn refused(settings: &Settings, changes: &[(&str, serde_json::Value)]) -> ftafm::config::NodeError {
-    let mut next = settings.clone();
-    let values: Vec<(String, serde_json::Value)> = changes
-        .iter()
-        .map(|(p, v)| (p.to_string(), v.clone()))
-        .collect();
-    match next.set_many(&values) {
-        Err(e) => e,
-        Ok(_) => ftafm::model::check(&next).expect_err("accepted"),
-    }
-}
 
 #[test]
 fn bad_gains_and_limits_are_refused_naming_the_node_and_the_range() {

@@ -9,7 +9,7 @@ mod common;
 
 use std::f64::consts::PI;
 
-use common::loops::{change, run_traced, start};
+use common::loops::{assert_step_as_advised, change, measured_step, run_traced, start};
 use ftafm::config::{PidInput, PidTarget, Settings, default_settings};
 use ftafm::control::loop_model::ADC_DELAY_SAMPLES;
 use ftafm::control::{Demodulator, Kind, LoopModel, Plant, advise};
@@ -475,29 +475,6 @@ fn advised_pll(settings: &Settings) -> LoopModel {
     }
 }
 
-/// The measured overshoot (a fraction of the step) and 2 % settling time (s) of the
-/// frequency after a step of the resonance at sample `from`, from `start` to `end` (Hz): the
-/// settling time is that of the first update after the last one outside ±2 % of the step.
-fn measured_step(
-    readings: &[PidReading],
-    from: u64,
-    rate: f64,
-    start: f64,
-    end: f64,
-) -> (f64, f64) {
-    let step = end - start;
-    let peak = readings
-        .iter()
-        .map(|r| (r.output - start) / step)
-        .fold(f64::MIN, f64::max);
-    let last_out = readings
-        .iter()
-        .rposition(|r| ((r.output - start) / step - 1.0).abs() > 0.02)
-        .expect("the step leaves the band");
-    let settled = readings[last_out + 1].sample;
-    ((peak - 1.0).max(0.0), (settled - from) as f64 / rate)
-}
-
 #[test]
 fn the_advised_pll_steps_as_the_advisor_predicts() {
     // The advisor's gains for the default lever's PLL (negated: the phase falls as the
@@ -559,18 +536,12 @@ fn the_advised_pll_steps_as_the_advisor_predicts() {
             (last - after).abs() < 0.01,
             "settles at {last} Hz, not {after} Hz"
         );
-        // Within 10 % of the prediction, or 1 % of the step where it predicts under 10 %.
-        assert!(
-            (overshoot - advice.step.overshoot).abs() <= 0.1 * advice.step.overshoot.max(0.1),
-            "{kind:?} {target} Hz: overshoot {overshoot}, predicted {}",
-            advice.step.overshoot
-        );
-        // Within 10 %, or two update periods (the loop's output moves once a period).
-        assert!(
-            (settling - advice.step.settling_time).abs()
-                <= (0.1 * advice.step.settling_time).max(2.0 * update),
-            "{kind:?} {target} Hz: settling {settling} s, predicted {}",
-            advice.step.settling_time
+        assert_step_as_advised(
+            &format!("{kind:?} {target} Hz"),
+            &advice,
+            overshoot,
+            settling,
+            update,
         );
     }
 }
@@ -649,16 +620,12 @@ fn the_advised_amplitude_loop_steps_as_the_advisor_predicts() {
             1e6 * settling,
             1e6 * advice.step.settling_time,
         );
-        assert!(
-            (overshoot - advice.step.overshoot).abs() <= 0.1 * advice.step.overshoot.max(0.1),
-            "{kind:?} {target} Hz: overshoot {overshoot}, predicted {}",
-            advice.step.overshoot
-        );
-        assert!(
-            (settling - advice.step.settling_time).abs()
-                <= (0.1 * advice.step.settling_time).max(2.0 * update),
-            "{kind:?} {target} Hz: settling {settling} s, predicted {}",
-            advice.step.settling_time
+        assert_step_as_advised(
+            &format!("{kind:?} {target} Hz"),
+            &advice,
+            overshoot,
+            settling,
+            update,
         );
     }
 }

@@ -1,8 +1,10 @@
 //! The live PID units driven as the synthesiser thread drives them, for the tests of the
-//! loops (`tests/pids.rs`, `pll.rs`, `fm_afm.rs`): a plan, its state and the units'
-//! runtime, run for simulated time and moved to new settings between blocks.
+//! loops (`tests/pids.rs`, `pll.rs`, `fm_afm.rs`, `bimodal_loops.rs`): a plan, its state and
+//! the units' runtime, run for simulated time and moved to new settings between blocks; a
+//! step response measured against the advisor's prediction; settings refused.
 
-use ftafm::config::Settings;
+use ftafm::config::{NodeError, Settings};
+use ftafm::control::Advice;
 use ftafm::synth::{PidReading, PidRuntime, ReferenceChange, SynthPlan, SynthState};
 
 /// A running loop: plan, state and runtime at sample 0 with `settings`.
@@ -63,4 +65,65 @@ pub fn change(
     let index = state.sample_index();
     rt.retarget(plan, &next, index, state);
     *plan = next;
+}
+
+/// The measured overshoot (a fraction of the step) and 2 % settling time (s) of the
+/// readings' output after a step at sample `from`, from `start` to `end` (the output's
+/// unit), at `rate` samples a second: the settling time is that of the first update after
+/// the last one outside ±2 % of the step.
+pub fn measured_step(
+    readings: &[PidReading],
+    from: u64,
+    rate: f64,
+    start: f64,
+    end: f64,
+) -> (f64, f64) {
+    let step = end - start;
+    let peak = readings
+        .iter()
+        .map(|r| (r.output - start) / step)
+        .fold(f64::MIN, f64::max);
+    let last_out = readings
+        .iter()
+        .rposition(|r| ((r.output - start) / step - 1.0).abs() > 0.02)
+        .expect("the step leaves the band");
+    let settled = readings[last_out + 1].sample;
+    ((peak - 1.0).max(0.0), (settled - from) as f64 / rate)
+}
+
+/// A measured step against `advice`'s linear model: the overshoot within 10 % of the
+/// prediction (or 1 % of the step where it predicts under 10 %), the settling time within
+/// 10 % (or two update periods of `update` s: the loop's output moves once a period).
+pub fn assert_step_as_advised(
+    what: &str,
+    advice: &Advice,
+    overshoot: f64,
+    settling: f64,
+    update: f64,
+) {
+    assert!(
+        (overshoot - advice.step.overshoot).abs() <= 0.1 * advice.step.overshoot.max(0.1),
+        "{what}: overshoot {overshoot}, predicted {}",
+        advice.step.overshoot
+    );
+    assert!(
+        (settling - advice.step.settling_time).abs()
+            <= (0.1 * advice.step.settling_time).max(2.0 * update),
+        "{what}: settling {settling} s, predicted {}",
+        advice.step.settling_time
+    );
+}
+
+/// The error of `changes` applied together to `settings`: by `set_many`'s checks, or by
+/// the model's.
+pub fn refused(settings: &Settings, changes: &[(&str, serde_json::Value)]) -> NodeError {
+    let mut next = settings.clone();
+    let values: Vec<(String, serde_json::Value)> = changes
+        .iter()
+        .map(|(p, v)| (p.to_string(), v.clone()))
+        .collect();
+    match next.set_many(&values) {
+        Err(e) => e,
+        Ok(_) => ftafm::model::check(&next).expect_err("accepted"),
+    }
 }
