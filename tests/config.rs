@@ -493,8 +493,9 @@ fn harmonic_above_nyquist_is_out_of_band_not_refused() {
     assert!(s.node_warning("/demods/3/harmonic").is_none());
 }
 
-/// The second excitation: refused where it cannot drive (the paper engine, a scan, above
-/// Nyquist), each message naming the nodes; off, it is only a reference, and a
+/// The second excitation: refused where it cannot drive (the paper engine, above Nyquist),
+/// each message naming the nodes, and beside a scan only with loops that leave the drive
+/// alone; off, it is only a reference, and a
 /// demodulator on it is in or out of band by its own frequency.
 #[test]
 fn second_excitation_is_refused_where_it_cannot_drive() {
@@ -503,9 +504,28 @@ fn second_excitation_is_refused_where_it_cannot_drive() {
         &error_of(&format!("{on}[synth]\nengine = \"paper\"\n")),
         &["/drive2/enable", "/synth/engine", "coupled"],
     );
+    // A scan takes it (bimodal maps) and mode 2's loops, not a loop on the drive its
+    // pixels and feedback read.
+    let scan = format!("{on}[scan]\nenable = true\n");
+    load_str(&scan, "t.toml").expect("a scan with the second excitation");
+    let pll = "oscillator = \"drive2\"\ninput = \"phase\"\noutput_min = 600e3\n\
+               output_max = 650e3\np = 0.0\ni = 1.0\nsetpoint = 0.0\n";
+    load_str(
+        &format!("{scan}[pids.0]\nenable = true\noutput = \"drive2_frequency\"\n{pll}"),
+        "t.toml",
+    )
+    .expect("mode 2's PLL beside a scan");
     assert_mentions(
-        &error_of(&format!("{on}[scan]\nenable = true\n")),
-        &["/drive2/enable", "/scan/enable"],
+        &error_of(&format!(
+            "{scan}[pids.0]\nenable = true\noutput = \"drive_frequency\"\ninput = \"phase\"\n\
+             output_min = 90e3\noutput_max = 110e3\nsetpoint = 0.0\n"
+        )),
+        &[
+            "/pids/0/output",
+            "drive_frequency",
+            "/scan/enable",
+            "drive2_frequency",
+        ],
     );
     assert_mentions(
         &error_of(&format!("{on}frequency = 6e6\n")),

@@ -31,7 +31,7 @@ fn run(
     let mut pixels = Vec::new();
     let n = (seconds * plan.sample_rate) as usize / every;
     for _ in 0..n {
-        plan.process_scan(state, rt, &mut block, &mut |p| pixels.push(p));
+        plan.process_scan(state, rt, None, &mut block, &mut |p| pixels.push(p));
         trace.push((
             state.sample_index() as f64 / plan.sample_rate,
             rt.distance,

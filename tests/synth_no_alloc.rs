@@ -7,7 +7,9 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
 use ftafm::config::{Engine, default_settings};
-use ftafm::synth::{Digitiser, PidRuntime, ScanRuntime, SynthPlan, SynthState, WindowSample};
+use ftafm::synth::{
+    Digitiser, PidRuntime, ScanLoops, ScanRuntime, SynthPlan, SynthState, WindowSample,
+};
 
 struct Counting;
 
@@ -147,12 +149,75 @@ fn a_scan_allocates_nothing() {
             rt.retarget(&plan, &plan, 0);
             // 20 ms: 20 lines over both regions.
             for _ in 0..50 {
-                plan.process_scan(&mut state, &mut rt, &mut block, &mut |_| pixels += 1);
+                plan.process_scan(&mut state, &mut rt, None, &mut block, &mut |_| pixels += 1);
             }
         });
         assert!(pixels > 100, "{engine:?}: the scan ran ({pixels} pixels)");
         assert_eq!(n, 0, "{engine:?}: the scan allocated {n} times");
     }
+}
+
+/// A scan with bimodal AFM's mode-2 loops beside it (a PLL moving the second excitation
+/// and the reference, an amplitude loop) allocates nothing, started with the scan.
+#[test]
+fn a_scan_with_mode_two_loops_allocates_nothing() {
+    use ftafm::config::{Oscillator, PidInput, PidTarget};
+    let mut s = default_settings();
+    s.scan.enable = true;
+    s.scan.pixels = 16;
+    s.scan.line_rate = 1000.0;
+    s.drive2.enable = true;
+    let f2 = s.drive2.frequency;
+    for (unit, input, output, (min, max), setpoint) in [
+        (
+            0,
+            PidInput::Phase,
+            PidTarget::Drive2Frequency,
+            (0.99 * f2, 1.01 * f2),
+            0.3,
+        ),
+        (
+            1,
+            PidInput::R,
+            PidTarget::Drive2Amplitude,
+            (0.0, 5e-9),
+            1e-10,
+        ),
+    ] {
+        let pid = &mut s.pids[unit];
+        pid.enable = true;
+        pid.oscillator = Oscillator::Drive2;
+        (pid.input, pid.output, pid.setpoint) = (input, output, setpoint);
+        (pid.output_min, pid.output_max) = (min, max);
+        (pid.p, pid.i) = (0.0, if unit == 0 { -2e5 } else { 1e3 });
+    }
+    let plan = SynthPlan::new(&s).unwrap();
+    let mut state = SynthState::steady(&plan, 1);
+    let mut rt = ScanRuntime::new(&plan);
+    let mut loops = PidRuntime::new(&plan);
+    let mut block = vec![0.0; 4096];
+    let (mut pixels, mut updates, mut references) = (0usize, 0usize, 0usize);
+    let n = allocations_in(|| {
+        rt.retarget(&plan, &plan, 0);
+        loops.retarget(&plan, &plan, 0, &mut state);
+        for _ in 0..50 {
+            let sinks = ScanLoops {
+                runtime: &mut loops,
+                reading: &mut |_| updates += 1,
+                reference: &mut |_| references += 1,
+            };
+            plan.process_scan(&mut state, &mut rt, Some(sinks), &mut block, &mut |_| {
+                pixels += 1
+            });
+        }
+    });
+    assert!(pixels > 100, "the scan ran ({pixels} pixels)");
+    assert!(updates > 1000, "the loops ran ({updates} updates)");
+    assert!(
+        references > 10,
+        "the PLL moved the reference ({references} times)"
+    );
+    assert_eq!(n, 0, "the scan with loops allocated {n} times");
 }
 
 /// The PID units on the real-time thread allocate nothing: a loop running (its

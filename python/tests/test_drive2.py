@@ -64,10 +64,11 @@ def test_drive2_and_a_demodulators_oscillator_through_the_sync_client(
     assert e.value.code == "invalid_value" and "/drive2/frequency" in e.value.message
     assert "Nyquist" in e.value.message
     assert inst.get("/drive2/frequency") == 620e3
-    # While drive2 runs, a scan is refused, naming drive2's node.
+    # While drive2 runs, the paper engine is refused, naming drive2's node.
     with pytest.raises(ftafm.InstrumentError) as e:
-        inst.set("/scan/enable", True)
+        inst.set("/synth/engine", "paper")
     assert "/drive2/enable" in e.value.message
+    assert inst.get("/synth/engine") == "coupled"
     # Disabled, drive2 is only a reference: the same frequency is accepted.
     inst.set_many({"/drive2/enable": False, "/drive2/frequency": 6e6})
     assert inst.get("/drive2/frequency") == 6e6

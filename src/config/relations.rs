@@ -495,7 +495,7 @@ fn check_drive(s: &Settings) -> Result<(), NodeError> {
 }
 
 /// The second excitation, while enabled: on the coupled engine (the paper engine's pulse
-/// train is periodic in `/drive` alone), not while scanning, below the Nyquist frequency.
+/// train is periodic in `/drive` alone), below the Nyquist frequency.
 /// Disabled, it is only a reference: demodulators on it beyond Nyquist are out of band.
 fn check_drive2(s: &Settings) -> Result<(), NodeError> {
     let d = &s.drive2;
@@ -518,14 +518,6 @@ fn check_drive2(s: &Settings) -> Result<(), NodeError> {
             "/drive2/enable",
             "/drive2/enable = true needs /synth/engine = \"coupled\": the paper engine's tap \
              force is a pulse train periodic in /drive alone"
-                .to_owned(),
-        ));
-    }
-    if s.scan.enable {
-        return Err(invalid(
-            "/drive2/enable",
-            "/drive2/enable = true and /scan/enable = true: the scan runs with /drive alone; \
-             turn one of them off"
                 .to_owned(),
         ));
     }
@@ -1000,21 +992,23 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
                     "the surface distance",
                 )?;
             }
-            PidTarget::DriveFrequency
-            | PidTarget::DriveAmplitude
-            | PidTarget::Drive2Frequency
-            | PidTarget::Drive2Amplitude => {
+            PidTarget::DriveFrequency | PidTarget::DriveAmplitude => {
                 if s.scan.enable {
                     return Err(invalid(
                         format!("/pids/{index}/output"),
                         format!(
                             "/pids/{index} drives the drive (/pids/{index}/output = \
-                             \"{target}\") while /scan/enable = true, whose pixels read the \
-                             drive as /drive/* configure it: disable one of them"
+                             \"{target}\") while /scan/enable = true, whose pixels and \
+                             feedback read the drive as /drive/* configure it: disable one of \
+                             them (the second excitation's outputs, \"drive2_frequency\" and \
+                             \"drive2_amplitude\", run beside a scan)"
                         ),
                     ));
                 }
             }
+            // Bimodal AFM's mode-2 loops run beside a scan: its pixels carry the second
+            // excitation's frequency.
+            PidTarget::Drive2Frequency | PidTarget::Drive2Amplitude => {}
         }
         let swept = match pid.output {
             PidTarget::SurfaceDistance => Some(SweepParameter::SurfaceDistance),

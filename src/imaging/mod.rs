@@ -9,7 +9,10 @@ use std::collections::{BTreeMap, VecDeque};
 
 pub use export::ImageChannel;
 
+use rustfft::num_complex::Complex64;
+
 use crate::config::Settings;
+use crate::instrument::bimodal::BimodalSetup;
 use crate::inversion::ForceEstimator;
 use crate::pipeline::PixelHarmonics;
 use crate::synth::{PixelTopography, Raster};
@@ -78,6 +81,8 @@ struct Frame {
 pub struct Assembler {
     /// Pixels per line of the configured scan: sizes the bounds of the waiting queues.
     pixels: u32,
+    /// The most topographies kept waiting for their harmonics.
+    topography_bound: usize,
     sample_rate: f64,
     estimator: Option<ForceEstimator>,
     /// The settings `estimator` was built for.
@@ -96,6 +101,9 @@ pub struct Assembler {
     free: Option<crate::sweep::ApproachPoint>,
     current: Option<Frame>,
     finished: Option<ImageFrame>,
+    /// The bimodal expressions' calibration, while the second excitation drives and mode
+    /// 2's PLL runs (else no bimodal channels but Δf₂).
+    bimodal: Option<BimodalSetup>,
     /// Pixels whose inversion failed (their FT-AFM channels are NaN).
     pub inversion_failed: u64,
     /// Pixels outside their own raster (none are expected), dropped.
@@ -107,6 +115,7 @@ impl Assembler {
     pub fn new(settings: &Settings) -> Self {
         let mut a = Self {
             pixels: 0,
+            topography_bound: 0,
             sample_rate: 0.0,
             estimator: None,
             estimator_settings: None,
@@ -117,6 +126,7 @@ impl Assembler {
             free: None,
             current: None,
             finished: None,
+            bimodal: None,
             inversion_failed: 0,
             misplaced: 0,
         };
@@ -128,8 +138,27 @@ impl Assembler {
     pub fn configure(&mut self, settings: &Settings) {
         self.pixels = settings.scan.pixels;
         self.sample_rate = settings.synth.sample_rate;
+        // The synthesiser hands a pixel's topography out as much as the sample ring's
+        // length before the DSP hands out its harmonics (more than a frame of a small,
+        // fast scan), and a consumer short of CPU may take the harmonics as much as their
+        // queue later still: two frames, twice the pixels the ring holds and the queue.
+        let raster = Raster::new(
+            &settings.scan,
+            self.sample_rate,
+            settings.drive.frequency,
+            0,
+            0,
+        );
+        let in_ring = crate::pipeline::ring_samples(self.sample_rate) as u64
+            / raster.samples_per_pixel.max(1);
+        self.topography_bound = 4 * (self.pixels.max(8) as usize).pow(2)
+            + 2 * in_ring as usize
+            + crate::pipeline::PIXEL_QUEUE;
         self.settings = std::sync::Arc::new(settings.clone());
         self.free = crate::sweep::free_point(settings);
+        self.bimodal = (settings.scan.enable && settings.drive2.enable)
+            .then(|| BimodalSetup::of(settings).ok())
+            .flatten();
         // One estimate per pixel, whatever the live stream averages.
         let mut s = settings.clone();
         s.inversion.averaging = 1;
@@ -160,9 +189,8 @@ impl Assembler {
         self.topography.insert(key, t);
         // Its harmonics come later (the DSP runs behind the synthesiser, and its consumer
         // may lag further); entries are removed as the harmonics pass them. A bound for a
-        // consumer that never takes harmonics: two frames' worth.
-        let bound = 4 * (self.pixels.max(8) as usize).pow(2);
-        while self.topography.len() > bound {
+        // consumer that never takes harmonics.
+        while self.topography.len() > self.topography_bound {
             self.topography.pop_first();
         }
     }
@@ -275,6 +303,27 @@ impl Assembler {
             values.push(("max_force".into(), "N", force));
             values.push(("youngs_modulus".into(), "Pa", modulus));
         }
+        // Bimodal AM-FM: mode 2's frequency over the pixel against the free resonance, and
+        // the bimodal expressions on it with mode 1's phasor.
+        if let Some(f2) = topo.and_then(|t| t.frequency2) {
+            let shift = f2 - self.settings.drive2.frequency;
+            values.push(("frequency_shift2".into(), "Hz", shift));
+            if let Some(setup) = &self.bimodal {
+                let values_of = fundamental
+                    .map(|h1| setup.reading(Complex64::new(h1.x, h1.y), f2))
+                    .and_then(|reading| setup.values(&reading).ok());
+                values.push((
+                    "indentation".into(),
+                    "m",
+                    values_of.map_or(f64::NAN, |v| v.estimate.indentation),
+                ));
+                values.push((
+                    "bimodal_modulus".into(),
+                    "Pa",
+                    values_of.and_then(|v| v.youngs_modulus).unwrap_or(f64::NAN),
+                ));
+            }
+        }
 
         let frame = self.current.as_mut().expect("a frame is open");
         let mut finished = None;
@@ -382,6 +431,7 @@ mod tests {
                         pixel,
                         height: 0.0,
                         amplitude: 0.0,
+                        frequency2: None,
                         periods: 10,
                     },
                     PixelHarmonics {
@@ -423,5 +473,48 @@ mod tests {
         let frame = assembler.take_finished().expect("the frame finished");
         assert_eq!((frame.pixels, frame.generation), (16, 2));
         assert_eq!(assembler.misplaced, 0);
+    }
+
+    /// The synthesiser hands topography out up to the sample ring's length ahead of the
+    /// harmonics, and a consumer short of CPU takes the harmonics up to their queue later:
+    /// for a small, fast scan that is many frames (here 8 × 8 pixels of 0.2 ms, 25.6 ms a
+    /// frame, against the ring's 0.5 s and the queue's 32768 pixels), and every pixel still
+    /// finds its height.
+    #[test]
+    fn topography_a_ring_ahead_of_the_harmonics_is_kept() {
+        let mut settings = crate::config::default_settings();
+        settings.scan.enable = true;
+        settings.scan.pixels = 8;
+        settings.scan.line_rate = 1.0 / (2.0 * 8.0 * 0.2e-3);
+        let fs = settings.synth.sample_rate;
+        let raster = Raster::new(&settings.scan, fs, settings.drive.frequency, 0, 1);
+        let mut assembler = Assembler::new(&settings);
+        let ahead = crate::pipeline::ring_samples(fs) as u64 / raster.samples_per_pixel;
+        assert!(ahead > 10 * 2 * 64, "the ring holds {ahead} pixels");
+        let frame = frame_of(raster);
+        for (topography, _) in &frame {
+            assembler.topography(*topography);
+        }
+        for serial in frame.len() as u64..ahead + crate::pipeline::PIXEL_QUEUE as u64 {
+            assembler.topography(PixelTopography {
+                generation: raster.generation,
+                pixel: raster.pixel(serial),
+                periods: 10,
+                ..PixelTopography::default()
+            });
+        }
+        let mut lines = Vec::new();
+        for (_, harmonics) in &frame {
+            lines.extend(assembler.pixel(harmonics));
+        }
+        assert_eq!(lines.len(), 8);
+        for line in &lines {
+            let height = &line.channels.iter().find(|c| c.0 == "height").unwrap().2;
+            assert!(
+                height.iter().all(|h| h.is_finite()),
+                "line {}: {height:?}",
+                line.line
+            );
+        }
     }
 }

@@ -20,7 +20,7 @@ use serde_json::{Value, json};
 
 use super::Current;
 use crate::config::{Oscillator, PidInput, PidTarget, Settings};
-use crate::physics::bimodal::{self, BimodalLever, BimodalReading};
+use crate::physics::bimodal::{self, BimodalError, BimodalEstimate, BimodalLever, BimodalReading};
 use crate::pipeline::{DemodFrame, PidUpdate};
 
 /// What the estimate needs of one epoch's settings, computed once per epoch.
@@ -31,11 +31,14 @@ pub struct Calibration {
     /// The simulated time (s) from which the stream runs under those settings.
     t: Option<f64>,
     /// The lever's constants, or why the estimate cannot be made at these settings.
-    setup: Result<Setup, String>,
+    setup: Result<BimodalSetup, String>,
 }
 
+/// What the bimodal expressions need of one set of settings: the lever's constants, the
+/// free lever's reading at f1 and mode 2's PLL. The `bimodal` stream's and the scan's
+/// bimodal channels' one calibration.
 #[derive(Clone, Debug)]
-struct Setup {
+pub struct BimodalSetup {
     lever: BimodalLever,
     /// The free lever's reading at harmonic 1 of the drive (m, X + iY).
     free1: Complex64,
@@ -56,7 +59,7 @@ impl Calibration {
         Self {
             epoch: current.epoch,
             t: current.t,
-            setup: setup(&current.settings),
+            setup: BimodalSetup::of(&current.settings),
         }
     }
 
@@ -71,18 +74,14 @@ impl Calibration {
                 fields["frequency_shift2"] = json!(reading.frequency_shift);
                 fields["pll_unit"] = json!(setup.pll);
                 fields["pll_limited"] = json!(pll.limited);
-                match bimodal::estimate(&setup.lever, &reading) {
-                    Ok(e) => {
+                match setup.values(&reading) {
+                    Ok(v) => {
+                        let e = v.estimate;
                         fields["mean_force"] = json!(e.mean_force);
                         fields["mean_stiffness"] = json!(e.mean_stiffness);
                         fields["indentation"] = json!(e.indentation);
                         fields["reduced_modulus"] = json!(e.reduced_modulus);
-                        let sample = 1.0 / e.reduced_modulus - setup.tip_term;
-                        fields["youngs_modulus"] = if sample > 0.0 {
-                            json!(setup.sample_poisson_term / sample)
-                        } else {
-                            Value::Null
-                        };
+                        fields["youngs_modulus"] = json!(v.youngs_modulus);
                         fields["reason"] = Value::Null;
                     }
                     Err(e) => fields["reason"] = json!(e.to_string()),
@@ -124,7 +123,7 @@ impl Calibration {
         &self,
         frame: &DemodFrame,
         pll: Option<PidUpdate>,
-    ) -> Result<(BimodalReading, &Setup, PidUpdate), String> {
+    ) -> Result<(BimodalReading, &BimodalSetup, PidUpdate), String> {
         let setup = self.setup.as_ref().map_err(Clone::clone)?;
         if self.t.is_none_or(|t| frame.t < t) {
             return Err(format!(
@@ -143,20 +142,52 @@ impl Calibration {
                 setup.pll, self.epoch
             )
         })?;
-        let s1 = Complex64::new(h1.x, h1.y);
-        let reading = BimodalReading {
-            free_amplitude: setup.free_amplitude,
-            amplitude: setup.free_amplitude * s1.norm() / setup.free1.norm(),
-            // A lead of the tapping lever over the free one is a smaller lag.
-            phase_lag: FRAC_PI_2 - (s1 / setup.free1).arg(),
-            frequency_shift: pll.output - setup.centre2,
-        };
+        let reading = setup.reading(Complex64::new(h1.x, h1.y), pll.output);
         Ok((reading, setup, pll))
     }
 }
 
+/// The bimodal channels of one reading.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BimodalValues {
+    /// The expressions' ⟨F⟩, ⟨k_ts⟩, d and E*.
+    pub estimate: BimodalEstimate,
+    /// The sample's Young's modulus from E* and the tip's (Pa); `None` where E* exceeds
+    /// what the tip alone allows.
+    pub youngs_modulus: Option<f64>,
+}
+
+impl BimodalSetup {
+    /// The constants of `s`, or why there is no estimate at them.
+    pub fn of(s: &Settings) -> Result<Self, String> {
+        setup(s)
+    }
+
+    /// The reading of mode 1's phasor `s1` at harmonic 1 of the drive (m, X + iY) and of
+    /// mode 2's frequency `frequency2` (Hz, the PLL's output).
+    pub fn reading(&self, s1: Complex64, frequency2: f64) -> BimodalReading {
+        BimodalReading {
+            free_amplitude: self.free_amplitude,
+            amplitude: self.free_amplitude * s1.norm() / self.free1.norm(),
+            // A lead of the tapping lever over the free one is a smaller lag.
+            phase_lag: FRAC_PI_2 - (s1 / self.free1).arg(),
+            frequency_shift: frequency2 - self.centre2,
+        }
+    }
+
+    /// The bimodal expressions on `reading`.
+    pub fn values(&self, reading: &BimodalReading) -> Result<BimodalValues, BimodalError> {
+        let estimate = bimodal::estimate(&self.lever, reading)?;
+        let sample = 1.0 / estimate.reduced_modulus - self.tip_term;
+        Ok(BimodalValues {
+            estimate,
+            youngs_modulus: (sample > 0.0).then(|| self.sample_poisson_term / sample),
+        })
+    }
+}
+
 /// The constants of `s`, or why there is no estimate at them.
-fn setup(s: &Settings) -> Result<Setup, String> {
+fn setup(s: &Settings) -> Result<BimodalSetup, String> {
     if !s.drive2.enable {
         return Err(
             "the second excitation is off (/drive2/enable): bimodal AFM reads mode 2's PLL on it"
@@ -184,7 +215,7 @@ fn setup(s: &Settings) -> Result<Setup, String> {
     let free1 = crate::synth::plan::free_reading(s)
         .filter(|z| z.norm() > 0.0)
         .ok_or("the free lever's reading at these settings is not defined")?;
-    Ok(Setup {
+    Ok(BimodalSetup {
         lever: BimodalLever {
             k1: m1.tip_stiffness(),
             q1: m1.q,

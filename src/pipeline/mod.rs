@@ -98,7 +98,7 @@ const PLAN_WAIT: std::time::Duration = std::time::Duration::from_millis(250);
 /// Demodulator frames queued for the consumer: 4 s at 1 kHz.
 const DEMOD_QUEUE: usize = 4096;
 /// Scan pixels queued for the consumer, from each thread: 2 s at the fastest scan.
-const PIXEL_QUEUE: usize = 1 << 15;
+pub const PIXEL_QUEUE: usize = 1 << 15;
 /// Buffers in each pool (spectra, scope traces).
 const POOL_BUFFERS: usize = 8;
 

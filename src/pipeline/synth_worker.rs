@@ -15,7 +15,8 @@ use super::epochs::Epochs;
 use super::feed::{FeedReader, Piece};
 use crate::config::SourceKind;
 use crate::synth::{
-    PidRuntime, PixelTopography, ReferenceChange, ScanRuntime, SynthPlan, SynthState, WindowSample,
+    PidReading, PidRuntime, PixelTopography, ReferenceChange, ScanLoops, ScanRuntime, SynthPlan,
+    SynthState, WindowSample,
 };
 
 /// Samples per block: 0.41 ms at 10 MS/s, short against the 1 ms output period.
@@ -148,7 +149,9 @@ impl SynthWorker {
             // The drive phase at which the block's first sample was taken: behind the
             // synthesis by the ADC filter's delay, so the lock-in sees no shift from it;
             // under the loops, their drive's (a PLL moves it).
-            let loops = self.plan.scan.is_none() && self.pids.active(&self.plan);
+            // A scan runs them beside it (only the second excitation's, which the settings
+            // allow while scanning).
+            let loops = self.pids.active(&self.plan);
             let [(phase, frequency_word), (phase2, frequency_word2)] = if loops {
                 self.pids.begin(&self.plan, &self.state)
             } else {
@@ -169,50 +172,67 @@ impl SynthWorker {
                 (self.state.counters.refined, self.state.counters.over_budget);
             let pages_before = self.state.noise_pages();
             let busy = Instant::now();
+            // The loops' updates and the lock-in's reference changes they make.
+            let board = &self.counters.pids;
+            let (changes, counters) = (&mut self.reference_changes, &self.counters);
+            let events = &mut self.pid_events;
+            let streaming = board.streaming();
+            let mut reading = |r: PidReading| {
+                board.publish(&r, epoch);
+                if streaming {
+                    let event = super::PidEvent { reading: r, epoch };
+                    if events.try_push(event).is_ok() {
+                        Counters::add(&counters.pid_updates, 1);
+                    } else {
+                        Counters::add(&counters.pid_updates_dropped, 1);
+                    }
+                }
+            };
+            let mut reference = |c: ReferenceChange| {
+                // A change per update, the updates a period (at least two samples) apart:
+                // a block's and the ⌈D⌉ samples' past it fit the capacity reserved, so
+                // this never grows the vector. Were one lost, the DSP's reference would
+                // jump: counted as such.
+                if changes.len() < changes.capacity() {
+                    changes.push(c);
+                } else {
+                    Counters::add(&counters.discontinuities, 1);
+                }
+            };
             let digitise = if self.plan.scan.is_some() {
-                self.pids.pause();
-                let (out, counters) = (&mut self.topography, &self.counters);
-                self.plan
-                    .process_scan(&mut self.state, &mut self.scan, &mut finished, &mut |p| {
+                let loops = if loops {
+                    Some(ScanLoops {
+                        runtime: &mut self.pids,
+                        reading: &mut reading,
+                        reference: &mut reference,
+                    })
+                } else {
+                    self.pids.pause();
+                    None
+                };
+                let out = &mut self.topography;
+                self.plan.process_scan(
+                    &mut self.state,
+                    &mut self.scan,
+                    loops,
+                    &mut finished,
+                    &mut |p| {
                         if out.try_push(p).is_ok() {
                             Counters::add(&counters.topography_pixels, 1);
                         } else {
                             Counters::add(&counters.topography_pixels_dropped, 1);
                         }
-                    });
+                    },
+                );
                 None
             } else if loops {
                 // The loops read the finished samples, so they are finished here.
-                let board = &self.counters.pids;
-                let (changes, counters) = (&mut self.reference_changes, &self.counters);
-                let events = &mut self.pid_events;
-                let streaming = board.streaming();
                 self.plan.process_pids(
                     &mut self.state,
                     &mut self.pids,
                     &mut finished,
-                    &mut |r| {
-                        board.publish(&r, epoch);
-                        if streaming {
-                            let event = super::PidEvent { reading: r, epoch };
-                            if events.try_push(event).is_ok() {
-                                Counters::add(&counters.pid_updates, 1);
-                            } else {
-                                Counters::add(&counters.pid_updates_dropped, 1);
-                            }
-                        }
-                    },
-                    &mut |c| {
-                        // A change per update, the updates a period (at least two
-                        // samples) apart: a block's and the ⌈D⌉ samples' past it fit the
-                        // capacity reserved, so this never grows the vector. Were one
-                        // lost, the DSP's reference would jump: counted as such.
-                        if changes.len() < changes.capacity() {
-                            changes.push(c);
-                        } else {
-                            Counters::add(&counters.discontinuities, 1);
-                        }
-                    },
+                    &mut reading,
+                    &mut reference,
                 );
                 None
             } else {

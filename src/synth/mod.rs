@@ -29,6 +29,7 @@ pub use drive::{Drive, ReferenceChange};
 pub use pid_plan::{PidPlan, PidUnitPlan};
 pub use pids::{
     PENDING_REFERENCES, PLL_LOCK_PHASE, PLL_LOCK_UPDATES, PidReading, PidRuntime, PidSums,
+    ScanLoops,
 };
 pub use plan::{BOLTZMANN, PlanError, SynthPlan, TapForce};
 pub use pulse::PulseTrain;

@@ -179,6 +179,17 @@ struct Unit {
     partial: bool,
 }
 
+/// The PID units run beside a scan ([`SynthPlan::process_scan`]), and where their updates
+/// and the lock-in's reference changes go.
+pub struct ScanLoops<'a> {
+    /// The units.
+    pub runtime: &'a mut PidRuntime,
+    /// Each unit's update, as it happens.
+    pub reading: &'a mut dyn FnMut(PidReading),
+    /// Each change of the lock-in's reference.
+    pub reference: &'a mut dyn FnMut(ReferenceChange),
+}
+
 /// The mutable side of the PID units: controllers, demodulators and the output they hold.
 /// Owned by the synthesiser thread; built off it.
 #[derive(Clone, Debug)]
@@ -362,6 +373,30 @@ impl PidRuntime {
         self.distance
     }
 
+    /// The second excitation in force: the plan's, unless a loop moved it.
+    pub(super) fn drive2(&self) -> Option<Drive> {
+        self.drive2
+    }
+
+    /// The index of the sample at which the units next update.
+    pub(super) fn next_update(&self) -> u64 {
+        self.next_update
+    }
+
+    /// Puts the surface of `under_tip` (a scan's: its distance and the region's stiffness)
+    /// into the loops' kernel, which carries the excitations the loops move.
+    pub(super) fn set_surface(&mut self, under_tip: &CoupledKernel) {
+        if let Some(coupled) = &mut self.coupled {
+            coupled.distance = under_tip.distance;
+            coupled.stiffness = under_tip.stiffness;
+        }
+    }
+
+    /// The excitations in force and the kernel that meets the surface under them.
+    pub(super) fn drives(&self) -> (&Drive, Option<&Drive>, Option<&CoupledKernel>) {
+        (&self.drive, self.drive2.as_ref(), self.coupled.as_ref())
+    }
+
     /// Follows a change of plan at sample `index`, `state` already moved to `new`'s own
     /// drive ([`release_drive`](Self::release_drive), then [`SynthState::retarget`]). A
     /// unit that starts takes the plan's controller and starts from the output's present
@@ -496,11 +531,11 @@ impl PidRuntime {
         }
         // Another engine, or a scan (which sets the surface itself and reads the drive
         // as configured), takes the outputs back to the plan's; without the second
-        // excitation, nothing of it is held.
+        // excitation, nothing of it is held (a scan leaves it to mode 2's loops).
         if new.coupled.is_none() || new.scan.is_some() {
             (self.held, self.word_held, self.base_held) = (false, None, None);
         }
-        if new.coupled.is_none() || new.scan.is_some() || new.drive2.is_none() {
+        if new.coupled.is_none() || new.drive2.is_none() {
             (self.word2_held, self.base2_held) = (None, None);
         }
         if !self.held {
@@ -618,7 +653,7 @@ impl PidRuntime {
 
     /// Mixes `segment` (output samples from index `index` on, the reference's next) into
     /// the enabled units' boxcars, against the reference and its pending changes.
-    fn demodulate(&mut self, segment: &[f64], index: u64) {
+    pub(super) fn demodulate(&mut self, segment: &[f64], index: u64) {
         let mut done = 0;
         while done < segment.len() {
             let at = index + done as u64;
@@ -790,7 +825,7 @@ impl SynthPlan {
 
     /// Once per drive period: each enabled unit reads its demodulator and updates; the
     /// outputs take effect from sample `index` (`state`'s next) on.
-    fn update_pids(
+    pub(super) fn update_pids(
         &self,
         state: &mut SynthState,
         index: u64,

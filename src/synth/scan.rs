@@ -18,6 +18,7 @@ use std::f64::consts::TAU;
 use rustfft::num_complex::Complex64;
 
 use super::coupled::CoupledKernel;
+use super::pids::ScanLoops;
 use super::plan::SynthPlan;
 use super::pulse::PulseKernel;
 use super::raster::{PixelId, Raster};
@@ -36,6 +37,9 @@ pub struct PixelTopography {
     pub height: f64,
     /// Mean amplitude the feedback's demodulator read (m, photodiode, peak).
     pub amplitude: f64,
+    /// Mean frequency of the second excitation (Hz) while it drives: under mode 2's PLL
+    /// the resonance it tracks, so less `/drive2/frequency` the pixel's Δf₂.
+    pub frequency2: Option<f64>,
     /// Drive periods averaged.
     pub periods: u32,
 }
@@ -69,6 +73,9 @@ pub struct ScanRuntime {
     pixel: Option<PixelId>,
     sum_distance: f64,
     sum_amplitude: f64,
+    sum_frequency2: f64,
+    /// Whether the second excitation drove in the pixel's periods.
+    frequency2: bool,
     periods: u32,
 }
 
@@ -92,6 +99,8 @@ impl ScanRuntime {
             pixel: None,
             sum_distance: 0.0,
             sum_amplitude: 0.0,
+            sum_frequency2: 0.0,
+            frequency2: false,
             periods: 0,
         }
     }
@@ -129,6 +138,7 @@ impl ScanRuntime {
             self.pixel = None;
             self.sum_distance = 0.0;
             self.sum_amplitude = 0.0;
+            self.sum_frequency2 = 0.0;
             self.periods = 0;
         }
         // A fresh period starts here: the boxcar restarts and the force is set at once.
@@ -148,12 +158,16 @@ pub(super) fn samples_until(phase: u64, target: u64, word: u64) -> u64 {
 
 impl SynthPlan {
     /// Fills `out` with the next samples of a running scan (see the module docs), handing
-    /// each finished pixel's topography to `pixel`. Allocation-free, lock-free. Without a
-    /// scan in the plan it is [`process`](Self::process).
+    /// each finished pixel's topography to `pixel`. With `loops`, the PID units on the
+    /// second excitation run beside the scan (bimodal AFM's mode-2 PLL and amplitude loop:
+    /// the settings allow no other unit while scanning), each at its own update, their
+    /// updates and reference changes handed to the sinks in `loops`. Allocation-free,
+    /// lock-free. Without a scan in the plan it is [`process`](Self::process).
     pub fn process_scan(
         &self,
         state: &mut SynthState,
         rt: &mut ScanRuntime,
+        mut loops: Option<ScanLoops<'_>>,
         out: &mut [f64],
         pixel: &mut impl FnMut(PixelTopography),
     ) {
@@ -161,19 +175,49 @@ impl SynthPlan {
             self.process(state, out);
             return;
         };
+        if let Some(l) = &mut loops {
+            l.runtime.begin(self, state);
+        }
         let word = self.frequency_word;
         let step = Complex64::from_polar(1.0, -(word as f64) / TWO_POW_64 * TAU);
         let mut done = 0;
         while done < out.len() {
             let index = state.sample_index();
             if index >= rt.next_update {
-                self.update(scan, &raster, state.phase(), index, rt, pixel);
+                // The second excitation in force over the period just ended: the loops'.
+                let drive2 = match &loops {
+                    Some(l) => l.runtime.drive2(),
+                    None => self.drive2,
+                };
+                let frequency2 = drive2.map(|d| d.word as f64 / TWO_POW_64 * self.sample_rate);
+                self.update(scan, &raster, state.phase(), index, frequency2, rt, pixel);
             }
-            let n = ((rt.next_update - index) as usize).min(out.len() - done);
+            let mut until = rt.next_update;
+            if let Some(l) = &mut loops {
+                if index >= l.runtime.next_update() {
+                    self.update_pids(state, index, l.runtime, &mut l.reading, &mut l.reference);
+                }
+                until = until.min(l.runtime.next_update());
+            }
+            let n = ((until - index) as usize).min(out.len() - done);
             let segment = &mut out[done..done + n];
             let phase = state.phase();
-            match &rt.coupled {
-                Some(coupled) => self.process_with(
+            match (&mut loops, &rt.coupled) {
+                (Some(l), Some(under_tip)) => {
+                    // One kernel: the loops' (it carries the second excitation they move)
+                    // with the surface the scan puts under the tip.
+                    l.runtime.set_surface(under_tip);
+                    let (drive, drive2, coupled) = l.runtime.drives();
+                    self.process_with(
+                        drive,
+                        drive2,
+                        None,
+                        coupled,
+                        state,
+                        Output::Samples(segment),
+                    );
+                }
+                (None, Some(coupled)) => self.process_with(
                     &self.drive,
                     self.drive2.as_ref(),
                     None,
@@ -181,7 +225,7 @@ impl SynthPlan {
                     state,
                     Output::Samples(segment),
                 ),
-                None => self.process_with(
+                (_, None) => self.process_with(
                     &self.drive,
                     None,
                     Some(&rt.pulse),
@@ -189,6 +233,9 @@ impl SynthPlan {
                     state,
                     Output::Samples(segment),
                 ),
+            }
+            if let Some(l) = &mut loops {
+                l.runtime.demodulate(segment, index);
             }
             // The feedback's demodulator: Σ s·e^{−iθ} over the period.
             let mut rho = Complex64::from_polar(1.0, -phase_to_radians(phase));
@@ -204,12 +251,15 @@ impl SynthPlan {
     }
 
     /// Once per drive period: amplitude, controller, pixel bookkeeping, tap force.
+    /// `frequency2`: the second excitation's frequency over the period just ended (Hz).
+    #[allow(clippy::too_many_arguments)]
     fn update(
         &self,
         scan: &ScanPlan,
         raster: &Raster,
         phase: u64,
         index: u64,
+        frequency2: Option<f64>,
         rt: &mut ScanRuntime,
         pixel: &mut impl FnMut(PixelTopography),
     ) {
@@ -225,6 +275,8 @@ impl SynthPlan {
                 rt.pixel = Some(id);
                 rt.sum_distance += rt.distance;
                 rt.sum_amplitude += rt.amplitude;
+                rt.frequency2 = frequency2.is_some();
+                rt.sum_frequency2 += frequency2.unwrap_or(0.0);
                 rt.periods += 1;
             }
             if fb.enable {
@@ -268,11 +320,13 @@ impl ScanRuntime {
                 pixel: id,
                 height: self.sum_distance / n - self.distance_zero,
                 amplitude: self.sum_amplitude / n,
+                frequency2: self.frequency2.then(|| self.sum_frequency2 / n),
                 periods: self.periods,
             });
         }
         self.sum_distance = 0.0;
         self.sum_amplitude = 0.0;
+        self.sum_frequency2 = 0.0;
         self.periods = 0;
     }
 }

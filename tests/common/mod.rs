@@ -3,6 +3,7 @@
 //! Each test binary uses a part of it.
 #![allow(dead_code)]
 
+pub mod bimodal;
 pub mod loops;
 
 use std::net::SocketAddr;
