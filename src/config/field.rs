@@ -189,7 +189,7 @@ node_table! {
         Drive2Enable "/drive2/enable", "", Kind::Bool, drive2.enable,
             "A second base excitation at /drive2/frequency drives the lever beside /drive's (bimodal AFM: every mode and the contact take the sum), or is off (false). The coupled engine only, and not while scanning. Demodulators on oscillator \"drive2\" read its frequency either way.";
         Drive2Frequency "/drive2/frequency", "Hz", Kind::Float(FREQUENCY), drive2.frequency,
-            "Frequency Ω₂/2π of the second excitation, in Hz; below half the sample rate. Its default is the default lever's second flexural resonance (`ftafm info` lists a lever's modes).";
+            "Frequency Ω₂/2π of the second excitation, in Hz; below half the sample rate. Its default is the default lever's second flexural resonance, and a lever preset sets its own (`ftafm info` lists a lever's modes).";
         Drive2FreeAmplitude "/drive2/free_amplitude", "m", Kind::Float(LENGTH), drive2.free_amplitude,
             "Free (non-contact) peak tip amplitude the second excitation gives at /drive2/frequency, in m.";
         SurfaceDistance "/surface/distance", "m", Kind::Float(LENGTH), surface.distance,

@@ -13,7 +13,8 @@
 - :mod:`ftafm.data`: stream messages as numpy arrays.
 - :mod:`ftafm.fm`: FM-AFM offline: the Sader–Jarvis inversion of a Δf(z) curve to the force
   (``fm.invert``, ``ftafm fm-invert``'s numbers) and the forward model (``fm.frequency_shift``).
-- :mod:`ftafm.pids`: the live PID units (``inst.pids[0].configure(...)``, ``pid_status()``).
+- :mod:`ftafm.pids`: the live PID units (``inst.pids[0].configure(...)``, ``pid_status()``)
+  and the daemon's PID advisor (``inst.pids[0].advise(bandwidth)``, ``pid_advise``).
 - :mod:`ftafm.qcodes`: the QCoDeS driver (``pip install ftafm[qcodes]``).
 - :mod:`ftafm.testing`: a daemon on port 0 for test suites, and pytest fixtures.
 """
@@ -34,7 +35,7 @@ from .data import (
 from .errors import ConnectionLost, InstrumentError, NoDaemon
 from . import fm
 from .fm import FmError, ForceCurve
-from .pids import AsyncPids, AsyncPidUnit, PidStatus, PidUnit, PidUpdate, Pids
+from .pids import AsyncPids, AsyncPidUnit, PidAdvice, PidStatus, PidUnit, PidUpdate, Pids
 
 __version__ = "0.1.0"
 
@@ -56,6 +57,7 @@ __all__ = [
     "InstrumentError",
     "NoDaemon",
     "Node",
+    "PidAdvice",
     "PidStatus",
     "PidUnit",
     "PidUpdate",

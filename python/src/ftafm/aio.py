@@ -371,6 +371,26 @@ class Instrument:
         the second excitation's."""
         return pids.held_from_status(await self.next("status", timeout=timeout))
 
+    async def pid_advise(
+        self, unit: int, bandwidth: float, *, kind: pids.AdviceKind = "pi"
+    ) -> pids.PidAdvice:
+        """Gains for PID unit ``unit`` (``/pids/N``) from the closed loop's target −3 dB
+        ``bandwidth`` (Hz, > 0): the daemon's PID advisor (``pid_advise``) on the unit's
+        loop at the settings in force, a PI (``kind="pi"``, D = 0) or a PID (``"pid"``);
+        the gains and the loop they predict (:class:`ftafm.pids.PidAdvice`). Nothing is
+        set (``await inst.pids[unit].configure(**advice.gains)`` sets them). Modelled: a
+        PLL (input ``"phase"``, harmonic 1, output ``"drive_frequency"``) and an
+        amplitude loop (``"r"``, harmonic 1, ``"drive_amplitude"``), and the same two on
+        ``"drive2"``; the unit need not be enabled. Raises :class:`ftafm.InstrumentError`
+        naming the field: ``bad_request`` for a bad ``unit``, ``bandwidth`` or ``kind``,
+        ``invalid_value`` for a bandwidth beyond the loop's reach (the message gives the
+        reach) or a unit the advisor does not model; :class:`ValueError` for a NaN or
+        infinite ``bandwidth``, before anything is sent."""
+        bandwidth = _plain(bandwidth)
+        _check_finite(bandwidth, 'field "bandwidth" of op "pid_advise"')
+        reply = await self.request("pid_advise", unit=_plain(unit), bandwidth=bandwidth, kind=kind)
+        return pids.PidAdvice.from_json(reply)
+
     @property
     def pids(self) -> pids.AsyncPids:
         """The PID units ``/pids/0`` … ``/pids/3``: ``await inst.pids[0].configure(...)``,

@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from typing import Any, Coroutine, Iterable, Iterator, Mapping, Sequence, TypeVar
 
 from . import aio, data, tree
-from .pids import PidStatus, Pids
+from .pids import AdviceKind, PidAdvice, PidStatus, Pids
 
 T = TypeVar("T")
 
@@ -177,6 +177,17 @@ class Instrument:
         message (``["drive_frequency"]`` while a PLL runs; see
         :meth:`ftafm.aio.Instrument.pid_held`)."""
         return self._run(self._async.pid_held(timeout=timeout))
+
+    def pid_advise(
+        self, unit: int, bandwidth: float, *, kind: AdviceKind = "pi"
+    ) -> PidAdvice:
+        """Gains for PID unit ``unit`` from the closed loop's target −3 dB ``bandwidth``
+        (Hz), a PI or (``kind="pid"``) a PID, and the loop they predict
+        (:class:`ftafm.pids.PidAdvice`): the daemon's PID advisor at the settings in
+        force. Nothing is set: ``inst.pids[unit].configure(**advice.gains)`` sets them.
+        Refusals raise :class:`ftafm.InstrumentError` naming the field (see
+        :meth:`ftafm.aio.Instrument.pid_advise`)."""
+        return self._run(self._async.pid_advise(unit, bandwidth, kind=kind))
 
     def wait_until(self, t: float, *, timeout: float | None = None) -> float:
         """Waits until the signal is processed up to simulated time ``t`` (s)."""

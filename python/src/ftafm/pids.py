@@ -24,6 +24,13 @@ under and a running count, so a caller waits on those, not on the clock
 derivative bandwidth above the PID's Nyquist frequency, limits outside the output's
 range, a drive output during a scan, a unit on ``drive2`` while ``/drive2/enable`` is
 false) with :class:`ftafm.InstrumentError`, whose message names the node and the range.
+
+:meth:`PidUnit.advise` asks the daemon's PID advisor (``pid_advise``) for a unit's gains
+from a target bandwidth, for a PLL or an amplitude loop on either excitation
+(:class:`PidAdvice`); it sets nothing, ``unit.configure(**advice.gains)`` does.
+
+>>> advice = afm.pids[0].advise(500.0)                                  # doctest: +SKIP
+>>> afm.pids[0].configure(**advice.gains)                               # doctest: +SKIP
 """
 
 from __future__ import annotations
@@ -90,6 +97,73 @@ def output_unit(output: str) -> str:
         raise ValueError(
             f"/pids/N/output = {output!r} is no output: it is one of {', '.join(OUTPUTS)}"
         ) from None
+
+
+#: The controller ``pid_advise`` designs: a PI (D = 0) or a PID.
+AdviceKind = Literal["pi", "pid"]
+
+
+@dataclass(frozen=True)
+class PidAdvice:
+    """Gains for a PID unit from a target bandwidth: the daemon's ``pid_advise`` reply
+    (docs/protocol.md), its PID advisor on the loop's model at the settings in force, as
+    LabOne's PID Advisor gives them. Nothing is set: ``unit.configure(**advice.gains)``
+    sets them.
+
+    ``unit``: N of ``/pids/N``; ``kind``: ``"pi"`` (D = 0) or ``"pid"``; ``epoch``: the
+    settings epoch the advice modelled; ``plant``: the model, in words.
+
+    The gains, in the unit's own units and signed for its actuator (a PLL's are negative:
+    the lever's phase falls as the frequency rises), input unit rad for the phase, m for
+    the amplitude, output unit Hz for either drive frequency, m for either drive amplitude
+    (:data:`OUTPUT_UNITS`): ``p``, output unit per input unit (Hz/rad for a PLL); ``i``,
+    the same per second (Hz/(rad·s)); ``d``, the same times seconds (Hz·s/rad);
+    ``d_bandwidth``, the derivative's low-pass, Hz.
+
+    The model's prediction of the loop with them: ``bandwidth``, the closed loop's −3 dB
+    bandwidth, Hz; ``crossover``, the open loop's unity-gain frequency, Hz;
+    ``phase_margin``, degrees (at least 45); ``overshoot``, of a step of the resonance (a
+    PLL) or of the set-point (an amplitude loop), a fraction of the step (0.1 is 10 %);
+    ``settling_time``, to within 2 % of that step, s.
+    """
+
+    unit: int
+    kind: str
+    epoch: int
+    plant: str
+    p: float
+    i: float
+    d: float
+    d_bandwidth: float
+    bandwidth: float
+    crossover: float
+    phase_margin: float
+    overshoot: float
+    settling_time: float
+
+    @property
+    def gains(self) -> dict[str, float]:
+        """The unit's gain nodes as advised, ``{"p": …, "i": …, "d": …, "d_bandwidth":
+        …}`` (units above): ``unit.configure(**advice.gains)`` sets them in one change."""
+        return {"p": self.p, "i": self.i, "d": self.d, "d_bandwidth": self.d_bandwidth}
+
+    @classmethod
+    def from_json(cls, m: Mapping[str, Any]) -> "PidAdvice":
+        return cls(
+            unit=int(m["unit"]),
+            kind=str(m["kind"]),
+            epoch=int(m["epoch"]),
+            plant=str(m["plant"]),
+            p=float(m["p"]),
+            i=float(m["i"]),
+            d=float(m["d"]),
+            d_bandwidth=float(m["d_bandwidth"]),
+            bandwidth=float(m["bandwidth"]),
+            crossover=float(m["crossover"]),
+            phase_margin=float(m["phase_margin"]),
+            overshoot=float(m["overshoot"]),
+            settling_time=float(m["settling_time"]),
+        )
 
 
 #: Longest wait (s) of :meth:`PidUnit.wait` unless told: the status stream comes every
@@ -286,6 +360,12 @@ class PidUnit:
         time (s) it took effect."""
         return self.enable(False)
 
+    def advise(self, bandwidth: float, *, kind: AdviceKind = "pi") -> PidAdvice:
+        """The daemon's advised gains for this unit at a closed-loop −3 dB ``bandwidth``
+        (Hz), a PI or (``kind="pid"``) a PID, for the input and output the unit has now
+        (:meth:`ftafm.Instrument.pid_advise`). Sets nothing."""
+        return self._client.pid_advise(self.index, bandwidth, kind=kind)
+
     def status(self, *, timeout: float | None = None) -> PidStatus:
         """The unit in the next ``status`` message (settings in force, latest update);
         ``timeout`` (s, default: the client's) bounds the wait for it."""
@@ -408,6 +488,11 @@ class AsyncPidUnit:
     async def disable(self) -> float | None:
         """Stops the unit; its output stays where the unit left it."""
         return await self.enable(False)
+
+    async def advise(self, bandwidth: float, *, kind: AdviceKind = "pi") -> PidAdvice:
+        """:meth:`PidUnit.advise`: the daemon's advised gains for this unit at a
+        closed-loop −3 dB ``bandwidth`` (Hz), PI or PID. Sets nothing."""
+        return await self._client.pid_advise(self.index, bandwidth, kind=kind)
 
     async def status(self, *, timeout: float | None = None) -> PidStatus:
         """The unit in the next ``status`` message."""
