@@ -11,27 +11,36 @@ use common::bimodal::{f2_of, mode_two_amplitude, mode_two_pll, second_reading};
 use ftafm::cli::scan::{ChannelReport, ScanReport};
 use ftafm::config::Settings;
 
-/// tap300 (the lever matched to a stiff sample) over the default sample, noise off, 16 × 16
-/// pixels of 1 ms; mode 2 driven at 0.05 nm at its free resonance under a 1 kHz PLL (its
-/// input filter 8 kHz wide) and a 500 Hz amplitude loop.
+/// The example `config/examples/bimodal_map.toml` on tap300 (the lever matched to a stiff
+/// sample) over the default sample, noise off: 16 × 16 pixels of 1 ms; mode 2 driven at
+/// 0.05 nm at its free resonance under a 1 kHz PLL (its input filter 8 kHz wide) and a
+/// 500 Hz amplitude loop. Its gains and set-points are the derivation's
+/// ([`mode_two_pll`], [`mode_two_amplitude`]) to the digits the file gives.
 fn bimodal_scan() -> Settings {
-    let mut s = ftafm::config::load_with_presets(&["tap300".to_owned()], None).unwrap();
+    let example = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/config/examples/bimodal_map.toml"
+    );
+    let mut s =
+        ftafm::config::load_with_presets(&["tap300".to_owned()], Some(example.as_ref())).unwrap();
     s.noise.enable = false;
-    s.scan.enable = true;
-    s.scan.pixels = 16;
-    s.scan.line_rate = 1.0 / (2.0 * 16.0 * 1e-3);
     let f2 = f2_of(&s);
-    // Small against the indentation (0.26 nm), as the expressions assume: at 0.2 nm mode 2's
-    // own swing takes E* 31 % low.
-    let a2 = 0.05e-9;
+    assert!((s.drive2.frequency / f2 - 1.0).abs() < 1e-6);
+    let a2 = s.drive2.free_amplitude;
     let free2 = second_reading(&s, f2, a2);
-    s.drive2.enable = true;
-    s.drive2.frequency = f2;
-    s.drive2.free_amplitude = a2;
-    mode_two_pll(&mut s, 0, free2.arg(), 1000.0);
-    s.pids[0].input_bandwidth = 8e3;
-    mode_two_amplitude(&mut s, 1, free2.norm(), free2.norm() / a2, 500.0);
-    s.pids[1].input_bandwidth = 8e3;
+    let mut derived = s.clone();
+    mode_two_pll(&mut derived, 0, free2.arg(), 1000.0);
+    mode_two_amplitude(&mut derived, 1, free2.norm(), free2.norm() / a2, 500.0);
+    for (file, want) in s.pids[..2].iter().zip(&derived.pids[..2]) {
+        let close = |a: f64, b: f64, tolerance: f64| (a - b).abs() <= tolerance * b.abs();
+        assert!(
+            close(file.p, want.p, 1e-4) && close(file.i, want.i, 1e-4),
+            "{file:?}"
+        );
+        assert!(close(file.output_min, want.output_min, 1e-6), "{file:?}");
+        assert!(close(file.output_max, want.output_max, 1e-6), "{file:?}");
+        assert!((file.setpoint - want.setpoint).abs() <= 1e-3 * want.setpoint.abs().max(1e-3));
+    }
     s
 }
 

@@ -18,7 +18,12 @@ import { si, siShort } from "./units.js";
 const DEFAULT_CHANNEL = "height";
 const THUMBS = ["height", "amplitude", "phase", "h6", "h17", "h18"];
 const FT_CHANNELS = ["contact_time_ratio", "max_force", "youngs_modulus"];
-const UNITS = { height: "m", amplitude: "m", phase: "rad", contact_time_ratio: "1", max_force: "N", youngs_modulus: "Pa" };
+// Bimodal AM-FM's, while the second excitation drives (and mode 2's PLL runs, for the last two).
+const BIMODAL_CHANNELS = ["frequency_shift2", "indentation", "bimodal_modulus"];
+const UNITS = {
+  height: "m", amplitude: "m", phase: "rad", contact_time_ratio: "1", max_force: "N", youngs_modulus: "Pa",
+  frequency_shift2: "Hz", indentation: "m", bimodal_modulus: "Pa",
+};
 const LABELS = {
   height: "height (feedback output)",
   amplitude: "amplitude A₁",
@@ -26,6 +31,9 @@ const LABELS = {
   contact_time_ratio: "contact time ratio τ",
   max_force: "peak force F",
   youngs_modulus: "Young's modulus E",
+  frequency_shift2: "mode 2's frequency shift Δf₂",
+  indentation: "indentation d (bimodal)",
+  bimodal_modulus: "Young's modulus E (bimodal)",
 };
 const MIN_FRAME_MS = 33; // at most ~30 redraws a second
 const RANGE_MS = 250; // colour ranges are re-evaluated at most this often
@@ -84,14 +92,16 @@ function labelOf(name) {
   return m ? `harmonic ${m[1]} amplitude` : name;
 }
 
-/** Channel order: height, amplitude, phase, h2…h32 by number, the FT-AFM channels, the rest. */
+/** Channel order: height, amplitude, phase, h2…h32 by number, the FT-AFM channels, the bimodal ones, the rest. */
 function channelRank(name) {
   const base = ["height", "amplitude", "phase"].indexOf(name);
   if (base >= 0) return base;
   const m = /^h(\d+)$/.exec(name);
   if (m) return 10 + Number(m[1]);
   const ft = FT_CHANNELS.indexOf(name);
-  return ft >= 0 ? 100000 + ft : 200000;
+  if (ft >= 0) return 100000 + ft;
+  const bimodal = BIMODAL_CHANNELS.indexOf(name);
+  return bimodal >= 0 ? 150000 + bimodal : 200000;
 }
 
 /** A "nice" length (1, 2 or 5 × 10ⁿ m) of about a quarter of `size`. */
