@@ -505,7 +505,7 @@ fn second_excitation_is_refused_where_it_cannot_drive() {
         &["/drive2/enable", "/synth/engine", "coupled"],
     );
     // A scan takes it (bimodal maps) and mode 2's loops, not a loop on the drive its
-    // pixels and feedback read.
+    // feedback reads.
     let scan = format!("{on}[scan]\nenable = true\n");
     load_str(&scan, "t.toml").expect("a scan with the second excitation");
     let pll = "oscillator = \"drive2\"\ninput = \"phase\"\noutput_min = 600e3\n\
@@ -524,9 +524,20 @@ fn second_excitation_is_refused_where_it_cannot_drive() {
             "/pids/0/output",
             "drive_frequency",
             "/scan/enable",
-            "drive2_frequency",
+            "/feedback/enable",
         ],
     );
+    // With the scan's own feedback off, loops on the drive and the surface run beside it
+    // (a unit on the surface is then the scan's feedback).
+    load_str(
+        &format!(
+            "{scan}[feedback]\nenable = false\n[pids.0]\nenable = true\n\
+             output = \"drive_frequency\"\ninput = \"phase\"\noutput_min = 90e3\n\
+             output_max = 110e3\nsetpoint = 0.0\n[pids.1]\nenable = true\n"
+        ),
+        "t.toml",
+    )
+    .expect("a PLL and a unit on the surface beside a scan without its feedback");
     assert_mentions(
         &error_of(&format!("{on}frequency = 6e6\n")),
         &["/drive2/frequency", "6 MHz", "Nyquist", "5 MHz"],

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use ftafm::config::{Engine, Settings, default_settings};
 use ftafm::model;
-use ftafm::synth::{PixelTopography, ScanRuntime, SynthPlan, SynthState};
+use ftafm::synth::{PidRuntime, PixelTopography, ScanLoops, ScanRuntime, SynthPlan, SynthState};
 
 fn quiet(mut s: Settings) -> Settings {
     s.noise.enable = false;
@@ -201,6 +201,83 @@ fn raised_inclusion(engine: Engine) {
             "{engine:?}: column {c}: {}",
             heights[c]
         );
+    }
+}
+
+/// With `/feedback/enable = false`, a PID unit on the surface distance is the scan's
+/// feedback: the same PI (i = 1200 /s) on the same amplitude set-point, as a unit, images
+/// the 2 nm disc as the scan's own feedback does (its pixels within 0.1 nm of 2 nm on the
+/// disc and of 0 off it), and the two height lines agree within 0.1 nm everywhere; the
+/// unit's updates run beside the scan.
+#[test]
+fn a_pid_unit_is_the_scans_feedback() {
+    let mut settings = scanning(quiet(default_settings()));
+    settings.scan.pixels = 16;
+    settings.scan.line_rate = 10.0;
+    settings.inclusions[0].height = 2e-9;
+    settings.inclusions[0].youngs_modulus = 129e9;
+    let own = SynthPlan::new(&settings).unwrap();
+    let setpoint = own.scan.as_ref().unwrap().setpoint;
+    settings.feedback.enable = false;
+    let pid = &mut settings.pids[0];
+    pid.enable = true;
+    (pid.p, pid.i, pid.setpoint) = (0.0, 1200.0, setpoint);
+    (pid.output_min, pid.output_max) = (0.0, 100e-9);
+    ftafm::model::check(&settings).expect("a unit on the surface with the feedback off");
+    let plan = SynthPlan::new(&settings).unwrap();
+    let line7 = |pixels: &[PixelTopography]| -> Vec<f64> {
+        pixels
+            .iter()
+            .filter(|p| p.pixel.line == 7 && !p.pixel.retrace)
+            .map(|p| p.height)
+            .collect()
+    };
+    let (_, reference) = {
+        let mut state = SynthState::steady(&own, 1);
+        let mut rt = ScanRuntime::new(&own);
+        rt.retarget(&own, &own, 0);
+        run(&own, &mut state, &mut rt, 0.9, 4096)
+    };
+    let mut state = SynthState::steady(&plan, 1);
+    let mut rt = ScanRuntime::new(&plan);
+    let mut loops = PidRuntime::new(&plan);
+    rt.retarget(&plan, &plan, 0);
+    loops.retarget(&plan, &plan, 0, &mut state);
+    let mut block = vec![0.0; 4096];
+    let (mut pixels, mut updates) = (Vec::new(), 0usize);
+    for _ in 0..(0.9 * plan.sample_rate) as usize / block.len() {
+        let sinks = ScanLoops {
+            runtime: &mut loops,
+            reading: &mut |_| updates += 1,
+            reference: &mut |_| {},
+        };
+        plan.process_scan(&mut state, &mut rt, Some(sinks), &mut block, &mut |p| {
+            pixels.push(p)
+        });
+    }
+    let (want, got) = (line7(&reference), line7(&pixels));
+    eprintln!(
+        "line 7 (nm), the scan's feedback: {:?}\n             a PID unit:      {:?}",
+        want.iter()
+            .map(|h| (h * 1e11).round() / 100.0)
+            .collect::<Vec<_>>(),
+        got.iter()
+            .map(|h| (h * 1e11).round() / 100.0)
+            .collect::<Vec<_>>()
+    );
+    assert_eq!(got.len(), 16);
+    assert!(
+        updates as f64 > 0.8 * 0.9 * settings.drive.frequency,
+        "{updates} updates"
+    );
+    for c in [7, 8] {
+        assert!((got[c] - 2e-9).abs() < 0.1e-9, "column {c}: {}", got[c]);
+    }
+    for c in [0, 1, 14, 15] {
+        assert!(got[c].abs() < 0.1e-9, "column {c}: {}", got[c]);
+    }
+    for (c, (a, b)) in want.iter().zip(&got).enumerate() {
+        assert!((a - b).abs() < 0.1e-9, "column {c}: {a} against {b}");
     }
 }
 

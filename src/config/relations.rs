@@ -968,18 +968,15 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
         }
         match pid.output {
             PidTarget::SurfaceDistance => {
-                if s.scan.enable {
-                    let why = if s.feedback.enable {
-                        "the scan's amplitude feedback (/feedback/enable = true) drives it"
-                    } else {
-                        "the scan sets it under the tip (and /feedback/enable would drive it)"
-                    };
+                // With the scan's own feedback off, a unit on the surface is its feedback.
+                if s.scan.enable && s.feedback.enable {
                     return Err(invalid(
                         format!("/pids/{index}/output"),
                         format!(
                             "/pids/{index} drives the surface distance (/pids/{index}/output = \
-                             \"{target}\") while /scan/enable = true, and {why}: disable one of \
-                             them"
+                             \"{target}\") while /scan/enable = true, and the scan's amplitude \
+                             feedback (/feedback/enable = true) drives it: disable one of them \
+                             (with /feedback/enable = false the unit is the scan's feedback)"
                         ),
                     ));
                 }
@@ -993,15 +990,16 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
                 )?;
             }
             PidTarget::DriveFrequency | PidTarget::DriveAmplitude => {
-                if s.scan.enable {
+                if s.scan.enable && s.feedback.enable {
                     return Err(invalid(
                         format!("/pids/{index}/output"),
                         format!(
                             "/pids/{index} drives the drive (/pids/{index}/output = \
-                             \"{target}\") while /scan/enable = true, whose pixels and \
-                             feedback read the drive as /drive/* configure it: disable one of \
-                             them (the second excitation's outputs, \"drive2_frequency\" and \
-                             \"drive2_amplitude\", run beside a scan)"
+                             \"{target}\") while /scan/enable = true, whose amplitude \
+                             feedback (/feedback/enable = true) reads the drive as /drive/* \
+                             configure it: disable one of them (with /feedback/enable = false \
+                             a unit on \"surface_distance\" is the scan's feedback; the second \
+                             excitation's outputs run beside either)"
                         ),
                     ));
                 }

@@ -383,12 +383,18 @@ impl PidRuntime {
         self.next_update
     }
 
-    /// Puts the surface of `under_tip` (a scan's: its distance and the region's stiffness)
-    /// into the loops' kernel, which carries the excitations the loops move.
-    pub(super) fn set_surface(&mut self, under_tip: &CoupledKernel) {
+    /// The surface distance a unit sets (m), while one drives it.
+    pub(super) fn held_distance(&self) -> Option<f64> {
+        self.held.then_some(self.distance)
+    }
+
+    /// Puts a scan's surface under the tip (`distance` from the tip's rest position, m, and
+    /// the region's Hertz `stiffness`) into the loops' kernel, which carries the
+    /// excitations the loops move.
+    pub(super) fn set_surface(&mut self, distance: f64, stiffness: f64) {
         if let Some(coupled) = &mut self.coupled {
-            coupled.distance = under_tip.distance;
-            coupled.stiffness = under_tip.stiffness;
+            coupled.distance = distance;
+            coupled.stiffness = stiffness;
         }
     }
 
@@ -529,10 +535,10 @@ impl PidRuntime {
                 }
             }
         }
-        // Another engine, or a scan (which sets the surface itself and reads the drive
-        // as configured), takes the outputs back to the plan's; without the second
-        // excitation, nothing of it is held (a scan leaves it to mode 2's loops).
-        if new.coupled.is_none() || new.scan.is_some() {
+        // Another engine, or a scan's own feedback (which sets the surface itself and
+        // reads the drive as configured), takes the outputs back to the plan's; without
+        // the second excitation, nothing of it is held.
+        if new.coupled.is_none() || new.scan.as_ref().is_some_and(|s| s.feedback.enable) {
             (self.held, self.word_held, self.base_held) = (false, None, None);
         }
         if new.coupled.is_none() || new.drive2.is_none() {

@@ -58,6 +58,8 @@ pub struct ScanRuntime {
     pub amplitude: f64,
     /// Region under the tip.
     pub region: usize,
+    /// Its surface height (m above the base).
+    region_height: f64,
     pulse: PulseKernel,
     /// The coupled engine's kernel with the surface under the tip (a copy of the plan's;
     /// its distance and stiffness follow the scan).
@@ -89,6 +91,7 @@ impl ScanRuntime {
             integral: 0.0,
             amplitude: 0.0,
             region: 0,
+            region_height: 0.0,
             pulse: PulseKernel::idle(plan.h),
             coupled: None,
             acc: Complex64::new(0.0, 0.0),
@@ -184,13 +187,17 @@ impl SynthPlan {
         while done < out.len() {
             let index = state.sample_index();
             if index >= rt.next_update {
-                // The second excitation in force over the period just ended: the loops'.
-                let drive2 = match &loops {
-                    Some(l) => l.runtime.drive2(),
-                    None => self.drive2,
+                // The second excitation and the surface in force over the period just
+                // ended: the loops' where they move them.
+                let (drive2, distance) = match &loops {
+                    Some(l) => (l.runtime.drive2(), l.runtime.held_distance()),
+                    None => (self.drive2, None),
                 };
-                let frequency2 = drive2.map(|d| d.word as f64 / TWO_POW_64 * self.sample_rate);
-                self.update(scan, &raster, state.phase(), index, frequency2, rt, pixel);
+                let from_loops = FromLoops {
+                    frequency2: drive2.map(|d| d.word as f64 / TWO_POW_64 * self.sample_rate),
+                    distance,
+                };
+                self.update(scan, &raster, state.phase(), index, from_loops, rt, pixel);
             }
             let mut until = rt.next_update;
             if let Some(l) = &mut loops {
@@ -204,9 +211,14 @@ impl SynthPlan {
             let phase = state.phase();
             match (&mut loops, &rt.coupled) {
                 (Some(l), Some(under_tip)) => {
-                    // One kernel: the loops' (it carries the second excitation they move)
-                    // with the surface the scan puts under the tip.
-                    l.runtime.set_surface(under_tip);
+                    // One kernel: the loops' (it carries the excitations they move) with the
+                    // surface under the tip: the region's, at the distance a unit sets from
+                    // its update on, else the scan's feedback.
+                    let distance = match l.runtime.held_distance() {
+                        Some(d) => d - rt.region_height,
+                        None => under_tip.distance,
+                    };
+                    l.runtime.set_surface(distance, under_tip.stiffness);
                     let (drive, drive2, coupled) = l.runtime.drives();
                     self.process_with(
                         drive,
@@ -251,7 +263,6 @@ impl SynthPlan {
     }
 
     /// Once per drive period: amplitude, controller, pixel bookkeeping, tap force.
-    /// `frequency2`: the second excitation's frequency over the period just ended (Hz).
     #[allow(clippy::too_many_arguments)]
     fn update(
         &self,
@@ -259,11 +270,16 @@ impl SynthPlan {
         raster: &Raster,
         phase: u64,
         index: u64,
-        frequency2: Option<f64>,
+        from_loops: FromLoops,
         rt: &mut ScanRuntime,
         pixel: &mut impl FnMut(PixelTopography),
     ) {
         let fb = &scan.feedback;
+        let frequency2 = from_loops.frequency2;
+        if let Some(distance) = from_loops.distance {
+            // A PID unit is the feedback.
+            rt.distance = distance;
+        }
         if rt.acc_count > 0 {
             let n = f64::from(rt.acc_count);
             rt.amplitude = 2.0 * rt.acc.norm() / n;
@@ -279,7 +295,9 @@ impl SynthPlan {
                 rt.sum_frequency2 += frequency2.unwrap_or(0.0);
                 rt.periods += 1;
             }
-            if fb.enable {
+            if from_loops.distance.is_some() {
+                rt.integral = rt.distance;
+            } else if fb.enable {
                 let error = scan.setpoint - rt.amplitude;
                 rt.integral =
                     (rt.integral + fb.integral * error * n * self.h).clamp(0.0, scan.max_distance);
@@ -297,6 +315,7 @@ impl SynthPlan {
         let (x, y) = raster.position(index);
         rt.region = scan.map.region_at(x, y);
         let region = &scan.map.regions()[rt.region];
+        rt.region_height = region.height;
         let distance = rt.distance - region.height;
         if let Some(coupled) = &mut rt.coupled {
             coupled.distance = distance;
@@ -307,6 +326,15 @@ impl SynthPlan {
                 .retune(&train, self.h, self.frequency_word, &self.modes);
         }
     }
+}
+
+/// What the PID units beside a scan set over the period just ended.
+#[derive(Clone, Copy, Debug)]
+struct FromLoops {
+    /// The second excitation's frequency (Hz), while it drives.
+    frequency2: Option<f64>,
+    /// The surface distance (m), where a unit drives it: the scan's feedback then.
+    distance: Option<f64>,
 }
 
 impl ScanRuntime {
