@@ -527,6 +527,16 @@ fn second_excitation_is_refused_where_it_cannot_drive() {
             "/feedback/enable",
         ],
     );
+    // A unit on the PLL's frequency shift needs the PLL.
+    assert_mentions(
+        &error_of("[pids.2]\nenable = true\ninput = \"frequency_shift\"\n"),
+        &[
+            "/pids/2/input",
+            "frequency_shift",
+            "\"phase\"",
+            "drive_frequency",
+        ],
+    );
     // With the scan's own feedback off, loops on the drive and the surface run beside it
     // (a unit on the surface is then the scan's feedback).
     load_str(

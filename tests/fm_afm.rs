@@ -11,6 +11,7 @@ use std::f64::consts::PI;
 use common::loops::{change, run, start};
 use ftafm::config::{PidInput, PidTarget, Settings, default_settings};
 use ftafm::physics::fm::{FmLever, invert};
+use ftafm::synth::{PidRuntime, ScanLoops, ScanRuntime, SynthPlan, SynthState};
 
 /// Tip amplitude the amplitude loop holds (m, peak).
 const AMPLITUDE: f64 = 5e-9;
@@ -382,4 +383,131 @@ async fn an_approach_through_the_sweeper_gives_the_frequency_shift_to_invert() {
         (hi - lo) * 1e9
     );
     assert!(worst < 0.05, "worst {worst}");
+}
+
+/// FM-AFM's topography: the PLL and the amplitude loop on the drive, and a third unit on
+/// the PLL's frequency shift (`input = "frequency_shift"`) driving the surface distance as
+/// the scan's feedback (`/feedback/enable = false`), held at the Δf of 0.8 nm into a 3 GPa
+/// sample (noise off; there Δf > 0, so a tip that lost the surface reads a Δf below the
+/// set-point and the loop approaches again). Over a disc raised 0.5 nm (same material)
+/// the loop holds Δf, so the height image reads the disc's 0.5 nm and 0 off it, as
+/// constant-Δf imaging does.
+#[test]
+fn constant_frequency_shift_images_the_topography() {
+    let calibration = calibration();
+    let mut settings = fm_afm(calibration);
+    settings.noise.enable = false;
+    settings.sample.youngs_modulus = 3e9;
+    settings.sample.poisson = 0.35;
+    // Δf and its slope against the distance, the PLL and the amplitude loop alone.
+    let closest = -0.8e-9;
+    let delta_f = |closest: f64| {
+        let mut s = settings.clone();
+        s.surface.distance = AMPLITUDE + closest;
+        let (plan, mut state, mut rt) = start(&s, 7);
+        let f_free = s.drive.frequency;
+        let r = run(&plan, &mut state, &mut rt, 0.01);
+        let settled = r.iter().filter(|r| r.unit == 0 && r.sample > 60_000);
+        mean(settled.map(|r| r.output)) - f_free
+    };
+    let (at, slope) = (
+        delta_f(closest),
+        (delta_f(closest - 0.05e-9) - delta_f(closest + 0.05e-9)) / -0.1e-9,
+    );
+    // Δf rises as the surface comes closer (the adhesion's pull keeps it below 0 here).
+    assert!(slope < 0.0, "Δf {at} Hz, slope {slope} Hz/m");
+    // The scan, its feedback off: the PLL locks at the operating distance first, then the
+    // topography loop (an integrator for a 100 Hz crossover on that slope) starts, as an
+    // FM-AFM is engaged; a loop started before the PLL would read the free Δf = 0 and
+    // retract.
+    settings.surface.distance = AMPLITUDE + closest;
+    settings.scan.enable = true;
+    settings.feedback.enable = false;
+    settings.scan.pixels = 8;
+    settings.scan.line_rate = 1.0 / (2.0 * 8.0 * 10e-3);
+    settings.inclusions[0].height = 0.5e-9;
+    settings.inclusions[0].youngs_modulus = 3e9;
+    settings.inclusions[0].poisson = 0.35;
+    let locking = SynthPlan::new(&settings).unwrap();
+    let z = &mut settings.pids[2];
+    z.enable = true;
+    z.input = ftafm::config::PidInput::FrequencyShift;
+    (z.setpoint, z.p, z.i) = (at, 0.0, 2.0 * PI * 100.0 / slope);
+    (z.output_min, z.output_max) = (0.0, 100e-9);
+    ftafm::model::check(&settings).expect("FM-AFM imaging settings");
+    let plan = SynthPlan::new(&settings).unwrap();
+    let mut state = SynthState::steady(&locking, 7);
+    let mut rt = ScanRuntime::new(&locking);
+    let mut loops = PidRuntime::new(&locking);
+    rt.retarget(&locking, &locking, 0);
+    loops.retarget(&locking, &locking, 0, &mut state);
+    let mut block = vec![0.0; 4096];
+    let (mut pixels, mut shifts) = (Vec::new(), Vec::new());
+    // Lines 3 and 4 cross the disc's centre; to the end of line 4's trace and retrace.
+    let engage = (0.01 * plan.sample_rate) as u64;
+    let end = (5.0 * 2.0 * 8.0 * 10e-3 * plan.sample_rate) as u64;
+    let mut current = &locking;
+    while state.sample_index() < end {
+        if state.sample_index() >= engage && std::ptr::eq(current, &locking) {
+            loops.release_drive(current, &mut state);
+            state.retarget(current, &plan);
+            let index = state.sample_index();
+            rt.retarget(current, &plan, index);
+            loops.retarget(current, &plan, index, &mut state);
+            current = &plan;
+        }
+        let sinks = ScanLoops {
+            runtime: &mut loops,
+            reading: &mut |r| {
+                if r.unit == 2 {
+                    shifts.push(r.measurement);
+                }
+            },
+            reference: &mut |_| {},
+        };
+        current.process_scan(&mut state, &mut rt, Some(sinks), &mut block, &mut |p| {
+            pixels.push(p)
+        });
+    }
+    let line = |n: u32| -> Vec<f64> {
+        pixels
+            .iter()
+            .filter(|p| p.pixel.line == n && !p.pixel.retrace)
+            .map(|p| p.height)
+            .collect()
+    };
+    for n in [3, 4] {
+        let heights = line(n);
+        eprintln!(
+            "constant Δf = {at:.2} Hz (slope {:.3} Hz/pm): line {n} heights (nm) {:?}",
+            slope * 1e-12,
+            heights
+                .iter()
+                .map(|h| (h * 1e11).round() / 100.0)
+                .collect::<Vec<_>>()
+        );
+        assert_eq!(heights.len(), 8);
+        // Columns 3 and 4 lie inside the disc (radius 167 nm, pixels 125 nm), 0 and 7 off
+        // it; column 3 holds the loop's step response to the edge (its overshoot).
+        for (c, within) in [(3, 0.1e-9), (4, 0.02e-9)] {
+            assert!(
+                (heights[c] - 0.5e-9).abs() < within,
+                "line {n}, column {c}: {}",
+                heights[c]
+            );
+        }
+        for c in [0, 7] {
+            assert!(
+                heights[c].abs() < 0.1e-9,
+                "line {n}, column {c}: {}",
+                heights[c]
+            );
+        }
+    }
+    let late = &shifts[shifts.len() / 2..];
+    let held = mean(late.iter().copied());
+    assert!(
+        (held - at).abs() < 0.02 * at.abs(),
+        "Δf held at {held} Hz for {at} Hz"
+    );
 }

@@ -24,7 +24,7 @@ export const OUTPUTS = {
 };
 const ITEMS = [
   { key: "enable", label: "Enabled" },
-  { key: "input", label: "Input", options: ["r", "phase", "x", "y"] },
+  { key: "input", label: "Input", options: ["r", "phase", "x", "y", "frequency_shift"] },
   { key: "harmonic", label: "Harmonic k" },
   { key: "oscillator", label: "Oscillator", options: ["drive", "drive2"] },
   { key: "input_bandwidth", label: "Input bandwidth (on drive2)" },
@@ -46,8 +46,8 @@ function esc(s) {
   return String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
 }
 
-/** The input's unit: rad for the phase, else m (peak). */
-const inputUnit = (input) => (input === "phase" ? "rad" : "m");
+/** The input's unit: rad for the phase, Hz for a PLL's frequency shift, else m (peak). */
+const inputUnit = (input) => (input === "phase" ? "rad" : input === "frequency_shift" ? "Hz" : "m");
 
 /** The output's unit: Hz for either drive frequency, else m. */
 const outputUnit = (output) => OUTPUTS[output] ?? "m";

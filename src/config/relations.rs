@@ -15,8 +15,8 @@ use super::quantity::{number, quantity};
 use super::range::{Bound, Range};
 use super::registry::registry;
 use super::settings::{
-    DEMODULATOR_COUNT, DemodSettings, Engine, INCLUSION_COUNT, Oscillator, PID_COUNT, PidTarget,
-    PidUnitSettings, Settings, SourceKind, SweepParameter,
+    DEMODULATOR_COUNT, DemodSettings, Engine, INCLUSION_COUNT, Oscillator, PID_COUNT, PidInput,
+    PidTarget, PidUnitSettings, Settings, SourceKind, SweepParameter,
 };
 
 impl Settings {
@@ -911,6 +911,29 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
                     "/pids/{index}/{key} = \"{value}\" while /pids/{index}/enable is true needs \
                      the second excitation: set /drive2/enable = true first (and disable the \
                      PID before /drive2/enable = false)"
+                ),
+            ));
+        }
+        if pid.input == PidInput::FrequencyShift
+            && !s.pids.iter().any(|p| {
+                p.enable
+                    && p.input == PidInput::Phase
+                    && p.output.frequency_of() == Some(pid.oscillator)
+            })
+        {
+            let target = match pid.oscillator {
+                Oscillator::Drive => PidTarget::DriveFrequency,
+                Oscillator::Drive2 => PidTarget::Drive2Frequency,
+            };
+            return Err(invalid(
+                format!("/pids/{index}/input"),
+                format!(
+                    "/pids/{index}/input = \"frequency_shift\" while /pids/{index}/enable is true \
+                     reads the frequency shift of the PLL on its oscillator \
+                     (/pids/{index}/oscillator = \"{}\"): enable a unit with input \"phase\" \
+                     and output \"{}\" first",
+                    pid.oscillator.name(),
+                    target.name()
                 ),
             ));
         }

@@ -631,7 +631,8 @@ named_choice! {
 
 named_choice! {
     /// What a PID unit reads (`/pids/N/input`): a part of the reading of its own modelled
-    /// demodulator at `/pids/N/harmonic` (the `demods` stream's names and units).
+    /// demodulator at `/pids/N/harmonic` (the `demods` stream's names and units), or a
+    /// value derived from another unit.
     PidInput {
         /// The amplitude r = |x + iy| (m, peak).
         R = "r",
@@ -641,6 +642,10 @@ named_choice! {
         X = "x",
         /// The quadrature part y (m).
         Y = "y",
+        /// The frequency shift Δf of the PLL on the unit's oscillator (Hz): that unit's
+        /// output after its update less `/drive/frequency` (`/drive2/frequency` on
+        /// `drive2`). A loop on it at constant Δf is FM-AFM's topography.
+        FrequencyShift = "frequency_shift",
     }
 }
 

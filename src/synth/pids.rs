@@ -241,6 +241,11 @@ pub struct PidRuntime {
 }
 
 impl Unit {
+    /// Whether it reads its own demodulator (not a value derived from another unit).
+    fn demodulates(&self) -> bool {
+        self.input != PidInput::FrequencyShift
+    }
+
     /// Empties the demodulator's sums for the next period.
     fn clear(&mut self) {
         self.acc = Complex64::new(0.0, 0.0);
@@ -692,7 +697,7 @@ impl PidRuntime {
             for unit in self
                 .units
                 .iter()
-                .filter(|u| u.enabled && u.oscillator == Oscillator::Drive)
+                .filter(|u| u.enabled && u.demodulates() && u.oscillator == Oscillator::Drive)
             {
                 if !harmonics[..count].contains(&unit.harmonic) {
                     harmonics[count] = unit.harmonic;
@@ -739,12 +744,13 @@ impl PidRuntime {
     fn low_pass2(&mut self, piece: &[f64]) {
         for i in 0..PID_COUNT {
             let unit = &self.units[i];
-            if !unit.enabled || unit.oscillator != Oscillator::Drive2 {
+            if !unit.enabled || !unit.demodulates() || unit.oscillator != Oscillator::Drive2 {
                 continue;
             }
             let shared = (0..i).find(|&j| {
                 let other = &self.units[j];
                 other.enabled
+                    && other.demodulates()
                     && other.oscillator == Oscillator::Drive2
                     && other.harmonic == unit.harmonic
                     && other.alpha == unit.alpha
@@ -773,6 +779,51 @@ impl PidRuntime {
             unit.low_pass = y;
             unit.settling = unit.settling.saturating_sub(piece.len() as u32);
         }
+    }
+}
+
+impl PidRuntime {
+    /// Unit `i`'s reading of its demodulator over the period just ended (its input's
+    /// unit), or `None` while its low-pass settles.
+    fn read(&self, i: usize) -> Option<f64> {
+        let unit = &self.units[i];
+        let z = match unit.oscillator {
+            Oscillator::Drive => {
+                // The least-squares sinusoid at kΩ over the period's samples: the boxcar
+                // z = a + ā·c, c its image's share (zero over a whole number of samples per
+                // period, up to 1/N otherwise, which would ripple a PLL's phase as the drive
+                // frequency moves), solved for a.
+                let z = unit.acc * (2.0 / f64::from(self.acc_count));
+                let c = unit.image / f64::from(self.acc_count);
+                (z - c * z.conj()) / (1.0 - c.norm_sqr())
+            }
+            Oscillator::Drive2 => {
+                if unit.settling > 0 {
+                    return None;
+                }
+                // The low-pass holds half the phasor (the image at −kΩ₂ is filtered out).
+                unit.low_pass[LOW_PASS_SECTIONS - 1] * 2.0
+            }
+        };
+        Some(match unit.input {
+            PidInput::R => z.norm(),
+            PidInput::Phase => z.im.atan2(z.re),
+            PidInput::X => z.re,
+            PidInput::Y => z.im,
+            PidInput::FrequencyShift => unreachable!("a derived input reads no demodulator"),
+        })
+    }
+
+    /// The frequency shift of `oscillator` in force (Hz): where a loop holds its frequency,
+    /// that less the plan's (`/drive/frequency`, `/drive2/frequency`); 0 where none does.
+    fn frequency_shift(&self, plan: &SynthPlan, oscillator: Oscillator) -> f64 {
+        let (held, own) = match oscillator {
+            Oscillator::Drive => (self.word_held, plan.drive.word),
+            Oscillator::Drive2 => (self.word2_held, plan.frequency_word2),
+        };
+        held.map_or(0.0, |word| {
+            (word as f64 - own as f64) / TWO_POW_64 * plan.sample_rate
+        })
     }
 }
 
@@ -842,87 +893,24 @@ impl SynthPlan {
         // A whole period has ⌊2^64/word⌋ or ⌈2^64/word⌉ samples; fewer after a restart.
         let whole = rt.acc_count > 0 && f64::from(rt.acc_count) >= rt.period - 1.0;
         if whole {
-            let scale = 2.0 / f64::from(rt.acc_count);
-            for (unit_index, unit) in rt.units.iter_mut().enumerate() {
-                if !unit.enabled || unit.partial {
-                    continue;
+            // The units on their demodulators first, then those on a value derived from
+            // them (a PLL's Δf), which read it after its update.
+            for derived in [false, true] {
+                for unit_index in 0..PID_COUNT {
+                    let unit = &rt.units[unit_index];
+                    if !unit.enabled || unit.partial || unit.demodulates() == derived {
+                        continue;
+                    }
+                    let measurement = if derived {
+                        rt.frequency_shift(self, unit.oscillator)
+                    } else {
+                        match rt.read(unit_index) {
+                            Some(m) => m,
+                            None => continue,
+                        }
+                    };
+                    self.update_unit(rt, unit_index, index, measurement, reading);
                 }
-                let z = match unit.oscillator {
-                    Oscillator::Drive => {
-                        // The least-squares sinusoid at kΩ over the period's samples: the
-                        // boxcar z = a + ā·c, c its image's share (zero over a whole number
-                        // of samples per period, up to 1/N otherwise, which would ripple a
-                        // PLL's phase as the drive frequency moves), solved for a.
-                        let z = unit.acc * scale;
-                        let c = unit.image / f64::from(rt.acc_count);
-                        (z - c * z.conj()) / (1.0 - c.norm_sqr())
-                    }
-                    Oscillator::Drive2 => {
-                        if unit.settling > 0 {
-                            continue;
-                        }
-                        // The low-pass holds half the phasor (the image at −kΩ₂ is
-                        // filtered out).
-                        unit.low_pass[LOW_PASS_SECTIONS - 1] * 2.0
-                    }
-                };
-                let measurement = match unit.input {
-                    PidInput::R => z.norm(),
-                    PidInput::Phase => z.im.atan2(z.re),
-                    PidInput::X => z.re,
-                    PidInput::Y => z.im,
-                };
-                // A phase is read on the circle: the controller sees it within half a
-                // turn of its set-point, so the error never jumps by 2π where the phase
-                // wraps (a PLL's set-point near ±π is common).
-                let fed = match unit.input {
-                    PidInput::Phase => {
-                        let setpoint = unit.pid.settings().setpoint;
-                        setpoint - (setpoint - measurement + PI).rem_euclid(TAU) + PI
-                    }
-                    _ => measurement,
-                };
-                let output = unit.pid.update(fed);
-                match unit.output {
-                    PidTarget::SurfaceDistance => rt.distance = output,
-                    PidTarget::DriveFrequency => {
-                        // The limits keep it a valid frequency; should one not be, the
-                        // drive keeps its word.
-                        if let Ok(word) = frequency_word(output, self.sample_rate) {
-                            rt.word_held = Some(word);
-                        }
-                    }
-                    PidTarget::DriveAmplitude => {
-                        rt.base_held = Some(output * self.pids.base_per_free);
-                    }
-                    PidTarget::Drive2Frequency => {
-                        if let Ok(word) = frequency_word(output, self.sample_rate) {
-                            rt.word2_held = Some(word);
-                        }
-                    }
-                    PidTarget::Drive2Amplitude => {
-                        if let Some(per) = self.pids.base_per_free2 {
-                            rt.base2_held = Some(output * per);
-                        }
-                    }
-                }
-                let error = unit.pid.error();
-                let limited = unit.pid.is_limited();
-                unit.sums.add(measurement, error, output);
-                let pll = unit.input == PidInput::Phase && unit.output.frequency_of().is_some();
-                if pll {
-                    unit.lock.update(!limited && error.abs() < PLL_LOCK_PHASE);
-                }
-                reading(PidReading {
-                    unit: unit_index,
-                    sample: index,
-                    measurement,
-                    error,
-                    output,
-                    limited,
-                    locked: pll.then_some(unit.lock.locked),
-                    lock_losses: unit.lock.losses,
-                });
             }
         }
         for unit in &mut rt.units {
@@ -935,6 +923,70 @@ impl SynthPlan {
         }
         rt.take_drive(self, state, index, reference);
         rt.next_update = index + samples_until(state.phase(), rt.update_phase, rt.drive.word);
+    }
+
+    /// Updates unit `i` with `measurement` (its input's unit) at sample `index`: its
+    /// controller, the output it drives from `index` on, its sums and lock, and `reading`.
+    fn update_unit(
+        &self,
+        rt: &mut PidRuntime,
+        i: usize,
+        index: u64,
+        measurement: f64,
+        reading: &mut impl FnMut(PidReading),
+    ) {
+        let unit = &mut rt.units[i];
+        // A phase is read on the circle: the controller sees it within half a turn of its
+        // set-point, so the error never jumps by 2π where the phase wraps (a PLL's
+        // set-point near ±π is common).
+        let fed = match unit.input {
+            PidInput::Phase => {
+                let setpoint = unit.pid.settings().setpoint;
+                setpoint - (setpoint - measurement + PI).rem_euclid(TAU) + PI
+            }
+            _ => measurement,
+        };
+        let output = unit.pid.update(fed);
+        let error = unit.pid.error();
+        let limited = unit.pid.is_limited();
+        unit.sums.add(measurement, error, output);
+        let pll = unit.input == PidInput::Phase && unit.output.frequency_of().is_some();
+        if pll {
+            unit.lock.update(!limited && error.abs() < PLL_LOCK_PHASE);
+        }
+        reading(PidReading {
+            unit: i,
+            sample: index,
+            measurement,
+            error,
+            output,
+            limited,
+            locked: pll.then_some(unit.lock.locked),
+            lock_losses: unit.lock.losses,
+        });
+        match unit.output {
+            PidTarget::SurfaceDistance => rt.distance = output,
+            PidTarget::DriveFrequency => {
+                // The limits keep it a valid frequency; should one not be, the drive keeps
+                // its word.
+                if let Ok(word) = frequency_word(output, self.sample_rate) {
+                    rt.word_held = Some(word);
+                }
+            }
+            PidTarget::DriveAmplitude => {
+                rt.base_held = Some(output * self.pids.base_per_free);
+            }
+            PidTarget::Drive2Frequency => {
+                if let Ok(word) = frequency_word(output, self.sample_rate) {
+                    rt.word2_held = Some(word);
+                }
+            }
+            PidTarget::Drive2Amplitude => {
+                if let Some(per) = self.pids.base_per_free2 {
+                    rt.base2_held = Some(output * per);
+                }
+            }
+        }
     }
 }
 

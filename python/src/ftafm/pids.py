@@ -178,7 +178,8 @@ class PidUpdate:
     ``sample``: index of the sample from which the output took effect (its simulated time
     is ``sample / sample_rate`` s); ``epoch``: the settings epoch the synthesiser ran
     under; ``measurement`` and ``error`` (set-point minus measurement): the input's unit,
-    m for ``r``, ``x``, ``y`` and rad for ``phase``; ``output``: the output's value, m for
+    m for ``r``, ``x``, ``y``, rad for ``phase`` and Hz for ``frequency_shift`` (a PLL's
+    Δf); ``output``: the output's value, m for
     the surface distance and either drive amplitude, Hz for either drive frequency
     (:data:`OUTPUT_UNITS`); ``limited``: whether ``output_min``, ``output_max`` or ``rate`` held the
     output; ``updates``: the unit's updates since the daemon started.
