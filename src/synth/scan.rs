@@ -18,7 +18,7 @@ use std::f64::consts::TAU;
 use rustfft::num_complex::Complex64;
 
 use super::coupled::CoupledKernel;
-use super::pids::ScanLoops;
+use super::pids::{ScanLoops, mix};
 use super::plan::SynthPlan;
 use super::pulse::PulseKernel;
 use super::raster::{PixelId, Raster};
@@ -250,13 +250,8 @@ impl SynthPlan {
                 l.runtime.demodulate(segment, index);
             }
             // The feedback's demodulator: Σ s·e^{−iθ} over the period.
-            let mut rho = Complex64::from_polar(1.0, -phase_to_radians(phase));
-            let mut acc = rt.acc;
-            for &s in segment.iter() {
-                acc += rho * s;
-                rho *= step;
-            }
-            rt.acc = acc;
+            let rho = Complex64::from_polar(1.0, -phase_to_radians(phase));
+            rt.acc += mix(segment, rho, step);
             rt.acc_count += n as u32;
             done += n;
         }
