@@ -36,7 +36,8 @@ def first_whole_frame(inst: ftafm.Instrument, after_frame: int) -> list[dict[str
     """The lines of the first frame numbered above ``after_frame`` that arrives whole (every
     line, of the settings in force), in order."""
     frames: dict[tuple[int, int], dict[int, dict[str, Any]]] = {}
-    for _ in range(8 * PIXELS):  # frames of lines, not time: a bound on a wedged stream
+    bound = 40 * PIXELS  # lines, not time: a bound on a stream that never completes a frame
+    for _ in range(bound):
         m = inst.next("image")
         if m.get("stale") or m.get("epoch", 0) < inst.epoch or m["frame"] <= after_frame:
             continue
@@ -44,7 +45,7 @@ def first_whole_frame(inst: ftafm.Instrument, after_frame: int) -> list[dict[str
         lines[m["line"]] = m
         if len(lines) == PIXELS:
             return [lines[k] for k in range(PIXELS)]
-    raise AssertionError(f"no whole frame in {8 * PIXELS} lines: {sorted(frames)}")
+    raise AssertionError(f"no whole frame in {bound} lines: {sorted(frames)}")
 
 
 def test_a_bimodal_map_brings_its_channels_and_shows_the_disc(
@@ -61,9 +62,13 @@ def test_a_bimodal_map_brings_its_channels_and_shows_the_disc(
         assert im.channels[name].shape == (PIXELS, PIXELS)
         assert im.units[name] == unit
     assert im.units["height"] == "m" and "h17" in im.channels
-    # Mode 2's PLL holds its lock over the frame.
+    # Mode 2's PLL runs on drive2, within its limits, where the image reads mode 2's shift
+    # (its latest output against the silicon's pixels: the tip may be over the disc, 2.5 %
+    # lower). Not its `locked`: at the example's 0.05 nm and the default noise, mode 2's
+    # phase leaves the 0.1 rad window of the lock criterion thousands of times a second.
     pll = inst.pid_status()[0]
-    assert pll.oscillator == "drive2" and pll.locked, pll
+    assert pll.enable and pll.oscillator == "drive2" and pll.output == "drive2_frequency"
+    assert pll.latest is not None and not pll.latest.limited, pll
 
     # The disc (inclusion 0, at the centre) and the base material around it, by the pixels'
     # centres: the disc's interior, and the base well clear of its edge.
@@ -82,6 +87,8 @@ def test_a_bimodal_map_brings_its_channels_and_shows_the_disc(
     # The repulsive contact stiffens mode 2: its resonance shifts up over silicon (4.1 kHz,
     # docs/loops.md), every pixel of it.
     assert np.all(shift[base] > 0) and 1e3 < np.median(shift[base]) < 2e4
+    assert pll.frequency_shift is not None
+    assert abs(pll.frequency_shift / np.median(shift[base]) - 1) < 0.25, pll.frequency_shift
     # The bimodal expressions hold (Δf₂ > 0, φ1 < 90°) nearly everywhere.
     assert np.isfinite(modulus).mean() >= 0.9 and np.isfinite(indentation).mean() >= 0.9
     e_base = np.nanmedian(modulus[base])
