@@ -11,9 +11,16 @@
 //
 // FTAFM_E2E_WEB=<dir> (e.g. ../../web) serves the page's modules and style from that
 // directory instead of the daemon's embedded copies (index.html stays the daemon's).
+//
+// A bimodal map (config/examples/bimodal_map.toml on tap300, on a daemon of its own: a preset
+// sets the sample rate only at start) in the image panel: the channel select offers the
+// bimodal channels by their labels, and the bimodal modulus is drawn, the softer disc darker
+// than the silicon, with its colour scale in Pa.
 
 import { after, before, test } from "node:test";
 import assert from "node:assert/strict";
+import path from "node:path";
+import { fileURLToPath } from "node:url";
 import { launchBrowser, serveWebFrom } from "./browser.mjs";
 import { daemons, startDaemon, stopDaemon } from "./daemon.mjs";
 
@@ -150,4 +157,86 @@ test("the second drive and a demodulator on it, set from the page", TEST, async 
   await until(([sel, k]) => document.querySelector(sel)?.textContent === String(k), [chip(3), k], "demodulator 3's chip back to its harmonic");
   assert.equal(await get("/demods/3/oscillator"), "drive");
   assert.deepEqual(pageErrors, []);
+});
+
+const EXAMPLE = path.join(path.dirname(fileURLToPath(import.meta.url)), "../../config/examples/bimodal_map.toml");
+const PIXELS = 16; // the example's
+
+/** The colours the main image canvas shows at the centres of pixels [column, line]: [r, g, b]
+ * each, or null while any of them is not drawn (the background's grey: that line of the
+ * current frame is not in yet). */
+function drawnAt(pixels) {
+  const panel = window.ftafm.panels.image;
+  const c = document.getElementById("image-canvas");
+  const R = panel.rect, P = window.ftafm.image().pixels;
+  if (!R || !P) return null;
+  const dpr = c.width / c.clientWidth, ctx = c.getContext("2d");
+  const colours = pixels.map(([i, j]) => {
+    const d = ctx.getImageData(Math.round((R.x + ((i + 0.5) / P) * R.s) * dpr), Math.round((R.y + ((j + 0.5) / P) * R.s) * dpr), 1, 1).data;
+    return [d[0], d[1], d[2]];
+  });
+  const background = (c) => Math.abs(c[0] - 0xe4) + Math.abs(c[1] - 0xe6) + Math.abs(c[2] - 0xeb) < 20;
+  return colours.some(background) ? null : colours;
+}
+
+test("a bimodal map: the image panel offers the bimodal channels and draws the modulus in Pa", TEST, async (t) => {
+  const map = await startDaemon("127.0.0.1:0", ["--preset", "tap300", "--config", EXAMPLE]);
+  // The colour scale's labels are text on the canvas: keep the texts of the main image's
+  // last draws (each starts with its title, "channel — label").
+  await page.addInitScript(() => {
+    const fill = CanvasRenderingContext2D.prototype.fillText;
+    window.__imageDraws = [];
+    CanvasRenderingContext2D.prototype.fillText = function (text, ...rest) {
+      if (this.canvas.id === "image-canvas") {
+        const draws = window.__imageDraws;
+        if (/^\S+ — /.test(text) || !draws.length) draws.push([]);
+        if (draws.length > 4) draws.shift();
+        draws[draws.length - 1].push(String(text));
+      }
+      return fill.call(this, text, ...rest);
+    };
+  });
+  await serveWebFrom(page, map.url);
+  await page.goto(map.url);
+  await page.waitForSelector('#conn[data-state="open"]', { timeout: WAIT });
+  // The map, free-running (no pixel lost however busy the machine), in one change.
+  await request("set", { values: { "/synth/realtime": false, "/scan/enable": true } });
+  assert.equal(await get("/drive2/enable"), true);
+  assert.equal(await get("/pids/0/output"), "drive2_frequency");
+
+  await page.locator("#p-image").scrollIntoViewIfNeeded();
+  await until(() => window.ftafm.image().subscribed && window.ftafm.image().channels.includes("bimodal_modulus"), null, "image lines with the bimodal channels");
+  const options = await page.$$eval("#image-channel option", (os) => os.map((o) => [o.value, o.textContent]));
+  const labels = Object.fromEntries(options);
+  assert.equal(labels.frequency_shift2, "frequency_shift2 — mode 2's frequency shift Δf₂");
+  assert.equal(labels.indentation, "indentation — indentation d (bimodal)");
+  assert.equal(labels.bimodal_modulus, "bimodal_modulus — Young's modulus E (bimodal)");
+  const at = (name) => options.findIndex(([v]) => v === name);
+  assert.ok(at("h2") < at("frequency_shift2") && at("frequency_shift2") < at("indentation") && at("indentation") < at("bimodal_modulus"), `the bimodal channels after the harmonics, in order: ${options.map(([v]) => v)}`);
+
+  await page.selectOption("#image-channel", "bimodal_modulus");
+  assert.equal(await page.evaluate(() => window.ftafm.image().channel), "bimodal_modulus");
+  // Frame 0's first line holds the loops' lock-in: wait for frame 1 drawn past the disc
+  // (lines 5–10), then for one redraw that shows the four pixels at the disc's centre and
+  // four of the silicon above it.
+  await until(() => { const i = window.ftafm.image(); return i.frame >= 1 && i.line >= 12 && i.range; }, null, "a later frame scanned past the disc");
+  const disc = [[7, 7], [8, 7], [7, 8], [8, 8]], silicon = [[1, 1], [14, 1], [1, 4], [14, 4]];
+  const colours = await (await until(drawnAt, [...disc, ...silicon], "the disc and the silicon drawn")).jsonValue();
+  const lum = (c) => 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
+  const mean = (cs) => cs.reduce((s, c) => s + lum(c), 0) / cs.length;
+  const [inDisc, onSilicon] = [mean(colours.slice(0, 4)), mean(colours.slice(4))];
+  const im = await page.evaluate(() => window.ftafm.image());
+  t.diagnostic(`bimodal_modulus: luminance disc ${inDisc.toFixed(1)}, silicon ${onSilicon.toFixed(1)}; range ${im.range.map((v) => (v / 1e9).toFixed(1)).join(" … ")} GPa`);
+  // viridis: the softer disc (94 against 102 GPa, docs/loops.md) toward the dark end
+  assert.ok(inDisc < onSilicon - 10, `the disc (${inDisc.toFixed(1)}) darker than the silicon (${onSilicon.toFixed(1)})`);
+  assert.ok(im.range[0] > 50e9 && im.range[1] < 200e9 && im.range[0] < im.range[1], `a colour range of tens of GPa: ${im.range}`);
+
+  // The colour scale in Pa: a draw of this channel whose labels carry the unit.
+  const texts = await (await until(() => {
+    const d = window.__imageDraws.filter((d) => d[0] === "bimodal_modulus — Young's modulus E (bimodal)").at(-1);
+    return d && d.filter((s) => /^[−\d.]+ GPa$/.test(s)).length >= 2 && d;
+  }, null, "the colour scale's labels in GPa")).jsonValue();
+  t.diagnostic(`drawn: ${JSON.stringify(texts)}`);
+  assert.deepEqual(pageErrors, []);
+  await stopDaemon(map);
 });
