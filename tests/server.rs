@@ -991,6 +991,30 @@ async fn a_small_scan_images_the_softer_disc_in_the_high_harmonics() {
     let (status, body) = http_get(daemon.addr, "/image/nothing.gsf").await;
     assert_eq!(status, 404);
     assert!(body.contains("h17"), "{body}");
+    // A change that leaves the images as they are (the spectrum's rate): the lines that
+    // follow reflect it, so they carry its epoch, not stale, within a frame; before, they
+    // kept the epoch of the last change that concerned them, and a client waiting for its
+    // own epoch waited for ever.
+    let r = call(
+        &mut ws,
+        json!({"op": "set", "path": "/spectrum/rate", "value": 5.0}),
+    )
+    .await;
+    let epoch = r["epoch"].as_u64().expect("the set's epoch");
+    let mut seen = 0;
+    loop {
+        let v = next_of(&mut ws, "image").await;
+        if v["epoch"].as_u64().unwrap() >= epoch {
+            assert_eq!(v["stale"], false, "{v}");
+            break;
+        }
+        seen += 1;
+        assert!(
+            seen <= 32,
+            "{seen} lines after epoch {epoch} still carry {}",
+            v["epoch"]
+        );
+    }
     daemon.shutdown().await;
 }
 

@@ -52,6 +52,9 @@ pub(crate) struct ImageLink {
     /// The newest settings not yet taken up: a flood of changes costs one rebuild at a
     /// time, never a queue of them.
     pub pending: Arc<Latest<(Box<Settings>, u64)>>,
+    /// The newest settings epoch committed, whether or not its change concerns the images:
+    /// a line made once every change that does is taken up reflects it.
+    committed: Arc<AtomicU64>,
 }
 
 impl ImageLink {
@@ -63,7 +66,9 @@ impl ImageLink {
         let last_frame = Arc::new(Mutex::new(None));
         let mut assembler = Assembler::new(settings);
         let pending: Arc<Latest<(Box<Settings>, u64)>> = Arc::new(Latest::new());
+        let committed = Arc::new(AtomicU64::new(0));
         let (c, done, waiting) = (counters.clone(), last_frame.clone(), pending.clone());
+        let newest = committed.clone();
         std::thread::Builder::new()
             .name("image".into())
             .spawn(move || {
@@ -113,8 +118,13 @@ impl ImageLink {
                                 .fetch_add(assembler.misplaced - misplaced, Ordering::Relaxed);
                             for mut line in lines {
                                 c.lines.fetch_add(1, Ordering::Relaxed);
-                                line.epoch = epoch;
+                                // The newest epoch first: a change that concerns the
+                                // images is pending before its epoch is committed here.
+                                let seen = newest.load(Ordering::SeqCst);
                                 line.stale = waiting.is_pending();
+                                // Taken up all that concern it, the line reflects every
+                                // later change too (they leave it as it is).
+                                line.epoch = if line.stale { epoch } else { epoch.max(seen) };
                                 if let Some(frame) = assembler.take_finished() {
                                     c.frames.fetch_add(1, Ordering::Relaxed);
                                     if let Ok(mut last) = done.lock() {
@@ -136,6 +146,7 @@ impl ImageLink {
                 counters,
                 last_frame,
                 pending,
+                committed,
             },
             lines,
         )
@@ -155,6 +166,12 @@ impl ImageLink {
     /// Offers a pixel's topography.
     pub fn topography(&self, t: &PixelTopography) {
         self.offer(Input::Topography(*t));
+    }
+
+    /// Settings of epoch `epoch` committed, whatever they changed: called after
+    /// [`configure`](Self::configure) for a change that concerns the images.
+    pub fn committed(&self, epoch: u64) {
+        self.committed.fetch_max(epoch, Ordering::SeqCst);
     }
 
     /// New settings, of epoch `epoch`: the worker rebuilds its estimator for the newest of

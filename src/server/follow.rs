@@ -37,5 +37,6 @@ pub(crate) fn followers(state: Weak<AppState>) -> impl Fn(&Committed<'_>) + Send
         if c.touched(crate::instrument::image::affects_images) {
             state.image.configure(c.settings, c.epoch);
         }
+        state.image.committed(c.epoch);
     }
 }
