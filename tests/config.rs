@@ -3140,3 +3140,56 @@ fn a_batch_set_is_checked_as_a_whole_and_all_or_nothing() {
         assert_eq!(u, base, "a refused batch changed something: {err}");
     }
 }
+
+/// The second excitation's frequency (Hz) of `names` laid over the default, and mode 2's
+/// natural frequency (Hz) of the lever they configure, as the physics builds it.
+fn drive2_and_mode_2(names: &[String]) -> (f64, f64) {
+    let s =
+        ftafm::config::load_with_presets(names, None).unwrap_or_else(|e| panic!("{names:?}: {e}"));
+    let lever = ftafm::model::cantilever(&s).unwrap_or_else(|e| panic!("{names:?}: {e}"));
+    (s.drive2.frequency, lever.modes[1].frequency)
+}
+
+/// Every preset, alone and every lever with every sample in either order, leaves
+/// `/drive2/frequency` on mode 2 of the lever it configures (within 1e-6 of f2: the
+/// files give it to 7 digits), so bimodal AFM drives mode 2 on resonance: a lever preset
+/// sets its own, a sample preset leaves the lever's. Switched on, the second excitation
+/// lies below the Nyquist frequency at the preset's sample rate and at the default's
+/// (the `preset` op keeps the running one), so it validates.
+#[test]
+fn every_preset_drives_mode_2_of_its_own_lever() {
+    let name = |p: &ftafm::config::Preset| p.name.to_owned();
+    let mut combinations: Vec<Vec<String>> = ftafm::config::PRESETS
+        .iter()
+        .map(|p| vec![name(p)])
+        .collect();
+    for lever in ftafm::config::PRESETS
+        .iter()
+        .filter(|p| p.kind == ftafm::config::PresetKind::Cantilever)
+    {
+        for sample in ftafm::config::PRESETS
+            .iter()
+            .filter(|p| p.kind == ftafm::config::PresetKind::Sample)
+        {
+            combinations.push(vec![name(lever), name(sample)]);
+            combinations.push(vec![name(sample), name(lever)]);
+        }
+    }
+    let default_rate = default_settings().synth.sample_rate;
+    for names in combinations {
+        let (f, f2) = drive2_and_mode_2(&names);
+        assert!(
+            ((f - f2) / f2).abs() < 1e-6,
+            "{names:?}: /drive2/frequency = {f} Hz, mode 2 at {f2} Hz"
+        );
+        let mut s = ftafm::config::load_with_presets(&names, None).unwrap();
+        s.drive2.enable = true;
+        for rate in [s.synth.sample_rate, default_rate] {
+            assert!(f < rate / 2.0, "{names:?}: {f} Hz at {rate} S/s");
+            let mut at = s.clone();
+            at.synth.sample_rate = rate;
+            at.validate()
+                .unwrap_or_else(|e| panic!("{names:?}, drive2 on at {rate} S/s: {e}"));
+        }
+    }
+}

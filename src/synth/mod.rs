@@ -11,6 +11,7 @@ mod lanes;
 pub mod modal;
 pub mod noise_pages;
 pub mod normals;
+mod period;
 pub(crate) mod phasor;
 pub mod pid_plan;
 pub mod pids;

@@ -40,9 +40,9 @@ use rustfft::num_complex::Complex64;
 
 use super::coupled::CoupledKernel;
 use super::drive::{Drive, ReferenceChange};
+use super::period::{mix, samples_until};
 use super::pid_plan::LOW_PASS_SECTIONS;
 use super::plan::SynthPlan;
-use super::scan::samples_until;
 use super::synthesizer::{Output, SynthState};
 use crate::config::{Oscillator, PID_COUNT, PidInput, PidTarget};
 use crate::control::{Pid, PidSettings};
@@ -822,31 +822,6 @@ impl PidRuntime {
     }
 }
 
-/// Σ sₙ·ρ0·rⁿ over the samples sₙ of `piece`: a boxcar demodulator's sum, with the mixing
-/// phasor ρ0 = e^{−iθ} and its step r = `step` per sample. Four interleaved phasors (each
-/// stepping by r⁴) make four independent chains of multiply–adds, which a core runs in
-/// parallel where one chain would wait on each product in turn.
-pub(super) fn mix(piece: &[f64], rho0: Complex64, step: Complex64) -> Complex64 {
-    let step2 = step * step;
-    let step4 = step2 * step2;
-    let mut rho = [rho0, rho0 * step, rho0 * step2, rho0 * step2 * step];
-    let mut acc = [Complex64::new(0.0, 0.0); 4];
-    let mut chunks = piece.chunks_exact(4);
-    for chunk in &mut chunks {
-        for lane in 0..4 {
-            acc[lane] += rho[lane] * chunk[lane];
-            rho[lane] *= step4;
-        }
-    }
-    let mut tail = rho[0];
-    let mut sum = (acc[0] + acc[1]) + (acc[2] + acc[3]);
-    for &s in chunks.remainder() {
-        sum += tail * s;
-        tail *= step;
-    }
-    sum
-}
-
 /// Σ (ρ0·rⁿ)² over n = 0 … `len` − 1 for the mixing phasor ρ0 = e^{−iθ} and its step
 /// r = e^{−iω}, ω the phase word `turn` (2^64 = one turn): the boxcar's image of −kΩ over a
 /// piece of `len` samples, the geometric series summed in closed form (its terms do not
@@ -1013,26 +988,6 @@ impl SynthPlan {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// The interleaved mixing sum against the terms summed one by one, at every length's
-    /// remainder.
-    #[test]
-    fn mix_is_the_sum() {
-        let rho0 = Complex64::from_polar(1.0, 0.3);
-        let step = Complex64::from_polar(1.0, -0.0271);
-        for len in [0usize, 1, 3, 4, 5, 97, 100, 4096] {
-            let piece: Vec<f64> = (0..len).map(|n| (n as f64 * 0.37).sin() + 0.1).collect();
-            let mut direct = Complex64::new(0.0, 0.0);
-            for (n, &s) in piece.iter().enumerate() {
-                direct += rho0 * step.powu(n as u32) * s;
-            }
-            let mixed = mix(&piece, rho0, step);
-            assert!(
-                (mixed - direct).norm() < 1e-11 * (len as f64).max(1.0),
-                "{len}: {mixed} against {direct}"
-            );
-        }
-    }
 
     /// The closed form against the terms summed one by one: fractional periods, many
     /// turns, and 2kΩ a whole turn a sample (the series' degenerate case).

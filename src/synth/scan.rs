@@ -18,7 +18,8 @@ use std::f64::consts::TAU;
 use rustfft::num_complex::Complex64;
 
 use super::coupled::CoupledKernel;
-use super::pids::{ScanLoops, mix};
+use super::period::{mix, samples_until};
+use super::pids::ScanLoops;
 use super::plan::SynthPlan;
 use super::pulse::PulseKernel;
 use super::raster::{PixelId, Raster};
@@ -150,13 +151,6 @@ impl ScanRuntime {
         self.period_start = index;
         self.next_update = index;
     }
-}
-
-/// Samples from phase word `phase` until the drive phase first passes `target` (at least 1):
-/// where a loop run once per drive period (the scan's, the PID units') next updates.
-pub(super) fn samples_until(phase: u64, target: u64, word: u64) -> u64 {
-    let words = target.wrapping_sub(phase).wrapping_sub(1);
-    (u128::from(words) / u128::from(word.max(1))) as u64 + 1
 }
 
 impl SynthPlan {
