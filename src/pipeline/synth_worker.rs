@@ -149,8 +149,8 @@ impl SynthWorker {
             // The drive phase at which the block's first sample was taken: behind the
             // synthesis by the ADC filter's delay, so the lock-in sees no shift from it;
             // under the loops, their drive's (a PLL moves it).
-            // A scan runs them beside it (only the second excitation's, which the settings
-            // allow while scanning).
+            // A scan runs them beside it (with its own feedback on, only the second
+            // excitation's, which the settings allow then).
             let loops = self.pids.active(&self.plan);
             let [(phase, frequency_word), (phase2, frequency_word2)] = if loops {
                 self.pids.begin(&self.plan, &self.state)

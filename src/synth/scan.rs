@@ -155,11 +155,12 @@ impl ScanRuntime {
 
 impl SynthPlan {
     /// Fills `out` with the next samples of a running scan (see the module docs), handing
-    /// each finished pixel's topography to `pixel`. With `loops`, the PID units on the
-    /// second excitation run beside the scan (bimodal AFM's mode-2 PLL and amplitude loop:
-    /// the settings allow no other unit while scanning), each at its own update, their
-    /// updates and reference changes handed to the sinks in `loops`. Allocation-free,
-    /// lock-free. Without a scan in the plan it is [`process`](Self::process).
+    /// each finished pixel's topography to `pixel`. With `loops`, the PID units run beside
+    /// the scan (bimodal AFM's mode-2 loops beside the scan's feedback; with
+    /// `/feedback/enable` off, a unit on the surface distance is the feedback and loops on
+    /// the drive may run too), each at its own update, their updates and reference changes
+    /// handed to the sinks in `loops`. Allocation-free, lock-free. Without a scan in the
+    /// plan it is [`process`](Self::process).
     pub fn process_scan(
         &self,
         state: &mut SynthState,
