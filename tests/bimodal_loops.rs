@@ -13,21 +13,15 @@ use common::bimodal::{f2_of, mode_two_amplitude, mode_two_pll, second_reading};
 
 use std::f64::consts::PI;
 
-use common::loops::{assert_step_as_advised, change, measured_step, refused, run_traced, start};
+use common::loops::{
+    assert_step_as_advised, change, mean_and_spread, measured_step, refused, run_traced, start,
+};
 use ftafm::config::{Oscillator, PidInput, PidTarget, Settings, default_settings};
 use ftafm::physics::bimodal::{self, BimodalLever, BimodalReading};
 use ftafm::synth::PidReading;
 use ftafm::timebase::phase_to_radians;
 use rustfft::num_complex::Complex64;
 use serde_json::json;
-
-fn mean_and_spread(values: impl Iterator<Item = f64>) -> (f64, f64) {
-    let v: Vec<f64> = values.collect();
-    let n = v.len() as f64;
-    let mean = v.iter().sum::<f64>() / n;
-    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
-    (mean, var.sqrt())
-}
 
 /// Unit `unit`'s readings from sample `from` on.
 fn after(readings: &[PidReading], unit: usize, from: u64) -> Vec<PidReading> {

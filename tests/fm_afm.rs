@@ -8,8 +8,8 @@ mod common;
 
 use std::f64::consts::PI;
 
-use common::loops::{change, run, start};
-use ftafm::config::{PidInput, PidTarget, Settings, default_settings};
+use common::loops::{change, mean, pi_unit, run, start};
+use ftafm::config::{Oscillator, PidInput, PidTarget, Settings, default_settings};
 use ftafm::physics::fm::{FmLever, invert};
 use ftafm::synth::{PidRuntime, ScanLoops, ScanRuntime, SynthPlan, SynthState};
 
@@ -25,18 +25,13 @@ fn fm_afm(calibration: f64) -> Settings {
     s.drive.free_amplitude = AMPLITUDE;
     let f1 = s.cantilever.f1;
     let q = s.cantilever.q[0];
-    let slope = 2.0 * q / f1;
-    let i = -2.0 * PI * 500.0 / slope;
-    let pll = &mut s.pids[0];
-    pll.enable = true;
-    pll.input = PidInput::Phase;
-    pll.harmonic = 1;
-    pll.setpoint = PI;
-    pll.i = i;
-    pll.p = i * q / (PI * f1);
-    pll.output = PidTarget::DriveFrequency;
-    pll.output_min = 0.95 * f1;
-    pll.output_max = 1.05 * f1;
+    let route = (
+        Oscillator::Drive,
+        PidInput::Phase,
+        PidTarget::DriveFrequency,
+    );
+    let plant = (500.0, -2.0 * q / f1, q / (PI * f1));
+    pi_unit(&mut s, 0, route, PI, plant, (0.95 * f1, 1.05 * f1));
     let amplitude = &mut s.pids[1];
     amplitude.enable = true;
     amplitude.input = PidInput::R;
@@ -48,11 +43,6 @@ fn fm_afm(calibration: f64) -> Settings {
     amplitude.output_min = 0.0;
     amplitude.output_max = 100e-9;
     s
-}
-
-fn mean(values: impl Iterator<Item = f64>) -> f64 {
-    let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
-    sum / n as f64
 }
 
 /// An approach in FM-AFM: the closest approach z = distance − A from 4 nm to 0.3 nm in

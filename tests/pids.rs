@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::loops::{change, refused, run, start};
+use common::loops::{change, mean, refused, run, start};
 use ftafm::config::{PidInput, Settings, default_settings};
 use ftafm::synth::{PidReading, SynthPlan};
 use serde_json::json;
@@ -36,11 +36,6 @@ fn amplitude_at(distance: f64) -> f64 {
     s.surface.distance = distance;
     s.scan.enable = true;
     SynthPlan::new(&s).unwrap().scan.unwrap().setpoint
-}
-
-fn mean(values: impl Iterator<Item = f64>) -> f64 {
-    let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
-    sum / n as f64
 }
 
 #[test]

@@ -9,8 +9,10 @@ mod common;
 
 use std::f64::consts::PI;
 
-use common::loops::{assert_step_as_advised, change, measured_step, run_traced, start};
-use ftafm::config::{PidInput, PidTarget, Settings, default_settings};
+use common::loops::{
+    assert_step_as_advised, change, mean_and_spread, measured_step, pi_unit, run_traced, start,
+};
+use ftafm::config::{Oscillator, PidInput, PidTarget, Settings, default_settings};
 use ftafm::control::loop_model::ADC_DELAY_SAMPLES;
 use ftafm::control::{Demodulator, Kind, LoopModel, Plant, advise};
 use ftafm::synth::PidReading;
@@ -28,20 +30,13 @@ fn pll(detuning: f64, bandwidth: f64) -> Settings {
     s.drive.follow_f1 = false;
     s.drive.frequency = f1 * (1.0 + detuning);
     let q = s.cantilever.q[0];
-    let slope = 2.0 * q / f1; // rad per Hz
-    let tau = q / (PI * f1); // s
-    let i = -2.0 * PI * bandwidth / slope;
-    let pid = &mut s.pids[0];
-    pid.enable = true;
-    pid.input = PidInput::Phase;
-    pid.harmonic = 1;
-    pid.setpoint = PI;
-    pid.i = i;
-    pid.p = i * tau;
-    pid.d = 0.0;
-    pid.output = PidTarget::DriveFrequency;
-    pid.output_min = 0.98 * f1;
-    pid.output_max = 1.02 * f1;
+    let route = (
+        Oscillator::Drive,
+        PidInput::Phase,
+        PidTarget::DriveFrequency,
+    );
+    let plant = (bandwidth, -2.0 * q / f1, q / (PI * f1)); // rad per Hz, s
+    pi_unit(&mut s, 0, route, PI, plant, (0.98 * f1, 1.02 * f1));
     s
 }
 
@@ -70,13 +65,6 @@ fn phase_pi_frequency(settings: &Settings) -> f64 {
     b
 }
 
-fn mean_and_spread(values: &[f64]) -> (f64, f64) {
-    let n = values.len() as f64;
-    let mean = values.iter().sum::<f64>() / n;
-    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
-    (mean, var.sqrt())
-}
-
 /// The readings of the last `seconds` of a run that ended at sample `end`.
 fn tail(readings: &[PidReading], end: u64, samples: u64) -> Vec<PidReading> {
     readings
@@ -100,9 +88,9 @@ fn the_pll_locks_to_the_resonance_from_one_per_cent_off() {
     let end = state.sample_index();
     let last = tail(&readings, end, (0.005 * plan.sample_rate) as u64);
     let frequencies: Vec<f64> = last.iter().map(|r| r.output).collect();
-    let (f, spread) = mean_and_spread(&frequencies);
+    let (f, spread) = mean_and_spread(frequencies.iter().copied());
     let phases: Vec<f64> = last.iter().map(|r| r.error).collect();
-    let (error, error_spread) = mean_and_spread(&phases);
+    let (error, error_spread) = mean_and_spread(phases.iter().copied());
     eprintln!(
         "PLL from f1 + 1 %: {f} Hz (f1 {:+.3} Hz, spread {spread:.3} Hz; phase π at f1 \
          {:+.3} Hz), phase error {error:+.2e} ± {error_spread:.2e} rad, {} reference changes",
@@ -157,7 +145,7 @@ fn the_pll_tracks_a_step_of_the_resonance_as_its_linear_model_predicts() {
         .filter(|r| t(r) > 0.006)
         .map(|r| r.output)
         .collect();
-    let (end, spread) = mean_and_spread(&settled);
+    let (end, spread) = mean_and_spread(settled.iter().copied());
     // The time to 1 − 1/e of the step, and the overshoot.
     let rise = readings
         .iter()
@@ -218,8 +206,8 @@ fn an_amplitude_loop_on_the_drive_holds_the_amplitude_it_is_asked_for() {
     );
     let end = state.sample_index();
     let last = tail(&readings, end, (0.005 * plan.sample_rate) as u64);
-    let (drive, spread) = mean_and_spread(&last.iter().map(|r| r.output).collect::<Vec<_>>());
-    let (measured, _) = mean_and_spread(&last.iter().map(|r| r.measurement).collect::<Vec<_>>());
+    let (drive, spread) = mean_and_spread(last.iter().map(|r| r.output));
+    let (measured, _) = mean_and_spread(last.iter().map(|r| r.measurement));
     eprintln!(
         "amplitude loop: drive {:.4} nm (± {:.4}) for 1.5 × the free {free:e} m; reads \
          {measured:e} m",
@@ -258,17 +246,7 @@ fn a_change_of_the_drive_keeps_the_motion_continuous() {
 #[test]
 fn drive_limits_are_refused_naming_the_node_and_the_range() {
     let s = pll(0.0, 500.0);
-    let refused = |changes: &[(&str, serde_json::Value)]| {
-        let mut next = s.clone();
-        let values: Vec<(String, serde_json::Value)> = changes
-            .iter()
-            .map(|(p, v)| (p.to_string(), v.clone()))
-            .collect();
-        match next.set_many(&values) {
-            Err(e) => e,
-            Ok(_) => ftafm::model::check(&next).expect_err("accepted"),
-        }
-    };
+    let refused = |changes: &[(&str, serde_json::Value)]| common::loops::refused(&s, changes);
     use serde_json::json;
     // Demodulator 0 at harmonic 49 would read up to 49 × output_max = 5.1 MHz, over
     // Nyquist (it is in band at the 100 kHz the drive starts from).
@@ -515,7 +493,7 @@ fn the_advised_pll_steps_as_the_advisor_predicts() {
         );
         let (overshoot, settling) = measured_step(&readings, from, plan.sample_rate, before, after);
         let tail = &readings[readings.len() - 100..];
-        let (last, _) = mean_and_spread(&tail.iter().map(|r| r.output).collect::<Vec<_>>());
+        let (last, _) = mean_and_spread(tail.iter().map(|r| r.output));
         eprintln!(
             "advised PLL {kind:?} {target} Hz: P {:.2} Hz/rad I {:.4e} Hz/(rad·s) D {:.3e}; \
              bandwidth {:.1} Hz, margin {:.1}°; overshoot measured {:.2} % predicted {:.2} %; \

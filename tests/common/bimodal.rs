@@ -6,6 +6,8 @@ use std::f64::consts::PI;
 use ftafm::config::{Oscillator, PidInput, PidTarget, Settings};
 use rustfft::num_complex::Complex64;
 
+use super::loops::pi_unit;
+
 /// The photodiode's steady response to the second excitation alone at `frequency` (Hz)
 /// with free amplitude `free` (m), as a demodulator on "drive2" reads it: the lever's
 /// modes' analytic response, no synthesis.
@@ -27,21 +29,13 @@ pub fn f2_of(settings: &Settings) -> f64 {
 pub fn mode_two_pll(s: &mut Settings, index: usize, setpoint: f64, bandwidth: f64) {
     let lever = ftafm::model::cantilever(s).unwrap();
     let (f2, q2) = (lever.modes[1].frequency, lever.modes[1].q);
-    let slope = 2.0 * q2 / f2;
-    let tau = q2 / (PI * f2);
-    let i = -2.0 * PI * bandwidth / slope;
-    let pid = &mut s.pids[index];
-    pid.enable = true;
-    pid.oscillator = Oscillator::Drive2;
-    pid.input = PidInput::Phase;
-    pid.harmonic = 1;
-    pid.setpoint = setpoint;
-    pid.i = i;
-    pid.p = i * tau;
-    pid.d = 0.0;
-    pid.output = PidTarget::Drive2Frequency;
-    pid.output_min = 0.99 * f2;
-    pid.output_max = 1.01 * f2;
+    let route = (
+        Oscillator::Drive2,
+        PidInput::Phase,
+        PidTarget::Drive2Frequency,
+    );
+    let plant = (bandwidth, -2.0 * q2 / f2, q2 / (PI * f2));
+    pi_unit(s, index, route, setpoint, plant, (0.99 * f2, 1.01 * f2));
 }
 
 /// Mode 2's amplitude loop in unit `index`: the photodiode amplitude at harmonic 1 of
@@ -57,17 +51,13 @@ pub fn mode_two_amplitude(
 ) {
     let lever = ftafm::model::cantilever(s).unwrap();
     let tau = lever.modes[1].q / (PI * lever.modes[1].frequency);
-    let i = 2.0 * PI * bandwidth / gain;
-    let pid = &mut s.pids[index];
-    pid.enable = true;
-    pid.oscillator = Oscillator::Drive2;
-    pid.input = PidInput::R;
-    pid.harmonic = 1;
-    pid.setpoint = setpoint;
-    pid.i = i;
-    pid.p = i * tau;
-    pid.d = 0.0;
-    pid.output = PidTarget::Drive2Amplitude;
-    pid.output_min = 0.0;
-    pid.output_max = 20e-9;
+    let route = (Oscillator::Drive2, PidInput::R, PidTarget::Drive2Amplitude);
+    pi_unit(
+        s,
+        index,
+        route,
+        setpoint,
+        (bandwidth, gain, tau),
+        (0.0, 20e-9),
+    );
 }

@@ -3,7 +3,9 @@
 //! the units' runtime, run for simulated time and moved to new settings between blocks; a
 //! step response measured against the advisor's prediction; settings refused.
 
-use ftafm::config::{NodeError, Settings};
+use std::f64::consts::PI;
+
+use ftafm::config::{NodeError, Oscillator, PidInput, PidTarget, Settings};
 use ftafm::control::Advice;
 use ftafm::synth::{PidReading, PidRuntime, ReferenceChange, SynthPlan, SynthState};
 
@@ -126,4 +128,45 @@ pub fn refused(settings: &Settings, changes: &[(&str, serde_json::Value)]) -> No
         Err(e) => e,
         Ok(_) => ftafm::model::check(&next).expect_err("accepted"),
     }
+}
+
+/// The mean of `values`.
+pub fn mean(values: impl IntoIterator<Item = f64>) -> f64 {
+    mean_and_spread(values).0
+}
+
+/// The mean of `values` and their standard deviation about it (population).
+pub fn mean_and_spread(values: impl IntoIterator<Item = f64>) -> (f64, f64) {
+    let v: Vec<f64> = values.into_iter().collect();
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
+    (mean, var.sqrt())
+}
+
+/// What a PI unit reads and drives: its oscillator (harmonic 1 of it), its input and its
+/// output.
+pub type Route = (Oscillator, PidInput, PidTarget);
+
+/// Unit `index` of `s` enabled as a PI on `route`: the input held at `setpoint`, gains for a
+/// crossover of `bandwidth` (Hz) on a plant of gain `slope` (input unit per output unit; a
+/// negative one, as a PLL's phase against frequency, signs the gains) and time constant
+/// `tau` (s), whose pole the PI's zero cancels: i = 2π·bandwidth/slope, p = i·tau; the
+/// output within `limits`.
+pub fn pi_unit(
+    s: &mut Settings,
+    index: usize,
+    route: Route,
+    setpoint: f64,
+    (bandwidth, slope, tau): (f64, f64, f64),
+    limits: (f64, f64),
+) {
+    let i = 2.0 * PI * bandwidth / slope;
+    let pid = &mut s.pids[index];
+    pid.enable = true;
+    (pid.oscillator, pid.input, pid.output) = route;
+    pid.harmonic = 1;
+    pid.setpoint = setpoint;
+    (pid.p, pid.i, pid.d) = (i * tau, i, 0.0);
+    (pid.output_min, pid.output_max) = limits;
 }
