@@ -285,12 +285,14 @@ fn bimodal_expressions_give_the_modulus_from_1_mpa_to_100_gpa() {
         let error = e.reduced_modulus / truth - 1.0;
         println!(
             "{lever:8} E = {modulus:8.1e} Pa: E* {:.4e} against {truth:.4e} Pa ({:+.1} %), \
-             <F> {:.3} nN, <k_ts> {:.3} N/m, d {:.3} nm",
+             <F> {:.3} nN, <k_ts> {:.3} N/m, d {:.3} nm; short tap {:+.1} %, d {:.3} nm",
             e.reduced_modulus,
             100.0 * error,
             e.mean_force * 1e9,
             e.mean_stiffness,
-            e.indentation * 1e9
+            e.indentation * 1e9,
+            100.0 * (e.short_tap_modulus / truth - 1.0),
+            e.short_tap_indentation * 1e9
         );
         assert!(
             error.abs() < 0.1,

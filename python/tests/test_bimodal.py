@@ -1,6 +1,7 @@
 """``ftafm.bimodal``: the expressions give back the modulus and indentation of a Hertz
-contact whose averages over a swing are integrated numerically, and refuse what they
-cannot take, naming it."""
+contact whose averages over a swing are integrated numerically, the whole swing at any
+depth and the short-tap closed forms on a short tap, and refuse what they cannot take,
+naming it."""
 
 import math
 
@@ -10,29 +11,58 @@ import pytest
 from ftafm import bimodal
 
 
-def test_a_hertz_swing_inverts_to_its_modulus() -> None:
-    modulus, radius, a1, d = 1e9, 10e-9, 20e-9, 1.5e-9
+K1, Q1, K2, F2, FREE, RADIUS = 20.0, 100.0, 800.0, 626e3, 30e-9, 10e-9
+
+
+def hertz_reading(modulus: float, a1: float, d: float) -> tuple[dict[str, float], float, float]:
+    """The arguments a Hertz contact of ``modulus`` at depth ``d`` under a swing ``a1``
+    gives, its averages summed over 2e6 phases independently of the module's quadrature:
+    the virial ⟨F·cos θ⟩ sets cos φ1, ⟨k_ts⟩ sets Δf2. With ⟨F⟩ and ⟨k_ts⟩."""
     theta = np.linspace(-math.pi, math.pi, 2_000_001)[:-1] + math.pi / 2_000_000
     delta = np.clip(d - a1 * (1.0 - np.cos(theta)), 0.0, None)
-    force = float(np.mean(4.0 / 3.0 * modulus * math.sqrt(radius) * delta**1.5))
-    stiffness = float(np.mean(2.0 * modulus * math.sqrt(radius) * np.sqrt(delta)))
-    k1, q1, k2, f2, free = 20.0, 100.0, 800.0, 626e3, 30e-9
-    e = bimodal.estimate(
-        k1=k1,
-        q1=q1,
-        k2=k2,
-        f2=f2,
-        tip_radius=radius,
-        free_amplitude=free,
+    f = 4.0 / 3.0 * modulus * math.sqrt(RADIUS) * delta**1.5
+    force, virial = float(np.mean(f)), float(np.mean(f * np.cos(theta)))
+    stiffness = float(np.mean(2.0 * modulus * math.sqrt(RADIUS) * np.sqrt(delta)))
+    args = dict(
+        k1=K1,
+        q1=Q1,
+        k2=K2,
+        f2=F2,
+        tip_radius=RADIUS,
+        free_amplitude=FREE,
         amplitude=a1,
-        phase_lag=math.acos(force * 2.0 * q1 / (k1 * free)),
-        frequency_shift=stiffness * f2 / (2.0 * k2),
+        phase_lag=math.acos(virial * 2.0 * Q1 / (K1 * FREE)),
+        frequency_shift=stiffness * F2 / (2.0 * K2),
     )
-    assert e.mean_force == pytest.approx(force, rel=1e-12)
+    return args, force, stiffness
+
+
+def test_a_short_tap_inverts_by_the_published_expressions() -> None:
+    args, force, stiffness = hertz_reading(1e9, 20e-9, 1.5e-9)
+    e = bimodal.estimate(**args)
+    assert e.mean_force == pytest.approx(force, rel=0.03)
     assert e.mean_stiffness == pytest.approx(stiffness, rel=1e-12)
-    # The parabola the expressions take for the swing's bottom: a few per cent at d/A1 = 7.5 %.
-    assert e.indentation == pytest.approx(d, rel=0.03)
-    assert e.reduced_modulus == pytest.approx(modulus, rel=0.03)
+    # The short tap's parabola: a few per cent at d/A1 = 7.5 %.
+    assert e.short_tap_indentation == pytest.approx(1.5e-9, rel=0.03)
+    assert e.short_tap_modulus == pytest.approx(1e9, rel=0.03)
+
+
+@pytest.mark.parametrize(("x", "modulus"), [(1e-3, 100e9), (0.075, 1e9), (0.38, 10e6), (1.8, 1e6)])
+def test_the_whole_swing_inverts_to_its_modulus_at_any_depth(x: float, modulus: float) -> None:
+    a1 = 20e-9
+    args, _, _ = hertz_reading(modulus, a1, x * a1)
+    e = bimodal.estimate(**args)
+    assert e.reduced_modulus == pytest.approx(modulus, rel=1e-4)
+    assert e.indentation == pytest.approx(x * a1, rel=1e-4)
+    if x > 0.3:
+        assert e.short_tap_modulus > 1.1 * modulus
+
+
+def test_readings_beyond_any_swing_are_refused() -> None:
+    args, _, _ = hertz_reading(1e6, 20e-9, 1.8 * 20e-9)
+    args["phase_lag"] = math.acos(math.cos(args["phase_lag"]) * 1.1)
+    with pytest.raises(ValueError, match="beyond what a Hertz contact on a swing gives"):
+        bimodal.estimate(**args)
 
 
 @pytest.mark.parametrize(

@@ -81,6 +81,8 @@ impl Calibration {
                         fields["mean_stiffness"] = json!(e.mean_stiffness);
                         fields["indentation"] = json!(e.indentation);
                         fields["reduced_modulus"] = json!(e.reduced_modulus);
+                        fields["short_tap_indentation"] = json!(e.short_tap_indentation);
+                        fields["short_tap_modulus"] = json!(e.short_tap_modulus);
                         fields["youngs_modulus"] = json!(v.youngs_modulus);
                         fields["reason"] = Value::Null;
                     }
@@ -99,6 +101,8 @@ impl Calibration {
             "mean_stiffness",
             "indentation",
             "reduced_modulus",
+            "short_tap_indentation",
+            "short_tap_modulus",
             "youngs_modulus",
         ] {
             if fields.get(key).is_none() {

@@ -404,7 +404,8 @@ class BimodalData(StreamData):
     """The bimodal AM-FM estimate, one row per demodulator frame (docs/protocol.md,
     ``bimodal``): mode 1's amplitude (m) and phase lag (rad), mode 2's frequency shift
     (Hz), and the expressions' mean force (N), mean contact stiffness (N/m), indentation
-    (m), reduced modulus and the sample's Young's modulus (Pa); NaN where a frame gave no
+    (m), reduced modulus and the sample's Young's modulus (Pa), the Hertz swing solved
+    whole, with the published short-tap closed forms beside them; NaN where a frame gave no
     estimate, ``reason`` saying why."""
 
     amplitude1: np.ndarray = field(default_factory=lambda: np.empty(0))
@@ -415,6 +416,9 @@ class BimodalData(StreamData):
     indentation: np.ndarray = field(default_factory=lambda: np.empty(0))
     reduced_modulus: np.ndarray = field(default_factory=lambda: np.empty(0))
     youngs_modulus: np.ndarray = field(default_factory=lambda: np.empty(0))
+    #: d and E* by the published short-tap closed forms (m, Pa), beside the whole swing's.
+    short_tap_indentation: np.ndarray = field(default_factory=lambda: np.empty(0))
+    short_tap_modulus: np.ndarray = field(default_factory=lambda: np.empty(0))
     #: The settings epoch each row's calibration is for.
     epoch: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     reason: list[str | None] = field(default_factory=list)
@@ -434,6 +438,8 @@ class BimodalData(StreamData):
             indentation=col("indentation"),
             reduced_modulus=col("reduced_modulus"),
             youngs_modulus=col("youngs_modulus"),
+            short_tap_indentation=col("short_tap_indentation"),
+            short_tap_modulus=col("short_tap_modulus"),
             epoch=np.array([m.get("epoch", 0) for m in messages], dtype=np.int64),
             reason=[m.get("reason") for m in messages],
         )
