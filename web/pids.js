@@ -24,7 +24,7 @@ export const OUTPUTS = {
 };
 const ITEMS = [
   { key: "enable", label: "Enabled" },
-  { key: "input", label: "Input", options: ["r", "phase", "x", "y", "frequency_shift"] },
+  { key: "input", label: "Input", options: ["r", "phase", "x", "y", "frequency_shift", "mean_deflection"] },
   { key: "harmonic", label: "Harmonic k" },
   { key: "oscillator", label: "Oscillator", options: ["drive", "drive2"] },
   { key: "input_bandwidth", label: "Input bandwidth (on drive2)" },
@@ -237,7 +237,7 @@ export class PidsPanel {
         u.index,
         u.enable ? "on" : "off",
         // "phase H1 → drive_frequency"; on the second excitation "phase H1 of drive2 → …".
-        `${esc(u.input)} H${u.harmonic}${u.oscillator && u.oscillator !== "drive" ? ` of ${esc(u.oscillator)}` : ""} → ${esc(u.output)}`,
+        `${esc(u.input)}${u.input === "mean_deflection" ? "" : ` H${u.harmonic}`}${u.oscillator && u.oscillator !== "drive" ? ` of ${esc(u.oscillator)}` : ""} → ${esc(u.output)}`,
         si(u.setpoint, unit),
         l ? si(l.measurement, unit) : "–",
         l ? si(l.error, unit) : "–",

@@ -347,7 +347,7 @@ node_table! {
         PidEnable "enable", "", Kind::Bool, enable,
             "PID {i} regulates, once per drive period in the synthesiser (true), or is idle (false); enabling it starts from the output's present value (bumpless), disabling it leaves the output where it is.";
         PidInput "input", "", Kind::Text(PidInput::NAMES), input,
-            "What PID {i} regulates: \"r\" (amplitude, m peak), \"phase\" (rad), \"x\" or \"y\" (m) of its own demodulator at /pids/{i}/harmonic, a one-period boxcar of the photodiode samples (ADC and noise included) read as the demods stream reads it.";
+            "What PID {i} regulates: \"r\" (amplitude, m peak), \"phase\" (rad), \"x\" or \"y\" (m) of its own demodulator at /pids/{i}/harmonic, a one-period boxcar of the photodiode samples (ADC and noise included) read as the demods stream reads it; \"mean_deflection\" (m) that boxcar's mean of the samples (contact mode's deflection; the harmonic is not read; oscillator \"drive\"); \"frequency_shift\" (Hz) the frequency shift of the PLL on its oscillator.";
         PidHarmonic "harmonic", "1", Kind::Integer { min: 1, max: MAX_HARMONIC.into() }, harmonic,
             "Harmonic k of the drive that PID {i}'s demodulator reads (dimensionless); k × drive frequency must stay below half the sample rate while enabled.";
         PidSetpoint "setpoint", "", Kind::Float(PID_SETPOINT), setpoint,
@@ -361,7 +361,7 @@ node_table! {
         PidDBandwidth "d_bandwidth", "Hz", Kind::Float(PID_D_BANDWIDTH), d_bandwidth,
             "Bandwidth of PID {i}'s derivative low-pass (first order), in Hz; below half the drive frequency (the PID's Nyquist frequency) while enabled.";
         PidOutputMin "output_min", "", Kind::Float(PID_OUTPUT), output_min,
-            "Lowest output of PID {i}, in its output's unit (m for surface_distance and drive_amplitude, at least 0; Hz for drive_frequency, above 0); at most output_max.";
+            "Lowest output of PID {i}, in its output's unit (m: at least -1e-6 for surface_distance, a surface above the rest position pressing the lever up as in contact mode, at least 0 for drive_amplitude; Hz for drive_frequency, above 0); at most output_max.";
         PidOutputMax "output_max", "", Kind::Float(PID_OUTPUT), output_max,
             "Highest output of PID {i}, in its output's unit (m for surface_distance and drive_amplitude, at most 1e-6; Hz for drive_frequency, below /synth/sample_rate / 2 over the highest harmonic an enabled demodulator or PID reads).";
         PidRate "rate", "", Kind::Float(PID_RATE), rate,

@@ -166,9 +166,12 @@ pub(crate) const PID_D_BANDWIDTH: Range = Range::above_up_to(0.0, 1e8);
 /// frequency narrows it while the unit reads drive2.
 pub(crate) const PID_INPUT_BANDWIDTH: Range = Range::above_up_to(0.0, 1e8);
 /// A PID's output limits, in its output's unit; the output's own range narrows them
-/// (`/pids/N/output`: the surface distance's 0 … 1 µm).
+/// (`/pids/N/output`: the surface distance's −1 µm … 1 µm).
 pub(crate) const PID_OUTPUT: Range = Range::closed(-1e9, 1e9);
 /// A PID's output rate limit, in its output's unit per s; 0: none.
 pub(crate) const PID_RATE: Range = Range::closed(0.0, 1e12);
 /// Highest surface distance a PID may drive to (m): `/surface/distance`'s own maximum.
 pub const MAX_PID_DISTANCE: f64 = 1e-6;
+/// Lowest surface distance a PID may drive to (m): the surface up to 1 µm above the tip's
+/// rest position, pressing the lever up, as contact mode's deflection loop holds it.
+pub const MIN_PID_DISTANCE: f64 = -1e-6;

@@ -9,7 +9,8 @@ use super::error::NodeError;
 use super::kind::Kind;
 use super::limits::{
     MAX_HARMONIC, MAX_MODES, MAX_PID_DISTANCE, MAX_PIXEL_RATE, MAX_SCAN_PIXELS,
-    MAX_SCOPE_DECIMATION, MAX_SCOPE_LENGTH, MIN_INVERSION_HARMONIC, MIN_PIXEL_PERIODS,
+    MAX_SCOPE_DECIMATION, MAX_SCOPE_LENGTH, MIN_INVERSION_HARMONIC, MIN_PID_DISTANCE,
+    MIN_PIXEL_PERIODS,
 };
 use super::quantity::{number, quantity};
 use super::range::{Bound, Range};
@@ -937,8 +938,20 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
                 ),
             ));
         }
+        if pid.input == PidInput::MeanDeflection && second {
+            return Err(invalid(
+                format!("/pids/{index}/oscillator"),
+                format!(
+                    "/pids/{index}/input = \"mean_deflection\" while /pids/{index}/enable is \
+                     true reads the mean of the samples over a drive period: set \
+                     /pids/{index}/oscillator = \"drive\""
+                ),
+            ));
+        }
         let frequency = s.oscillator_frequency(pid.oscillator);
-        if f64::from(pid.harmonic) * frequency >= nyquist(s) {
+        if pid.input != PidInput::MeanDeflection
+            && f64::from(pid.harmonic) * frequency >= nyquist(s)
+        {
             let node = if second {
                 "/drive2/frequency"
             } else {
@@ -1006,7 +1019,7 @@ fn check_pids(s: &Settings) -> Result<(), NodeError> {
                 check_pid_range(
                     index,
                     pid,
-                    0.0,
+                    MIN_PID_DISTANCE,
                     MAX_PID_DISTANCE,
                     "m",
                     "the surface distance",

@@ -646,6 +646,10 @@ named_choice! {
         /// output after its update less `/drive/frequency` (`/drive2/frequency` on
         /// `drive2`). A loop on it at constant Δf is FM-AFM's topography.
         FrequencyShift = "frequency_shift",
+        /// The mean deflection (m): the mean of the photodiode samples over the unit's
+        /// drive period, the DC its demodulator reads at harmonic 0 (`/pids/N/harmonic` is
+        /// not read). A loop on it at constant deflection is contact mode's topography.
+        MeanDeflection = "mean_deflection",
     }
 }
 

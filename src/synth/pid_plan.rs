@@ -89,7 +89,12 @@ impl PidPlan {
             units[index] = Some(PidUnitPlan {
                 pid: Pid::new(pid_settings)?,
                 input: unit.input,
-                harmonic: unit.harmonic,
+                // The mean deflection is the boxcar's DC: its harmonic 0.
+                harmonic: if unit.input == PidInput::MeanDeflection {
+                    0
+                } else {
+                    unit.harmonic
+                },
                 oscillator: unit.oscillator,
                 alpha: low_pass_alpha(unit.input_bandwidth, settings.synth.sample_rate),
                 output: unit.output,

@@ -782,6 +782,10 @@ impl PidRuntime {
     /// unit), or `None` while its low-pass settles.
     fn read(&self, i: usize) -> Option<f64> {
         let unit = &self.units[i];
+        if unit.input == PidInput::MeanDeflection {
+            // Mixed at harmonic 0, the boxcar's sum is the samples' own.
+            return Some(unit.acc.re / f64::from(self.acc_count));
+        }
         let z = match unit.oscillator {
             Oscillator::Drive => {
                 // The least-squares sinusoid at kΩ over the period's samples: the boxcar
@@ -805,7 +809,9 @@ impl PidRuntime {
             PidInput::Phase => z.im.atan2(z.re),
             PidInput::X => z.re,
             PidInput::Y => z.im,
-            PidInput::FrequencyShift => unreachable!("a derived input reads no demodulator"),
+            PidInput::FrequencyShift | PidInput::MeanDeflection => {
+                unreachable!("read above, or from another unit")
+            }
         })
     }
 
