@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import warnings
@@ -251,3 +252,96 @@ def test_the_second_drive_and_a_demodulators_oscillator(afm: FTAFM) -> None:
     assert afm.demods[3].r.label == "H2 amplitude", "not read yet"
     assert osc() == "drive2"
     assert afm.demods[3].r.label == "H2 of drive2 amplitude"
+
+
+#: A PLL's nodes on a unit (the advisor models the unit as configured, enabled or not).
+PLL = {"input": "phase", "harmonic": 1, "output": "drive_frequency"}
+
+
+def gains_read_back(afm: FTAFM, index: int) -> list[float]:
+    """``p``, ``i``, ``d``, ``d_bandwidth`` of ``/pids/index`` as the daemon holds them."""
+    values = afm.client.get_many([f"/pids/{index}/{g}" for g in ("p", "i", "d", "d_bandwidth")])
+    return [values[f"/pids/{index}/{g}"] for g in ("p", "i", "d", "d_bandwidth")]
+
+
+def test_a_pid_channels_advice_is_the_clients_and_apply_sets_the_gains(afm: FTAFM) -> None:
+    from ftafm.qcodes import PidChannel
+
+    unit = afm.pids[1]
+    assert isinstance(unit, PidChannel)
+    afm.client.pids[1].configure(**PLL)
+    before = gains_read_back(afm, 1)
+    epoch = afm.client.epoch
+    # The advice is the client's for the same settings, PI and PID; nothing is set.
+    advice = unit.advise(bandwidth=500.0, kind="pi", apply=False)
+    assert isinstance(advice, ftafm.PidAdvice)
+    assert advice == afm.client.pid_advise(1, 500.0, kind="pi")
+    assert advice.unit == 1 and advice.kind == "pi" and advice.epoch == epoch
+    assert advice.p < 0 and advice.i < 0 and advice.d == 0.0, "a PLL's: negative"
+    assert advice.bandwidth == pytest.approx(500.0, rel=0.01)
+    assert advice.phase_margin >= 45.0 and 0.0 <= advice.overshoot < 0.3
+    assert 0 < advice.settling_time < 20 / 500.0
+    pid = unit.advise(500.0, kind="pid")
+    assert pid == afm.client.pid_advise(1, 500.0, kind="pid") and pid.d < 0
+    assert gains_read_back(afm, 1) == before and afm.client.epoch == epoch
+    # apply=True: the client's advice, its gains set in one change through the parameters,
+    # read back from the daemon and in the snapshot.
+    expected = afm.client.pid_advise(1, 200.0, kind="pid")
+    sent = count_requests(afm)
+    applied = unit.advise(bandwidth=200.0, kind="pid", apply=True)
+    assert applied == expected
+    assert sent.count("pid_advise") == 1 and sent.count("set") == 1, sent
+    assert gains_read_back(afm, 1) == [applied.p, applied.i, applied.d, applied.d_bandwidth]
+    assert [unit.p(), unit.i(), unit.d(), unit.d_bandwidth()] == list(applied.gains.values())
+    assert afm.client.epoch > epoch
+    snap = afm.snapshot(update=False)["submodules"]["pids"]["channels"]["afm_test_pid1"]
+    assert {g: snap["parameters"][g]["value"] for g in applied.gains} == applied.gains
+    # Another unit's advice is not applied to this one.
+    with pytest.raises(ValueError, match="/pids/0 cannot be applied to /pids/1"):
+        unit.apply_advice(dataclasses.replace(applied, unit=0))
+
+
+def test_apply_sets_the_gains_of_a_running_unit_in_one_change(afm: FTAFM) -> None:
+    # A running PLL on gains of the amplitude loop's sign (the defaults: i = 1200 1/s):
+    # set one by one, the first negative gain would be refused beside the others.
+    unit = afm.pids[2]
+    f = afm.drive.frequency()
+    afm.client.pids[2].configure(**PLL, setpoint=0.0, p=0.0, i=1e-3,
+                                 output_min=0.9 * f, output_max=1.1 * f, enable=True)
+    try:
+        with pytest.raises(ftafm.InstrumentError, match="/pids/2/p"):
+            unit.p(-1.0)
+        advice = unit.advise(bandwidth=300.0, apply=True)
+        assert advice.p < 0 and advice.i < 0
+        assert gains_read_back(afm, 2) == list(advice.gains.values())
+        assert unit.enable() is True
+    finally:
+        unit.enable(False)
+        afm.drive.frequency(f)  # the drive frequency back from the unit that held it
+
+
+def test_a_refused_advice_names_the_field_and_sets_nothing(afm: FTAFM) -> None:
+    unit = afm.pids[3]
+    afm.client.pids[3].configure(**PLL)
+    before = gains_read_back(afm, 3)
+    for bad in (0.0, -5.0):
+        with pytest.raises(ftafm.InstrumentError) as e:
+            unit.advise(bandwidth=bad, apply=True)
+        assert e.value.code == "bad_request", e.value
+        assert 'field "bandwidth"' in e.value.message, e.value
+    # Beyond the loop's reach: the message names the field and gives the reach.
+    with pytest.raises(ftafm.InstrumentError) as e:
+        unit.advise(bandwidth=1e6, apply=True)
+    assert e.value.code == "invalid_value", e.value
+    assert 'field "bandwidth"' in e.value.message and "allowed 0 < bandwidth ≤" in e.value.message
+    with pytest.raises(ftafm.InstrumentError, match='field "kind"'):
+        unit.advise(500.0, kind="pd", apply=True)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match='field "bandwidth"'):
+        unit.advise(float("nan"), apply=True)
+    # A unit the advisor does not model (the surface distance): its nodes named.
+    afm.client.pids[3].configure(input="r", harmonic=1, output="surface_distance")
+    with pytest.raises(ftafm.InstrumentError) as e:
+        unit.advise(500.0, apply=True)
+    assert e.value.code == "invalid_value" and "/pids/3" in e.value.message, e.value
+    assert "surface_distance" in e.value.message, e.value
+    assert gains_read_back(afm, 3) == before

@@ -36,6 +36,14 @@ Measured parameters: per demodulator ``x``, ``y``, ``r`` (m), ``phase`` (rad) an
 ``measurement``, ``error``, ``value`` (the output's value), ``limited``, ``updates``,
 and a PLL's ``locked`` and ``frequency_shift``.
 
+A PID unit's gains from a target bandwidth, the daemon's PID advisor (``pid_advise``) on a
+PLL or an amplitude loop, as LabOne's PID Advisor gives them:
+
+>>> afm.pids[0].output("drive_frequency"); afm.pids[0].input("phase")  # a PLL  # doctest: +SKIP
+>>> advice = afm.pids[0].advise(bandwidth=500.0, kind="pi")   # sets nothing  # doctest: +SKIP
+>>> advice.p, advice.i, advice.phase_margin, advice.settling_time       # doctest: +SKIP
+>>> afm.pids[0].advise(bandwidth=500.0, apply=True)  # p, i, d, d_bandwidth set  # doctest: +SKIP
+
 ``snapshot(update=True)`` reads every node and every demodulator in one request (a
 ``get`` of many paths), and the force in one more when the inversion runs, instead of a
 request per parameter (the daemon allows 200 a second). The names of earlier versions
@@ -62,7 +70,7 @@ from .aio import Node
 from .client import Instrument as Client
 from .data import DEMODULATORS
 from .errors import InstrumentError
-from .pids import PidStatus
+from .pids import AdviceKind, PidAdvice, PidStatus
 
 #: Labels of node names where the name alone does not read well.
 _WORDS = {
@@ -343,7 +351,14 @@ class PidChannel(InstrumentChannel):
     unit on the phase), ``locked``. Every get of one reads one status message
     (within 0.5 s) and fills the others' caches from it (:meth:`read_status`); NaN
     (``None`` for ``limited``) before the unit's first update; ``locked`` and
-    ``frequency_shift`` are ``None`` for a unit they do not apply to."""
+    ``frequency_shift`` are ``None`` for a unit they do not apply to.
+
+    :meth:`advise` gives the unit's gains from a target closed-loop bandwidth (the daemon's
+    PID advisor) and, with ``apply=True``, sets them through the unit's ``p``, ``i``,
+    ``d`` and ``d_bandwidth`` parameters (:meth:`apply_advice`)."""
+
+    #: The gain parameters :meth:`apply_advice` sets (fields of :class:`PidAdvice`).
+    GAINS = ("p", "i", "d", "d_bandwidth")
 
     def __init__(self, driver: "FTAFM", index: int):
         super().__init__(driver, f"pid{index}")
@@ -394,6 +409,54 @@ class PidChannel(InstrumentChannel):
         for name in _PID_PLL:
             self.parameters[name].cache._set_from_raw_value(getattr(status, name))
         return status
+
+    def advise(
+        self, bandwidth: float, *, kind: AdviceKind = "pi", apply: bool = False
+    ) -> PidAdvice:
+        """The daemon's PID advisor (``pid_advise``) for this unit: gains for a closed-loop
+        −3 dB ``bandwidth`` (Hz), a PI (``kind="pi"``, D = 0) or a PID (``"pid"``), on the
+        model of the loop the unit is set up as at the settings in force (a PLL or an
+        amplitude loop, on either excitation; the unit need not be enabled). Returns the
+        :class:`ftafm.PidAdvice`: ``p``, ``i``, ``d``, ``d_bandwidth`` and the loop they
+        predict (``bandwidth``, ``crossover``, ``phase_margin``, ``overshoot``,
+        ``settling_time``). With ``apply=False`` (the default) nothing is set; with
+        ``apply=True`` the gains are set as :meth:`apply_advice` does.
+
+        A refusal raises :class:`ftafm.InstrumentError` with the daemon's message naming
+        the field (``bandwidth`` not > 0 or beyond the loop's reach, a bad ``kind``, a unit
+        the advisor does not model); a NaN or infinite ``bandwidth`` raises
+        :class:`ValueError` before anything is sent. Nothing is set when it raises."""
+        advice = self.driver.client.pid_advise(self.index, bandwidth, kind=kind)
+        if apply:
+            self.apply_advice(advice)
+        return advice
+
+    def apply_advice(self, advice: PidAdvice) -> float | None:
+        """Sets the unit's ``p``, ``i``, ``d`` and ``d_bandwidth`` to ``advice``'s: each
+        value checked by its parameter's validator, then all four in one change (one
+        ``set_many``: the loop never runs on a mix of old and new gains, which the daemon
+        would refuse while the unit runs if their signs differ), and the parameters'
+        caches set to them, so that a snapshot shows them. Returns the simulated time (s)
+        the change took effect. Raises :class:`ValueError` for another unit's advice or a
+        value outside a parameter's range, :class:`ftafm.InstrumentError` if the daemon
+        refuses the change; nothing is set then."""
+        if advice.unit != self.index:
+            raise ValueError(
+                f"advice for /pids/{advice.unit} cannot be applied to /pids/{self.index}"
+            )
+        gains = {name: getattr(advice, name) for name in self.GAINS if name in self.parameters}
+        params: dict[str, Parameter] = {}
+        for name, value in gains.items():
+            param = self.parameters[name]
+            assert isinstance(param, Parameter)
+            param.validate(value)
+            params[name] = param
+        t = self.driver.client.set_many(
+            {f"/pids/{self.index}/{name}": value for name, value in gains.items()}
+        )
+        for name, value in gains.items():
+            params[name].cache.set(value)
+        return t
 
     def _latest(self) -> Any:
         latest = self.read_status().latest
