@@ -609,8 +609,9 @@ fn the_advised_amplitude_loop_steps_as_the_advisor_predicts() {
 }
 
 /// `pid_advise` over a WebSocket: the advice for a unit set up as a PLL is the advisor's on
-/// the settings in force, signed for the unit, and `set` takes it; a bad unit, bandwidth or
-/// kind, an unreachable bandwidth and a unit the advisor does not model are refused naming
+/// the settings in force, signed for the unit, and `set` takes it; contact mode's deflection
+/// loop gets an integrator alone; a bad unit, bandwidth or kind, an unreachable bandwidth,
+/// a PID for the deflection loop and a unit the advisor does not model are refused naming
 /// the key and what is allowed.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn pid_advise_replies_with_the_gains_and_refuses_naming_the_key() {
@@ -690,6 +691,50 @@ async fn pid_advise_replies_with_the_gains_and_refuses_naming_the_key() {
     )
     .await;
     assert_eq!(set["ok"], true, "{set}");
+    // Contact mode's deflection loop: an integrator alone, negated; no PID for it.
+    let reply = common::call(
+        &mut ws,
+        json!({"op": "set", "values": {
+            "/pids/3/input": "mean_deflection",
+            "/pids/3/setpoint": 1e-9,
+        }}),
+    )
+    .await;
+    assert_eq!(reply["ok"], true, "{reply}");
+    let contact = common::call(
+        &mut ws,
+        json!({"op": "pid_advise", "unit": 3, "bandwidth": 1000.0}),
+    )
+    .await;
+    eprintln!("{contact}");
+    let mut pressed = settings.clone();
+    pressed.pids[3].input = ftafm::config::PidInput::MeanDeflection;
+    pressed.pids[3].setpoint = 1e-9;
+    let model = ftafm::instrument::unit_loop::unit_loop(&pressed, 3)
+        .unwrap()
+        .model;
+    let expected = advise(&model, 1000.0, Kind::Pi).unwrap();
+    assert_eq!(contact["p"].as_f64(), Some(0.0), "{contact}");
+    assert_eq!(contact["i"].as_f64(), Some(-expected.gains.i), "{contact}");
+    assert!(
+        contact["plant"]
+            .as_str()
+            .unwrap()
+            .contains("pressed on the sample")
+    );
+    let e = common::call(
+        &mut ws,
+        json!({"op": "pid_advise", "unit": 3, "bandwidth": 1000.0, "kind": "pid"}),
+    )
+    .await;
+    assert_eq!(common::code(&e), "invalid_value", "{e}");
+    assert!(
+        e["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("field \"kind\""),
+        "{e}"
+    );
     for (request, code, words) in [
         (
             json!({"op": "pid_advise", "unit": 4, "bandwidth": 500.0}),

@@ -64,6 +64,9 @@ pub enum AdvisorError {
     /// An input out of range, named.
     #[error(transparent)]
     Input(#[from] ModelError),
+    /// The kind of controller asked for does not fit the plant.
+    #[error("{0}")]
+    Form(&'static str),
     /// The target needs less phase margin than [`MIN_PHASE_MARGIN`].
     #[error(
         "target bandwidth {target} Hz is out of reach: {limit} limits the bandwidth to {best:.4} Hz at {MIN_PHASE_MARGIN}° phase margin ({lags})"
@@ -106,17 +109,28 @@ fn gains_at(model: &LoopModel, kind: Kind, omega: f64) -> Gains {
         Plant::Resonator { time_constant, .. } => (omega / INTEGRAL_RATIO).max(1.0 / time_constant),
         _ => omega / INTEGRAL_RATIO,
     };
-    let shape = Gains {
-        p: 1.0,
-        i: zero,
-        d: d_ratio / omega,
-        d_bandwidth,
+    let shape = if model.plant.time_constant() == Some(0.0) {
+        // A plant without a pole has no roll-off of its own: the integrator alone crosses
+        // over, as a proportional part would hold |L| near 1 up to the delay's lag.
+        Gains {
+            p: 0.0,
+            i: 1.0,
+            d: 0.0,
+            d_bandwidth,
+        }
+    } else {
+        Gains {
+            p: 1.0,
+            i: zero,
+            d: d_ratio / omega,
+            d_bandwidth,
+        }
     };
-    let p = 1.0 / model.open_loop(&shape, omega).norm();
+    let scale = 1.0 / model.open_loop(&shape, omega).norm();
     Gains {
-        p,
-        i: p * shape.i,
-        d: p * shape.d,
+        p: scale * shape.p,
+        i: scale * shape.i,
+        d: scale * shape.d,
         d_bandwidth,
     }
 }
@@ -274,6 +288,12 @@ pub fn advise(
             allowed: "a finite bandwidth > 0 Hz",
         }
         .into());
+    }
+    if kind == Kind::Pid && model.plant.time_constant() == Some(0.0) {
+        return Err(AdvisorError::Form(
+            "kind \"pid\" does not fit a plant that answers at once (no pole for a \
+             derivative to lead): its loop is an integrator alone, which kind \"pi\" gives",
+        ));
     }
     let unreachable = |best: f64, omega: f64| {
         let (limit, lags) = limit_at(model, kind, omega);

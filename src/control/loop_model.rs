@@ -247,7 +247,8 @@ pub enum Plant {
         time_constant: f64,
     },
     /// Amplitude loop: the PID's output is the drive amplitude, its input the demodulated
-    /// oscillation amplitude; the envelope answers as G0/(1 + s·τ_c).
+    /// oscillation amplitude; the envelope answers as G0/(1 + s·τ_c). With τ_c = 0 any plant
+    /// that answers at once ([`Plant::quasi_static`]).
     Amplitude {
         /// G0 = ∂A/∂U at the operating point (amplitude unit per drive unit).
         gain: f64,
@@ -267,6 +268,25 @@ impl Plant {
             gain,
             time_constant: q / (PI * f0),
         })
+    }
+
+    /// A plant that answers at once on the loop's time scale, `gain` input units per output
+    /// unit: [`Self::Amplitude`] without a pole (τ_c = 0), as the lever pressed on a sample
+    /// answers a move of the surface (contact mode's deflection).
+    pub fn quasi_static(gain: f64) -> Result<Self, ModelError> {
+        positive("gain", gain)?;
+        Ok(Self::Amplitude {
+            gain,
+            time_constant: 0.0,
+        })
+    }
+
+    /// The plant's DC gain, for the plants that have one (input units per output unit).
+    pub fn gain(&self) -> Option<f64> {
+        match *self {
+            Self::Amplitude { gain, .. } => Some(gain),
+            Self::Pll | Self::Resonator { .. } => None,
+        }
     }
 
     /// The PLL on a lever of quality factor `q` and resonance `f0` (Hz), driven near its

@@ -10,6 +10,7 @@
 //! - `sweeper`: steps a node through a sweep's points as a client of `change()`, each sweep
 //!   keyed by the request that started it; `tap`: what the hub hands a running sweep.
 //! - `bimodal`: the bimodal AM-FM estimate from a frame and mode 2's PLL, per epoch.
+//! - [`unit_loop`]: the loop a live PID unit closes, as the advisor models it.
 //! - `build_budget`: the CPU those rebuilds may take; `latest`: the slot that keeps only the
 //!   newest settings to build for.
 
@@ -21,5 +22,6 @@ pub(crate) mod image;
 mod latest;
 pub(crate) mod sweeper;
 pub(crate) mod tap;
+pub mod unit_loop;
 
 pub use control::{ChangeError, Changed, Committed, Control, Current, Proposal, affects_physics};

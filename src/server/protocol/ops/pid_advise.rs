@@ -23,9 +23,9 @@ use serde::{Deserialize, Deserializer};
 use serde_json::{Map, Value, json};
 
 use super::{Context, parse_with, reply};
-use crate::config::{Oscillator, PID_COUNT, PidInput, PidTarget, Settings};
-use crate::control::loop_model::ADC_DELAY_SAMPLES;
-use crate::control::{Advice, AdvisorError, Demodulator, Kind, LoopModel, Plant, advise};
+use crate::config::{PID_COUNT, Settings};
+use crate::control::{Advice, AdvisorError, Kind, advise};
+use crate::instrument::unit_loop::{UnitLoop, unit_loop};
 use crate::server::protocol::fields::{Fields, bad, describe, quote};
 use crate::server::protocol::{ErrorCode, ProtocolError};
 
@@ -114,7 +114,7 @@ impl PidAdvise {
         ctx: &Context<'_>,
     ) -> Result<Map<String, Value>, ProtocolError> {
         let current = ctx.control.current();
-        let (model, sign, plant) = model_of(&current.settings, self.unit)?;
+        let UnitLoop { model, sign, plant } = model_of(&current.settings, self.unit)?;
         let (target, kind) = (self.bandwidth, self.kind);
         // A few milliseconds of searches and one step response: off the session's task.
         let advice = tokio::task::spawn_blocking(move || advise(&model, target, kind))
@@ -148,7 +148,8 @@ fn advice_fields(
         "kind": match kind { Kind::Pi => "pi", Kind::Pid => "pid" },
         "epoch": epoch,
         "plant": plant,
-        "p": sign * advice.gains.p,
+        // + 0.0: no −0 for an integrator alone.
+        "p": sign * advice.gains.p + 0.0,
         "i": sign * advice.gains.i,
         // + 0.0: no −0 for a PI.
         "d": sign * advice.gains.d + 0.0,
@@ -163,6 +164,12 @@ fn advice_fields(
 
 /// The advisor's refusal, naming the field.
 fn refusal(unit: usize, target: f64, e: &AdvisorError) -> ProtocolError {
+    if let AdvisorError::Form(_) = e {
+        return ProtocolError::new(
+            ErrorCode::InvalidValue,
+            format!("field \"kind\" of op \"pid_advise\" for /pids/{unit}: {e}"),
+        );
+    }
     let reach = match e {
         AdvisorError::Unreachable { best, .. } => {
             format!(": allowed 0 < bandwidth ≤ {best:.4} Hz for /pids/{unit}")
@@ -175,123 +182,9 @@ fn refusal(unit: usize, target: f64, e: &AdvisorError) -> ProtocolError {
     )
 }
 
-/// The loop of `/pids/{unit}` at `settings`: its model, the sign its actuator takes the
-/// advice with, and the plant in words.
-pub(crate) fn model_of(
-    settings: &Settings,
-    unit: usize,
-) -> Result<(LoopModel, f64, String), ProtocolError> {
-    let u = &settings.pids[unit];
-    let unsupported = || {
-        ProtocolError::new(
-            ErrorCode::InvalidValue,
-            format!(
-                "/pids/{unit} reads {} on harmonic {} of {} and drives {}, which op \
-                 \"pid_advise\" does not model: it advises a PLL (/pids/{unit}/input = \
-                 \"phase\", harmonic 1, output \"drive_frequency\", or on oscillator \
-                 \"drive2\" \"drive2_frequency\") and an amplitude loop on an excitation \
-                 (input \"r\", harmonic 1, output \"drive_amplitude\", or on \"drive2\" \
-                 \"drive2_amplitude\"); the surface distance's plant is the tapping orbit's, \
-                 which it has no model of",
-                quote(u.input.name()),
-                u.harmonic,
-                quote(u.oscillator.name()),
-                quote(u.output.name())
-            ),
-        )
-    };
-    if u.harmonic != 1 {
-        return Err(unsupported());
-    }
-    let second = u.oscillator == Oscillator::Drive2;
-    if second != u.output.on_drive2() {
-        return Err(unsupported());
-    }
-    let invalid = |e: crate::control::ModelError| {
-        ProtocolError::new(
-            ErrorCode::InvalidValue,
-            format!("the loop of /pids/{unit} cannot be modelled: {e}"),
-        )
-    };
-    let adc = if settings.synth.anti_alias {
-        ADC_DELAY_SAMPLES
-    } else {
-        0.0
-    };
-    // The mode the loop acts on: the first, or the second for the second excitation.
-    let (mode, free) = if second {
-        (1, settings.drive2.free_amplitude)
-    } else {
-        (0, settings.drive.free_amplitude)
-    };
-    let lever = crate::model::cantilever(settings).map_err(|e| {
-        ProtocolError::new(
-            ErrorCode::InvalidValue,
-            format!("the loop of /pids/{unit} cannot be modelled: {e}"),
-        )
-    })?;
-    let Some(m) = lever.modes.get(mode) else {
-        return Err(unsupported());
-    };
-    let (q, f0) = (m.q, m.frequency);
-    let (demodulator, filter) = if second {
-        // Four sections of the unit's low-pass, run per sample, read once per drive period
-        // behind the ADC's delay.
-        let alpha =
-            crate::synth::pid_plan::low_pass_alpha(u.input_bandwidth, settings.synth.sample_rate);
-        let tau = -1.0 / ((1.0 - alpha).ln() * settings.synth.sample_rate);
-        let d = Demodulator::new(
-            crate::synth::pid_plan::LOW_PASS_SECTIONS as u32,
-            tau,
-            settings.drive.frequency,
-            adc / settings.synth.sample_rate,
-        )
-        .and_then(|d| d.with_filter_rate(settings.synth.sample_rate))
-        .map_err(invalid)?;
-        let words = format!(
-            "a low-pass of {} sections of τ {tau:.4e} s ({} Hz)",
-            crate::synth::pid_plan::LOW_PASS_SECTIONS,
-            u.input_bandwidth
-        );
-        (d, words)
-    } else {
-        let d = Demodulator::pid_unit(settings.drive.frequency, settings.synth.sample_rate, adc)
-            .map_err(invalid)?;
-        (d, "no filter".to_owned())
-    };
-    let oscillator = if second { "f2" } else { "f1" };
-    let (plant, sign, words) = match (u.input, u.output) {
-        (PidInput::Phase, PidTarget::DriveFrequency | PidTarget::Drive2Frequency) => {
-            let plant = Plant::resonator(q, f0).map_err(invalid)?;
-            let words = format!(
-                "the driven lever's phase, −(2Q/{oscillator})/(1 + s·τ_c) rad/Hz (Q {q}, \
-                 {oscillator} {f0} Hz, τ_c {:.4e} s), through the unit's demodulator \
-                 ({filter}, updates at {} Hz, delay {:.4e} s)",
-                plant.time_constant().unwrap_or(f64::NAN),
-                settings.drive.frequency,
-                demodulator.total_delay()
-            );
-            (plant, -1.0, words)
-        }
-        (PidInput::R, PidTarget::DriveAmplitude | PidTarget::Drive2Amplitude) => {
-            let reading = crate::synth::plan::free_reading_of(settings, u.oscillator)
-                .map(|z| z.norm())
-                .unwrap_or(f64::NAN);
-            let plant = Plant::amplitude(reading / free, q, f0).map_err(invalid)?;
-            let words = format!(
-                "the free lever's amplitude, G0/(1 + s·τ_c) with G0 {:.4e} m of photodiode \
-                 amplitude per m of drive (Q {q}, {oscillator} {f0} Hz, τ_c {:.4e} s), \
-                 through the unit's demodulator ({filter}, updates at {} Hz, delay {:.4e} s)",
-                reading / free,
-                plant.time_constant().unwrap_or(f64::NAN),
-                settings.drive.frequency,
-                demodulator.total_delay()
-            );
-            (plant, 1.0, words)
-        }
-        _ => return Err(unsupported()),
-    };
-    Ok((LoopModel { plant, demodulator }, sign, words))
+/// The loop of `/pids/{unit}` at `settings` ([`unit_loop`]), its refusal `invalid_value`.
+fn model_of(settings: &Settings, unit: usize) -> Result<UnitLoop, ProtocolError> {
+    unit_loop(settings, unit).map_err(|e| ProtocolError::new(ErrorCode::InvalidValue, e))
 }
 
 impl<'de> Deserialize<'de> for PidAdvise {
