@@ -476,9 +476,11 @@ fn the_advised_mode_two_pll_steps_as_the_advisor_predicts() {
 }
 
 /// Through the daemon: the `bimodal` stream turns each demodulator frame and mode 2's PLL
-/// into the estimate, stamped with the settings epoch; over 10 ms after the loops settle,
-/// its E* is the configured contact's within 10 %, as the synthesiser-level test finds.
-/// Before mode 2's PLL runs, each message says why there is no estimate.
+/// into the estimate, stamped with the settings epoch; over 10 frames after the loops settle,
+/// its E* is the configured contact's within 10 %, as the synthesiser-level test finds,
+/// each frame paired with the PLL's update in force at its sample (`pll_sample` at or
+/// before it, `pll_age` the time between). Before mode 2's PLL runs, each message says why
+/// there is no estimate.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_bimodal_stream_gives_the_modulus_live() {
     let (mut s, _, _, _) = am_fm();
@@ -495,6 +497,7 @@ async fn the_bimodal_stream_gives_the_modulus_live() {
         1.0 / ((1.0 - t.poisson * t.poisson) / t.youngs_modulus
             + (1.0 - m.poisson * m.poisson) / m.youngs_modulus)
     };
+    let rate = s.synth.sample_rate;
     let mut idle = s.clone();
     idle.pids[1].enable = false;
     let daemon = common::Daemon::start(idle).await;
@@ -519,10 +522,25 @@ async fn the_bimodal_stream_gives_the_modulus_live() {
     let mut moduli = Vec::new();
     let mut last = json!(null);
     while moduli.len() < 10 {
-        let m =
-            common::first_of(&mut ws, "bimodal", |m| m["t"].as_f64().unwrap() > t0 + 0.03).await;
+        // Frames paired with the PLL past its settling (the frame is no earlier).
+        let m = common::first_of(&mut ws, "bimodal", |m| {
+            m["pll_sample"]
+                .as_u64()
+                .is_some_and(|s| s as f64 / rate > t0 + 0.03)
+        })
+        .await;
         assert_eq!(m["epoch"], epoch, "{m}");
         assert!(m["reason"].is_null(), "{m}");
+        // Paired with the PLL's update in force at the frame's sample, never a later one,
+        // and saying which.
+        let sample = (m["t"].as_f64().unwrap() * rate).round() as u64;
+        let pll_sample = m["pll_sample"].as_u64().unwrap();
+        assert!(pll_sample <= sample, "PLL update after the frame: {m}");
+        let age = m["pll_age"].as_f64().unwrap();
+        assert!(
+            (age - (sample - pll_sample) as f64 / rate).abs() < 1e-12,
+            "{m}"
+        );
         moduli.push(m["reduced_modulus"].as_f64().unwrap());
         last = m;
     }

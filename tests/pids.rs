@@ -440,8 +440,17 @@ async fn status_reports_each_units_update_under_the_epoch_it_ran() {
 /// The `pids` stream: every update of every unit, in columns, none skipped (each unit's
 /// updates a drive period apart, `dropped` 0), stamped with the epoch it ran under, and
 /// equal to what the synthesiser-level runtime computes (measurement − set-point = −error).
+/// Each message's `t_synth_ns` is the Unix time its newest update was synthesised at:
+/// after the test began, before the message arrived, and never going back.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_pids_stream_carries_every_update() {
+    let unix_ns = || {
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap()
+            .as_nanos() as u64
+    };
+    let began = unix_ns();
     let settings = common::light();
     let rate = settings.synth.sample_rate;
     let period = rate / settings.drive.frequency;
@@ -458,13 +467,24 @@ async fn the_pids_stream_carries_every_update() {
     assert_eq!(reply["ok"], true, "{reply}");
     let epoch = reply["epoch"].as_u64().unwrap();
     let mut samples: Vec<u64> = Vec::new();
+    let mut synthesised = began;
     while samples.len() < 2000 {
         let m = common::first_of(&mut ws, "pids", |_| true).await;
+        let arrived = unix_ns();
+        let t_synth_ns = m["t_synth_ns"].as_u64().unwrap();
+        assert!(
+            (synthesised..=arrived).contains(&t_synth_ns),
+            "t_synth_ns {t_synth_ns}: not between the previous message's (or the test's \
+             start) {synthesised} and its arrival {arrived}"
+        );
+        synthesised = t_synth_ns;
         if samples.is_empty() {
             eprintln!(
-                "a pids message: seq {}, t {}, {} updates, first: sample {} output {} error {}",
+                "a pids message: seq {}, t {}, t_synth_ns {}, {} updates, first: sample {} \
+                 output {} error {}",
                 m["seq"],
                 m["t"],
+                m["t_synth_ns"],
                 m["unit"].as_array().unwrap().len(),
                 m["sample"][0],
                 m["output"][0],

@@ -215,9 +215,9 @@ fn a_running_scan_allocates_nothing_on_the_realtime_threads() {
 }
 
 /// The PID units on the synthesiser thread (their demodulators, controllers, the coupled
-/// surface they move and the board their updates go to) allocate and free nothing, through
-/// a start, new gains, a stop with the surface held, a restart and a new
-/// `/surface/distance`.
+/// surface they move, the board their updates go to and the `pids` stream's queue) allocate
+/// and free nothing, through a start, new gains, a stop with the surface held, a restart
+/// and a new `/surface/distance`.
 #[test]
 fn running_pids_allocate_nothing_on_the_realtime_threads() {
     let _serial = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
@@ -226,6 +226,8 @@ fn running_pids_allocate_nothing_on_the_realtime_threads() {
     settings.pids[0].setpoint = 17e-9;
     let (mut pipeline, mut output) = Pipeline::start(&settings).unwrap();
     let board = pipeline.counters_handle();
+    // Every update queued as for the `pids` stream's subscribers too.
+    board.pids().set_streaming(true);
     while pipeline.counters().samples_processed < 1_000_000 {
         output.drain();
         std::thread::sleep(Duration::from_millis(1));
@@ -259,6 +261,10 @@ fn running_pids_allocate_nothing_on_the_realtime_threads() {
         "{updates:?}"
     );
     assert_eq!(pipeline.counters().synth_plans_applied, 5);
+    assert!(
+        pipeline.counters().pid_updates > 100,
+        "queued for the stream"
+    );
     assert_eq!(
         after - before,
         0,

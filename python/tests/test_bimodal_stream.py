@@ -20,5 +20,6 @@ def test_the_bimodal_stream_says_why_it_has_no_estimate(
     assert isinstance(data, BimodalData)
     assert len(data) > 0 and data.gaps == 0
     assert np.all(np.isnan(data.reduced_modulus)) and np.all(np.isnan(data.frequency_shift2))
+    assert np.all(np.isnan(data.pll_sample)) and np.all(np.isnan(data.pll_age))
     assert data.epoch.dtype == np.int64 and np.all(data.epoch >= 1)
     assert all(r is not None and "mode 2's PLL" in r for r in data.reason), data.reason[:3]

@@ -6,12 +6,15 @@
 //! against the free lever's reading s01 at the settings in force
 //! ([`crate::synth::plan::free_reading`]), A01 = `/drive/free_amplitude`. Mode 2's frequency
 //! shift is mode 2's PLL's (the enabled unit on the phase of harmonic 1 of `"drive2"`
-//! driving `drive2_frequency`): its latest output less `/drive2/frequency`, which the user
-//! sets at the free resonance. [`crate::physics::bimodal::estimate`] turns them into ⟨F⟩,
+//! driving `drive2_frequency`): the output of its update in force at the frame's sample
+//! (the newest update at or before it, [`PllHistory`]) less `/drive2/frequency`, which the
+//! user sets at the free resonance. [`crate::physics::bimodal::estimate`] turns them into ⟨F⟩,
 //! ⟨k_ts⟩, d and E*; the sample's Young's modulus follows from E* with the tip's.
 //!
-//! A frame synthesised before the settings in force, or a PLL update made under other
-//! settings, gives no estimate: the message says why, so nothing stale passes as current.
+//! A frame synthesised before the settings in force, no PLL update at or before the
+//! frame, or a PLL update made under other settings gives no estimate: the message says
+//! why, so nothing stale passes as current. The message names the update it paired the
+//! frame with (`pll_sample`, `pll_age`).
 
 use std::f64::consts::FRAC_PI_2;
 
@@ -30,6 +33,8 @@ pub struct Calibration {
     pub epoch: u64,
     /// The simulated time (s) from which the stream runs under those settings.
     t: Option<f64>,
+    /// The sample rate (S/s) under them.
+    rate: f64,
     /// The lever's constants, or why the estimate cannot be made at these settings.
     setup: Result<BimodalSetup, String>,
 }
@@ -59,12 +64,14 @@ impl Calibration {
         Self {
             epoch: current.epoch,
             t: current.t,
+            rate: current.settings.synth.sample_rate,
             setup: BimodalSetup::of(&current.settings),
         }
     }
 
     /// The `bimodal` message's fields for `frame` (after the envelope), with `pll` the PLL
-    /// unit's latest update, looked up by [`pll_unit`](Self::pll_unit).
+    /// unit's ([`pll_unit`](Self::pll_unit)) update in force at the frame's sample
+    /// ([`PllHistory::at`]).
     pub fn fields(&self, frame: &DemodFrame, pll: Option<PidUpdate>) -> Value {
         let mut fields = json!({ "epoch": self.epoch });
         match self.reading(frame, pll) {
@@ -74,6 +81,9 @@ impl Calibration {
                 fields["frequency_shift2"] = json!(reading.frequency_shift);
                 fields["pll_unit"] = json!(setup.pll);
                 fields["pll_limited"] = json!(pll.limited);
+                fields["pll_sample"] = json!(pll.sample);
+                fields["pll_age"] =
+                    json!(frame.sample_index.saturating_sub(pll.sample) as f64 / self.rate);
                 match setup.values(&reading) {
                     Ok(v) => {
                         let e = v.estimate;
@@ -97,6 +107,8 @@ impl Calibration {
             "frequency_shift2",
             "pll_unit",
             "pll_limited",
+            "pll_sample",
+            "pll_age",
             "mean_force",
             "mean_stiffness",
             "indentation",
@@ -140,14 +152,78 @@ impl Calibration {
             .iter()
             .find(|v| v.on_drive() && v.harmonic == 1)
             .ok_or("no demodulator at harmonic 1 of \"drive\" is enabled: mode 1 is read there")?;
-        let pll = pll.filter(|u| u.epoch == self.epoch).ok_or_else(|| {
+        let pll = pll.ok_or_else(|| {
             format!(
-                "/pids/{} has made no update under the settings of epoch {}",
-                setup.pll, self.epoch
+                "/pids/{} has made no update at or before the frame at t = {} s (sample {})",
+                setup.pll, frame.t, frame.sample_index
             )
         })?;
+        if pll.epoch != self.epoch {
+            return Err(format!(
+                "/pids/{} has made no update under the settings of epoch {} at or before the \
+                 frame at t = {} s (the one in force then, at sample {}, ran under epoch {})",
+                setup.pll, self.epoch, frame.t, pll.sample, pll.epoch
+            ));
+        }
         let reading = setup.reading(Complex64::new(h1.x, h1.y), pll.output);
         Ok((reading, setup, pll))
+    }
+}
+
+/// Mode 2's PLL updates the hub has seen, oldest first: the frames come from the DSP thread
+/// behind the synthesiser (up to the sample ring's length, 0.5 s of signal, when it runs
+/// free), whose latest update is then past them, so a frame is paired with the update in
+/// force at its sample, the newest at or before it. The hub records the unit's latest
+/// update at each of its passes (at least one a millisecond); the history keeps the last
+/// [`PLL_HISTORY`] distinct ones.
+#[derive(Clone, Debug, Default)]
+pub struct PllHistory {
+    /// The unit the updates are of.
+    unit: Option<usize>,
+    /// The updates, their samples increasing.
+    updates: std::collections::VecDeque<PidUpdate>,
+}
+
+/// Updates a [`PllHistory`] keeps (seconds of passes a millisecond apart).
+pub const PLL_HISTORY: usize = 4096;
+
+impl PllHistory {
+    /// Records `update`, unit `unit`'s latest: a new unit starts the history afresh; an
+    /// update already recorded (the same sample) is not recorded again, and one before the
+    /// newest (the stream restarted) replaces the history.
+    pub fn record(&mut self, unit: usize, update: PidUpdate) {
+        if self.unit != Some(unit) {
+            self.unit = Some(unit);
+            self.updates.clear();
+        }
+        if let Some(newest) = self.updates.back() {
+            if newest.sample == update.sample {
+                return;
+            }
+            if update.sample < newest.sample {
+                self.updates.clear();
+            }
+        }
+        if self.updates.capacity() < PLL_HISTORY {
+            self.updates.reserve_exact(PLL_HISTORY - self.updates.len());
+        }
+        if self.updates.len() == PLL_HISTORY {
+            self.updates.pop_front();
+        }
+        self.updates.push_back(update);
+    }
+
+    /// The update of unit `unit` in force at sample `sample`: the newest recorded at or
+    /// before it; `None` if none is (or the history is of another unit).
+    pub fn at(&self, unit: usize, sample: u64) -> Option<PidUpdate> {
+        if self.unit != Some(unit) {
+            return None;
+        }
+        let after = self.updates.partition_point(|u| u.sample <= sample);
+        after
+            .checked_sub(1)
+            .and_then(|i| self.updates.get(i))
+            .copied()
     }
 }
 
@@ -234,4 +310,93 @@ fn setup(s: &Settings) -> Result<BimodalSetup, String> {
         tip_term: (1.0 - s.tip.poisson * s.tip.poisson) / s.tip.youngs_modulus,
         sample_poisson_term: 1.0 - s.sample.poisson * s.sample.poisson,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn update(sample: u64) -> PidUpdate {
+        PidUpdate {
+            sample,
+            epoch: 1,
+            output: sample as f64,
+            updates: sample / 10,
+            ..PidUpdate::default()
+        }
+    }
+
+    /// A frame is paired with the update in force at its sample, never a later one; the
+    /// ring forgets the oldest, and another unit or a restart starts it afresh.
+    #[test]
+    fn the_pll_history_gives_the_update_in_force_at_a_sample() {
+        let mut h = PllHistory::default();
+        assert_eq!(h.at(1, 100), None);
+        for s in [10, 20, 20, 30] {
+            h.record(1, update(s));
+        }
+        assert_eq!(h.at(1, 5), None, "none at or before");
+        assert_eq!(h.at(1, 10).map(|u| u.sample), Some(10));
+        assert_eq!(h.at(1, 29).map(|u| u.sample), Some(20));
+        assert_eq!(h.at(1, 1000).map(|u| u.sample), Some(30));
+        assert_eq!(h.at(2, 1000), None, "another unit");
+        for s in 4..(PLL_HISTORY as u64 + 4) {
+            h.record(1, update(10 * s));
+        }
+        assert_eq!(h.at(1, 35), None, "the oldest forgotten");
+        assert_eq!(h.at(1, 45).map(|u| u.sample), Some(40));
+        h.record(1, update(15));
+        assert_eq!(h.at(1, 1000).map(|u| u.sample), Some(15), "a restart");
+        h.record(2, update(500));
+        assert_eq!(h.at(1, 1000), None);
+        assert_eq!(h.at(2, 1000).map(|u| u.sample), Some(500));
+    }
+
+    /// The message names the update it paired the frame with, and says when there is none
+    /// at or before the frame.
+    #[test]
+    fn the_fields_name_the_pll_update_or_its_absence() {
+        let mut s = crate::config::default_settings();
+        s.drive2.enable = true;
+        s.pids[1].enable = true;
+        s.pids[1].oscillator = Oscillator::Drive2;
+        s.pids[1].input = PidInput::Phase;
+        s.pids[1].harmonic = 1;
+        s.pids[1].output = PidTarget::Drive2Frequency;
+        s.demods[0].enable = true;
+        s.demods[0].harmonic = 1;
+        s.demods[0].oscillator = Oscillator::Drive;
+        let c = Calibration {
+            epoch: 1,
+            t: Some(0.0),
+            rate: 1000.0,
+            setup: BimodalSetup::of(&s),
+        };
+        assert_eq!(c.pll_unit(), Some(1), "{:?}", c.setup);
+        let mut frame = DemodFrame::empty();
+        frame.sample_index = 250;
+        frame.t = 0.25;
+        frame.len = 1;
+        frame.values[0].harmonic = 1;
+        frame.values[0].oscillator = Oscillator::Drive;
+        frame.values[0].x = 1e-9;
+        let none = c.fields(&frame, None);
+        let reason = none["reason"].as_str().unwrap();
+        assert!(reason.contains("at or before the frame"), "{reason}");
+        assert!(none["pll_sample"].is_null() && none["pll_age"].is_null());
+        let mut pll = update(200);
+        pll.output = s.drive2.frequency + 100.0;
+        let some = c.fields(&frame, Some(pll));
+        assert_eq!(some["pll_sample"], 200, "{some}");
+        assert_eq!(some["pll_age"].as_f64(), Some(0.05), "{some}");
+        let shift = some["frequency_shift2"].as_f64().unwrap();
+        assert!((shift - 100.0).abs() < 1e-6, "{some}");
+        pll.epoch = 0;
+        let other = c.fields(&frame, Some(pll));
+        let reason = other["reason"].as_str().unwrap();
+        assert!(
+            reason.contains("epoch 1") && reason.contains("epoch 0"),
+            "{reason}"
+        );
+    }
 }

@@ -54,7 +54,7 @@ pub use feed::{
 };
 pub use frame_signal::FrameSignal;
 pub use frames::{DemodFrame, DemodValue, PixelHarmonics, ScopeBuffer, SpectrumBuffer};
-pub use pid_board::{PID_EVENT_QUEUE, PidBoard, PidEvent, PidUpdate};
+pub use pid_board::{PID_EVENT_QUEUE, PID_EVENTS_PER_BLOCK, PidBoard, PidEvent, PidUpdate};
 pub use scope::MAX_SCOPE_SAMPLES;
 pub use stall::{StallEvent, StallMeter};
 pub use synth_worker::BLOCK_SAMPLES;
@@ -200,8 +200,8 @@ impl PipelineOutput {
         let _ = self.free_scopes.try_push(buffer);
     }
 
-    /// Drains every queued frame (recycling buffers); returns (demod, spectrum, scope)
-    /// counts.
+    /// Drains every queued frame (recycling buffers), pixel and PID update; returns
+    /// (demod, spectrum, scope) counts.
     pub fn drain(&mut self) -> (usize, usize, usize) {
         let demods = self.demods.skip(usize::MAX);
         let mut spectra = 0;
@@ -216,6 +216,7 @@ impl PipelineOutput {
         }
         self.pixels.skip(usize::MAX);
         self.topography.skip(usize::MAX);
+        self.pid_events.skip(usize::MAX);
         (demods, spectra, scopes)
     }
 }
@@ -387,6 +388,7 @@ impl Pipeline {
             pids,
             topography: topography_in,
             pid_events: pid_events_in,
+            block_pid_readings: Vec::with_capacity(PID_EVENTS_PER_BLOCK),
             samples: samples_in,
             headers: headers_in,
             references: references_in,

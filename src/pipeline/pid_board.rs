@@ -45,14 +45,24 @@ pub struct PidBoard {
 /// Updates the `pids` stream's queue holds (0.16 s of four units at 100 kHz).
 pub const PID_EVENT_QUEUE: usize = 1 << 16;
 
-/// One update of one unit as the `pids` stream carries it: the reading and the settings
-/// epoch the synthesiser ran under.
+/// Updates of all units one block of samples can hold: a unit updates at most every other
+/// sample (a period is at least two), so a block holds at most `BLOCK_SAMPLES / 2 + 1` of
+/// each. The synthesiser keeps a block's updates in a buffer of this capacity, reserved
+/// off the real-time path, until the block's synthesis time is known.
+pub const PID_EVENTS_PER_BLOCK: usize = PID_COUNT * (super::BLOCK_SAMPLES / 2 + 1);
+
+/// One update of one unit as the `pids` stream carries it: the reading, the settings
+/// epoch the synthesiser ran under and when it synthesised the update's block.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PidEvent {
     /// The update.
     pub reading: PidReading,
     /// The settings epoch it was made under.
     pub epoch: u64,
+    /// Unix time (ns) at which the synthesiser finished the block of samples the update was
+    /// made in: the block header's `t_synth_ns`, which the demodulator frames of that block
+    /// carry too.
+    pub t_synth_ns: u64,
 }
 
 /// A unit's latest update as the board holds it.
@@ -120,7 +130,7 @@ impl PidBoard {
 
     /// Turns the queueing of every update on or off (the hub, as the `pids` stream gains
     /// or loses its subscribers).
-    pub(crate) fn set_streaming(&self, on: bool) {
+    pub fn set_streaming(&self, on: bool) {
         self.streaming.store(on, Ordering::Relaxed);
     }
 

@@ -35,6 +35,10 @@ pub(crate) struct SynthWorker {
     pub topography: HeapProd<PixelTopography>,
     /// Every PID update, while the `pids` stream has subscribers.
     pub pid_events: HeapProd<super::PidEvent>,
+    /// The block's PID updates for the `pids` stream, queued with the block's synthesis
+    /// time once it is done (capacity [`super::PID_EVENTS_PER_BLOCK`], reserved off the
+    /// real-time path).
+    pub block_pid_readings: Vec<PidReading>,
     /// The signal through the ADC's window, which the DSP thread finishes.
     pub samples: HeapProd<WindowSample>,
     pub headers: HeapProd<BlockHeader>,
@@ -175,14 +179,16 @@ impl SynthWorker {
             // The loops' updates and the lock-in's reference changes they make.
             let board = &self.counters.pids;
             let (changes, counters) = (&mut self.reference_changes, &self.counters);
-            let events = &mut self.pid_events;
+            let held = &mut self.block_pid_readings;
+            held.clear();
             let streaming = board.streaming();
             let mut reading = |r: PidReading| {
                 board.publish(&r, epoch);
+                // Held to the block's end, when its synthesis time is known; the capacity
+                // reserved holds a block's, so this never grows the vector.
                 if streaming {
-                    let event = super::PidEvent { reading: r, epoch };
-                    if events.try_push(event).is_ok() {
-                        Counters::add(&counters.pid_updates, 1);
+                    if held.len() < held.capacity() {
+                        held.push(r);
                     } else {
                         Counters::add(&counters.pid_updates_dropped, 1);
                     }
@@ -280,6 +286,8 @@ impl SynthWorker {
             self.counters
                 .synth_beat_ns
                 .store(super::counters::monotonic_ns(), Ordering::Relaxed);
+            let t_synth_ns = unix_ns();
+            self.queue_pid_events(epoch, t_synth_ns);
             let end = header_index + BLOCK_SAMPLES as u64;
             let references = self
                 .reference_changes
@@ -372,6 +380,25 @@ impl SynthWorker {
             Counters::add(&self.counters.overrun_blocks, 1);
         }
         true
+    }
+
+    /// Queues the block's PID updates for the `pids` stream, each stamped with the
+    /// block's synthesis time `t_synth_ns` and settings epoch `epoch`; a full queue drops
+    /// them, counted.
+    fn queue_pid_events(&mut self, epoch: u64, t_synth_ns: u64) {
+        for &reading in &self.block_pid_readings {
+            let event = super::PidEvent {
+                reading,
+                epoch,
+                t_synth_ns,
+            };
+            if self.pid_events.try_push(event).is_ok() {
+                Counters::add(&self.counters.pid_updates, 1);
+            } else {
+                Counters::add(&self.counters.pid_updates_dropped, 1);
+            }
+        }
+        self.block_pid_readings.clear();
     }
 
     /// Hands a block to the DSP. In real time a full ring drops the block (the caller counts

@@ -299,6 +299,8 @@ pub(crate) async fn run(
     let mut swept = false;
     let mut last_counters = CountersSnapshot::default();
     let mut calibration: Option<crate::instrument::bimodal::Calibration> = None;
+    // Mode 2's PLL's updates as the hub sees them, for the bimodal frames' pairing.
+    let mut pll_history = crate::instrument::bimodal::PllHistory::default();
     // Frames left in the ring when the last pass spent its budget.
     let mut more = false;
     loop {
@@ -331,6 +333,13 @@ pub(crate) async fn run(
             {
                 calibration = Some(crate::instrument::bimodal::Calibration::of(&current));
             }
+            // Mode 2's PLL's latest update, once a pass: the history the frames, behind
+            // the synthesiser, are paired from.
+            if let Some(unit) = calibration.as_ref().and_then(|c| c.pll_unit())
+                && let Some(latest) = state.control.pid_updates()[unit]
+            {
+                pll_history.record(unit, latest);
+            }
             calibration.as_ref()
         } else {
             None
@@ -351,9 +360,11 @@ pub(crate) async fn run(
                 state.force.offer(&frame);
             }
             if let Some(c) = bimodal {
+                // The PLL's update in force at the frame's sample, not its latest: the
+                // synthesiser runs ahead of the frames.
                 let pll = c
                     .pll_unit()
-                    .and_then(|unit| state.control.pid_updates()[unit]);
+                    .and_then(|unit| pll_history.at(unit, frame.sample_index));
                 let fields = c.fields(&frame, pll);
                 publish_envelope(
                     &state,
@@ -653,7 +664,7 @@ fn publish_pid_events(
                 .map_or(0, |c| c.pid_updates_dropped),
         });
         let t = last.reading.sample as f64 / rate;
-        publish_envelope(state, StreamKind::Pids, t, (0, 0), fields);
+        publish_envelope(state, StreamKind::Pids, t, (last.t_synth_ns, 0), fields);
     }
 }
 

@@ -419,6 +419,11 @@ class BimodalData(StreamData):
     #: d and E* by the published short-tap closed forms (m, Pa), beside the whole swing's.
     short_tap_indentation: np.ndarray = field(default_factory=lambda: np.empty(0))
     short_tap_modulus: np.ndarray = field(default_factory=lambda: np.empty(0))
+    #: The sample from which mode 2's PLL update paired with the frame took effect (the
+    #: newest the daemon saw at or before the frame), and how long before the frame (s);
+    #: NaN where a frame gave no estimate.
+    pll_sample: np.ndarray = field(default_factory=lambda: np.empty(0))
+    pll_age: np.ndarray = field(default_factory=lambda: np.empty(0))
     #: The settings epoch each row's calibration is for.
     epoch: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     reason: list[str | None] = field(default_factory=list)
@@ -440,6 +445,8 @@ class BimodalData(StreamData):
             youngs_modulus=col("youngs_modulus"),
             short_tap_indentation=col("short_tap_indentation"),
             short_tap_modulus=col("short_tap_modulus"),
+            pll_sample=col("pll_sample"),
+            pll_age=col("pll_age"),
             epoch=np.array([m.get("epoch", 0) for m in messages], dtype=np.int64),
             reason=[m.get("reason") for m in messages],
         )
