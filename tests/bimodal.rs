@@ -273,6 +273,7 @@ fn bimodal_expressions_give_the_modulus_from_1_mpa_to_100_gpa() {
         ("tap150", 1e9),
         ("tap300", 10e9),
         ("tap300", 100e9),
+        ("tap525", 100e9),
     ] {
         let mut s = ftafm::config::load_with_presets(&[lever.to_owned()], None).unwrap();
         s.noise.enable = false;

@@ -165,6 +165,7 @@ fn presets_are_listed_and_load_in_order_before_the_config() {
         "tap150",
         "multi75",
         "ac240",
+        "tap525",
         "silicon",
         "fused_silica",
     ] {

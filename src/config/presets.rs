@@ -54,11 +54,12 @@ macro_rules! preset {
 }
 
 /// Every preset, cantilevers first.
-pub const PRESETS: [Preset; 10] = [
+pub const PRESETS: [Preset; 11] = [
     preset!("tap300", Cantilever),
     preset!("tap150", Cantilever),
     preset!("multi75", Cantilever),
     preset!("ac240", Cantilever),
+    preset!("tap525", Cantilever),
     preset!("silicon", Sample),
     preset!("fused_silica", Sample),
     preset!("polystyrene", Sample),
