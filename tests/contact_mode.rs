@@ -39,12 +39,12 @@ fn contact_mode(setpoint: f64, bandwidth: f64) -> Settings {
 }
 
 /// The static balance at a photodiode deflection `reading` (m) on a sample of Young's
-/// modulus `youngs` (Pa): the lever's modes each deflect by F/k_n at the tip (k_n
+/// modulus `youngs` (Pa) and Poisson ratio `poisson`: the lever's modes each deflect by F/k_n at the tip (k_n
 /// tip-referred) and the photodiode reads Σ λ_n·F/k_n (λ_n the light-lever factors), so
 /// F = reading / Σ λ_n/k_n and the tip rises by F·Σ 1/k_n; the Hertz contact takes
 /// δ = (3F/(4E*√R))^{2/3}. The surface then stands z + δ above the tip's rest position:
 /// the distance is −(z + δ). Returns (F, z, δ, distance).
-fn balance(s: &Settings, reading: f64, youngs: f64) -> (f64, f64, f64, f64) {
+fn balance(s: &Settings, reading: f64, youngs: f64, poisson: f64) -> (f64, f64, f64, f64) {
     let lever = ftafm::model::cantilever(s).unwrap();
     let per_force: f64 = lever
         .modes
@@ -54,7 +54,7 @@ fn balance(s: &Settings, reading: f64, youngs: f64) -> (f64, f64, f64, f64) {
     let compliance: f64 = lever.modes.iter().map(|m| 1.0 / m.tip_stiffness()).sum();
     let force = reading / per_force;
     let z = force * compliance;
-    let (t, nu) = (&s.tip, s.sample.poisson);
+    let (t, nu) = (&s.tip, poisson);
     let reduced =
         1.0 / ((1.0 - t.poisson * t.poisson) / t.youngs_modulus + (1.0 - nu * nu) / youngs);
     let delta = (3.0 * force / (4.0 * reduced * s.cantilever.tip_radius.sqrt())).powf(2.0 / 3.0);
@@ -77,7 +77,8 @@ fn a_deflection_loop_holds_the_hertz_balance() {
             .collect();
         let (measured, _) = mean_and_spread(tail.iter().map(|r| r.measurement));
         let (distance, spread) = mean_and_spread(tail.iter().map(|r| r.output));
-        let (force, z, delta, want) = balance(&s, setpoint, s.sample.youngs_modulus);
+        let (force, z, delta, want) =
+            balance(&s, setpoint, s.sample.youngs_modulus, s.sample.poisson);
         eprintln!(
             "deflection {:.4} nm (set-point {:.4} nm): surface at {:.5} nm (± {:.1e}), the \
              balance's {:.5} nm (F {:.3} nN, tip up {:.4} nm, δ {:.4} nm)",
@@ -139,8 +140,8 @@ fn constant_deflection_images_height_less_indentation() {
         .filter(|p| p.pixel.line == 7 && !p.pixel.retrace)
         .map(|p| p.height)
         .collect();
-    let (_, _, on_silicon, _) = balance(&s, 1e-9, s.sample.youngs_modulus);
-    let (_, _, on_disc, _) = balance(&s, 1e-9, 10e9);
+    let (_, _, on_silicon, _) = balance(&s, 1e-9, s.sample.youngs_modulus, s.sample.poisson);
+    let (_, _, on_disc, _) = balance(&s, 1e-9, 10e9, s.inclusions[0].poisson);
     let want = 2e-9 - (on_disc - on_silicon);
     let silicon = (line[0] + line[1] + line[14] + line[15]) / 4.0;
     let step = (line[7] + line[8]) / 2.0 - silicon;
@@ -264,4 +265,43 @@ fn the_settings_refuse_what_it_cannot_read_naming_the_node() {
     let mut high = s.clone();
     high.pids[0].harmonic = 10_000;
     ftafm::model::check(&high).expect("the mean deflection reads no harmonic");
+}
+
+/// `config/examples/contact_mode.toml` runs contact mode as it says: its unit is the scan's
+/// feedback on the mean deflection, with the advisor's integrator for a 2 kHz loop at its
+/// own settings to the digits the file gives; the polystyrene island's step in the height
+/// image, by the balance, is printed for docs/loops.md.
+#[test]
+fn the_contact_mode_example_carries_the_advisors_gains() {
+    let example = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/config/examples/contact_mode.toml"
+    );
+    let s = ftafm::config::load_with_presets(&[], Some(example.as_ref())).unwrap();
+    ftafm::model::check(&s).expect("the example runs");
+    assert!(s.scan.enable && !s.feedback.enable);
+    let pid = &s.pids[0];
+    assert_eq!(
+        (pid.input, pid.output),
+        (PidInput::MeanDeflection, PidTarget::SurfaceDistance)
+    );
+    let unit = unit_loop(&s, 0).unwrap();
+    let advice = advise(&unit.model, 2000.0, Kind::Pi).unwrap();
+    assert_eq!(pid.p, 0.0);
+    assert!(
+        (pid.i / (unit.sign * advice.gains.i) - 1.0).abs() < 1e-4,
+        "i {} against the advisor's {}",
+        pid.i,
+        unit.sign * advice.gains.i
+    );
+    let disc = &s.inclusions[0];
+    let (_, _, on_silicon, _) =
+        balance(&s, pid.setpoint, s.sample.youngs_modulus, s.sample.poisson);
+    let (_, _, on_disc, _) = balance(&s, pid.setpoint, disc.youngs_modulus, disc.poisson);
+    eprintln!(
+        "the island's step by the balance: {:.4} nm (δ {:.4} nm on it, {:.4} nm on silicon)",
+        (disc.height - (on_disc - on_silicon)) * 1e9,
+        on_disc * 1e9,
+        on_silicon * 1e9
+    );
 }

@@ -305,11 +305,15 @@ fn interior_regions(settings: &Settings, raster: &Raster, pixels: u32) -> Vec<Op
 }
 
 /// Per region (the base first), the regime most of its interior pixels were imaged in, from
-/// the frame's `regime` channel; empty if the frame has none.
+/// the frame's `regime` channel; empty if the frame has none, or no pixel a regime (contact
+/// mode: no tapping branch).
 pub fn branches(settings: &Settings, raster: &Raster, frame: &ImageFrame) -> Vec<RegionBranch> {
     let Some(channel) = frame.channels.iter().find(|c| c.name == "regime") else {
         return Vec::new();
     };
+    if channel.data.iter().all(|v| v.is_nan()) {
+        return Vec::new();
+    }
     let region_of = interior_regions(settings, raster, frame.pixels);
     let regions = sample_map(settings).regions().len();
     let majority = |region: usize| -> (Option<Regime>, f64) {

@@ -11,7 +11,7 @@ pub use export::ImageChannel;
 
 use rustfft::num_complex::Complex64;
 
-use crate::config::Settings;
+use crate::config::{PidInput, PidTarget, Settings};
 use crate::instrument::bimodal::BimodalSetup;
 use crate::inversion::ForceEstimator;
 use crate::pipeline::PixelHarmonics;
@@ -155,7 +155,19 @@ impl Assembler {
             + 2 * in_ring as usize
             + crate::pipeline::PIXEL_QUEUE;
         self.settings = std::sync::Arc::new(settings.clone());
-        self.free = crate::sweep::free_point(settings);
+        // In contact mode (a unit on the mean deflection holds the surface) the lever is
+        // pressed on the sample, not tapping: no pixel is on a tapping branch.
+        let contact = !settings.feedback.enable
+            && settings.pids.iter().any(|p| {
+                p.enable
+                    && p.input == PidInput::MeanDeflection
+                    && p.output == PidTarget::SurfaceDistance
+            });
+        self.free = if contact {
+            None
+        } else {
+            crate::sweep::free_point(settings)
+        };
         self.bimodal = (settings.scan.enable && settings.drive2.enable)
             .then(|| BimodalSetup::of(settings).ok())
             .flatten();
