@@ -7,13 +7,10 @@
 
 mod common;
 
-use common::loops::{
-    assert_step_as_advised, change, mean_and_spread, measured_step, refused, run, run_traced, start,
-};
+use common::loops::{assert_step_as_advised, mean_and_spread, refused, run, setpoint_step, start};
 use ftafm::config::{Oscillator, PidInput, PidTarget, Settings, default_settings};
 use ftafm::control::{Kind, advise};
 use ftafm::instrument::unit_loop::unit_loop;
-use ftafm::synth::PidReading;
 use ftafm::synth::scan::PixelTopography;
 use ftafm::synth::{PidRuntime, ScanLoops, ScanRuntime, SynthPlan, SynthState};
 use serde_json::json;
@@ -199,26 +196,16 @@ fn the_advised_deflection_loop_steps_as_the_advisor_predicts() {
         let pid = &mut settings.pids[0];
         (pid.p, pid.i, pid.d) = (-advice.gains.p, -advice.gains.i, -advice.gains.d);
         pid.d_bandwidth = advice.gains.d_bandwidth;
-        let (mut plan, mut state, mut rt) = start(&settings, 1);
-        let _ = run(&plan, &mut state, &mut rt, 0.004 + 20.0 / target);
-        settings.pids[0].setpoint = 1.05e-9;
-        change(&mut plan, &mut state, &mut rt, &settings);
-        let from = state.sample_index();
-        let (readings, _, _) = run_traced(
-            &plan,
-            &mut state,
-            &mut rt,
-            (10.0 * advice.step.settling_time).max(0.004),
+        let (overshoot, settling) = setpoint_step(
+            &settings,
+            0,
+            1.05e-9,
+            1,
+            (
+                0.004 + 20.0 / target,
+                (10.0 * advice.step.settling_time).max(0.004),
+            ),
         );
-        // The deflection read, as the step's output.
-        let read: Vec<PidReading> = readings
-            .iter()
-            .map(|r| PidReading {
-                output: r.measurement,
-                ..*r
-            })
-            .collect();
-        let (overshoot, settling) = measured_step(&read, from, plan.sample_rate, 1e-9, 1.05e-9);
         eprintln!(
             "advised deflection loop {kind:?} {target} Hz: P {:.4e} I {:.4e} /s; bandwidth \
              {:.1} Hz, margin {:.1}°; overshoot measured {:.2} % predicted {:.2} %; settling \

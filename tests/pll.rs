@@ -10,7 +10,8 @@ mod common;
 use std::f64::consts::PI;
 
 use common::loops::{
-    assert_step_as_advised, change, mean_and_spread, measured_step, pi_unit, run_traced, start,
+    assert_step_as_advised, change, mean_and_spread, measured_step, pi_unit, run_traced,
+    setpoint_step, start,
 };
 use ftafm::config::{Oscillator, PidInput, PidTarget, Settings, default_settings};
 use ftafm::control::loop_model::ADC_DELAY_SAMPLES;
@@ -565,26 +566,13 @@ fn the_advised_amplitude_loop_steps_as_the_advisor_predicts() {
         pid.output = PidTarget::DriveAmplitude;
         pid.output_min = 0.0;
         pid.output_max = 50e-9;
-        let (mut plan, mut state, mut rt) = start(&settings, 3);
-        let _ = run_traced(&plan, &mut state, &mut rt, 0.005);
-        settings.pids[1].setpoint = 1.1 * free;
-        change(&mut plan, &mut state, &mut rt, &settings);
-        let from = state.sample_index();
-        let (readings, _, _) = run_traced(
-            &plan,
-            &mut state,
-            &mut rt,
-            (10.0 * advice.step.settling_time).max(0.005),
+        let (overshoot, settling) = setpoint_step(
+            &settings,
+            1,
+            1.1 * free,
+            3,
+            (0.005, (10.0 * advice.step.settling_time).max(0.005)),
         );
-        // The amplitude read, as the step's output.
-        let read: Vec<PidReading> = readings
-            .iter()
-            .map(|r| PidReading {
-                output: r.measurement,
-                ..*r
-            })
-            .collect();
-        let (overshoot, settling) = measured_step(&read, from, plan.sample_rate, free, 1.1 * free);
         eprintln!(
             "advised amplitude loop {kind:?} {target} Hz: P {:.4e} I {:.4e} /s; bandwidth \
              {:.1} Hz, margin {:.1}°; overshoot measured {:.2} % predicted {:.2} %; settling \

@@ -93,6 +93,35 @@ pub fn measured_step(
     ((peak - 1.0).max(0.0), (settled - from) as f64 / rate)
 }
 
+/// The measured step of unit `unit`'s input when its set-point steps from `settings`' to
+/// `to` after `settle` s of simulated time (seed `seed`), followed for `follow` s: the
+/// overshoot and 2 % settling time of what its demodulator reads ([`measured_step`]).
+pub fn setpoint_step(
+    settings: &Settings,
+    unit: usize,
+    to: f64,
+    seed: u64,
+    (settle, follow): (f64, f64),
+) -> (f64, f64) {
+    let mut settings = settings.clone();
+    let before = settings.pids[unit].setpoint;
+    let (mut plan, mut state, mut rt) = start(&settings, seed);
+    let _ = run(&plan, &mut state, &mut rt, settle);
+    settings.pids[unit].setpoint = to;
+    change(&mut plan, &mut state, &mut rt, &settings);
+    let from = state.sample_index();
+    // What the unit read, as the step's output.
+    let read: Vec<PidReading> = run(&plan, &mut state, &mut rt, follow)
+        .iter()
+        .filter(|r| r.unit == unit)
+        .map(|r| PidReading {
+            output: r.measurement,
+            ..*r
+        })
+        .collect();
+    measured_step(&read, from, plan.sample_rate, before, to)
+}
+
 /// A measured step against `advice`'s linear model: the overshoot within 10 % of the
 /// prediction (or 1 % of the step where it predicts under 10 %), the settling time within
 /// 10 % (or two update periods of `update` s: the loop's output moves once a period).
