@@ -72,6 +72,8 @@ fn the_schema_uses_no_physics_and_the_control_plane_no_transport() {
             "synth",
             "timebase",
             "cpu",
+            // The loop models and the advisor (`unit_loop`): a leaf that uses nothing.
+            "control",
         ],
     );
 }
