@@ -3,21 +3,8 @@
 //! unit's input and output at the settings in force, and [`crate::control::advise`] on it.
 //! It does not apply them: the client sets them with `set`.
 //!
-//! Modelled loops (docs/loops.md, "The PID advisor"):
-//! - a PLL: input `phase` on harmonic 1, output `drive_frequency`. The plant is the driven
-//!   lever's phase, slope 2Q/f1 rad/Hz through τ_c = Q/(π·f1) ([`Plant::resonator`]); the
-//!   lever's phase falls as the frequency rises, so the gains come back negated;
-//! - an amplitude loop on the drive: input `r` on harmonic 1, output `drive_amplitude`. The
-//!   plant is the free lever's photodiode amplitude per metre of drive amplitude, through the
-//!   envelope's τ_c ([`Plant::amplitude`]); the surface out of reach (a tapping lever's
-//!   amplitude answers its drive far less).
-//!
-//! Both behind the units' own demodulator ([`Demodulator::pid_unit`]): no filter, one
-//! update per drive period, a period and the ADC filter's delay of dead time. The same two
-//! on the second excitation (oscillator `drive2`, outputs `drive2_frequency` and
-//! `drive2_amplitude`: bimodal AFM's mode-2 loops) take mode 2's Q and f2, behind the unit's
-//! low-pass of four sections at `/pids/N/input_bandwidth` ([`Demodulator::new`] run per
-//! sample) read once per drive period.
+//! The loops it models, and how, are [`crate::instrument::unit_loop`]'s (docs/loops.md, "The
+//! PID advisor"); a unit it does not model is refused naming the unit's nodes.
 
 use serde::{Deserialize, Deserializer};
 use serde_json::{Map, Value, json};
