@@ -261,6 +261,41 @@ fn partial_overlay_changes_only_what_it_names() {
     assert_eq!(s, expected);
 }
 
+/// An overlay names the nodes its text holds, as a `set` of them would (the derived
+/// inclusions' moduli not among them), whether or not their values change; the loops'
+/// outputs whose nodes it holds are those it takes back from a stopped unit.
+#[test]
+fn an_overlay_names_the_nodes_it_writes() {
+    let base = default_settings();
+    let text = format!(
+        "[sample]\nyoungs_modulus = 116.1e9\n\n[drive]\nfrequency = {:e}\n",
+        base.drive.frequency
+    );
+    let (s, written) = ftafm::config::overlay_str_written(base.clone(), &text, "t.toml").unwrap();
+    let named: BTreeSet<&str> = written.iter().map(String::as_str).collect();
+    assert_eq!(
+        named,
+        BTreeSet::from(["/sample/youngs_modulus", "/drive/frequency"])
+    );
+    assert_eq!(s.drive.frequency, base.drive.frequency);
+    use ftafm::config::PidTarget;
+    let bit = |t: PidTarget| 1u64 << t as u64;
+    assert_eq!(
+        PidTarget::written(Some(&written)),
+        bit(PidTarget::DriveFrequency)
+    );
+    let all = PidTarget::ALL.iter().fold(0, |m, t| m | bit(*t));
+    assert_eq!(PidTarget::written(None), all);
+    for &t in PidTarget::ALL {
+        assert_eq!(PidTarget::written(Some(&[t.node().to_owned()])), bit(t));
+        assert!(
+            registry().iter().any(|n| n.path == t.node()),
+            "{}",
+            t.node()
+        );
+    }
+}
+
 #[test]
 fn inline_demod_tables_change_only_their_keys() {
     // Demodulator 4 (harmonic 5): not one the inversion needs (6 and 17).

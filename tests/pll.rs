@@ -834,3 +834,128 @@ fn a_pll_reports_the_loss_of_its_lock_and_locks_again() {
     let other = run_traced(&plan, &mut state, &mut rt, 0.001).0;
     assert!(!other.is_empty() && other.iter().all(|r| r.locked.is_none()));
 }
+
+/// The mean of harmonic 1's x + iy over `frames` `demods` frames from simulated time
+/// `from` (s) on.
+async fn mean_h1(ws: &mut common::Ws, from: f64, frames: usize) -> (f64, f64) {
+    let (mut x, mut y, mut n) = (0.0, 0.0, 0);
+    while n < frames {
+        let frame = common::next_of(ws, "demods").await;
+        if frame["t"].as_f64().unwrap() < from {
+            continue;
+        }
+        let h1 = frame["demods"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|d| d["harmonic"] == 1)
+            .unwrap()
+            .clone();
+        x += h1["x"].as_f64().unwrap();
+        y += h1["y"].as_f64().unwrap();
+        n += 1;
+    }
+    (x / n as f64, y / n as f64)
+}
+
+/// A stopped PLL holds the drive where it locked, away from `/drive/frequency`. A write of
+/// the node takes the drive back even with the value it already has: a `set`, or a
+/// `load_settings` whose text holds it (one that does not hold it leaves the drive held).
+/// Back at the node, harmonic 1 reads the lever's analytic steady state there.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_write_of_the_node_takes_the_drive_back_from_a_stopped_pll() {
+    use serde_json::json;
+    let mut settings = common::light();
+    let pll = pll(0.01, 500.0);
+    settings.surface = pll.surface.clone();
+    settings.drive = pll.drive.clone();
+    settings.pids = pll.pids.clone();
+    let node = settings.drive.frequency;
+    let daemon = common::Daemon::start(settings.clone()).await;
+    let mut ws = common::connect(daemon.addr).await;
+    for stream in ["status", "demods"] {
+        let sub = common::call(&mut ws, json!({"op": "subscribe", "stream": stream})).await;
+        assert_eq!(sub["ok"], true, "{sub}");
+    }
+    // Each request, then the first status of its epoch or later: what the synthesiser
+    // holds once it runs the change.
+    async fn held_after(
+        ws: &mut common::Ws,
+        request: serde_json::Value,
+    ) -> (serde_json::Value, f64) {
+        let reply = common::call(ws, request).await;
+        assert_eq!(reply["ok"], true, "{reply}");
+        let epoch = reply["epoch"].as_u64().unwrap();
+        let t = reply["t"].as_f64().unwrap();
+        let status = common::first_of(ws, "status", |s| {
+            s["epoch"].as_u64().is_some_and(|e| e >= epoch)
+        })
+        .await;
+        (status["pid_held"].clone(), t)
+    }
+    // The first status with the PLL locked after `updates` updates of its count.
+    async fn locked(ws: &mut common::Ws, updates: u64) -> u64 {
+        let status = common::first_of(ws, "status", |s| {
+            s["pids"][0]["latest"]["updates"]
+                .as_u64()
+                .is_some_and(|n| n >= updates)
+                && s["pids"][0]["locked"] == true
+        })
+        .await;
+        status["pids"][0]["latest"]["updates"].as_u64().unwrap()
+    }
+    let updates = locked(&mut ws, 2000).await;
+    let (held, t) = held_after(
+        &mut ws,
+        json!({"op": "set", "path": "/pids/0/enable", "value": false}),
+    )
+    .await;
+    assert_eq!(held, json!(["drive_frequency"]));
+    // Held at the lock: harmonic 1 at phase π.
+    let (x, y) = mean_h1(&mut ws, t + 0.1, 10).await;
+    let off = (y.atan2(x).rem_euclid(2.0 * PI) - PI).abs();
+    assert!(off < 0.01, "held at the lock: phase − π = {off}");
+    // A load that does not hold the node leaves the drive held.
+    let text = format!(
+        "[drive]\nfree_amplitude = {:e}\n",
+        settings.drive.free_amplitude
+    );
+    let (held, _) = held_after(&mut ws, json!({"op": "load_settings", "toml": text})).await;
+    assert_eq!(
+        held,
+        json!(["drive_frequency"]),
+        "after a load without /drive/frequency"
+    );
+    // A set of its present value takes it back.
+    let (held, t) = held_after(
+        &mut ws,
+        json!({"op": "set", "path": "/drive/frequency", "value": node}),
+    )
+    .await;
+    assert_eq!(held, json!([]), "after a set of the present value");
+    let z = ftafm::synth::plan::free_reading(&settings).unwrap();
+    let (x, y) = mean_h1(&mut ws, t + 0.1, 10).await;
+    let error = ((x - z.re).powi(2) + (y - z.im).powi(2)).sqrt() / z.norm();
+    eprintln!(
+        "back at {node} Hz: h1 {x:.4e} + {y:.4e}i against the steady state {z:.4e}: {error:.2e}"
+    );
+    assert!(error < 0.03, "h1 {x} + {y}i against {z}: {error}");
+    // Again, taken back by a load of the same value.
+    let (held, _) = held_after(
+        &mut ws,
+        json!({"op": "set", "path": "/pids/0/enable", "value": true}),
+    )
+    .await;
+    assert_eq!(held, json!(["drive_frequency"]));
+    let _ = locked(&mut ws, updates + 2000).await;
+    let (held, _) = held_after(
+        &mut ws,
+        json!({"op": "set", "path": "/pids/0/enable", "value": false}),
+    )
+    .await;
+    assert_eq!(held, json!(["drive_frequency"]));
+    let text = format!("[drive]\nfrequency = {node:e}\n");
+    let (held, _) = held_after(&mut ws, json!({"op": "load_settings", "toml": text})).await;
+    assert_eq!(held, json!([]), "after a load of the present value");
+    daemon.shutdown().await;
+}

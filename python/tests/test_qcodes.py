@@ -317,10 +317,10 @@ def test_apply_sets_the_gains_of_a_running_unit_in_one_change(afm: FTAFM) -> Non
         assert unit.enable() is True
     finally:
         unit.enable(False)
-        # The disabled unit holds the drive where it left it until /drive/frequency
-        # changes (docs/loops.md): a change, then f, takes it back for the tests after.
-        afm.drive.frequency(1.001 * f)
+        # The disabled unit holds the drive where it left it until /drive/frequency is
+        # written (docs/loops.md): a write of f takes it back for the tests after.
         afm.drive.frequency(f)
+        assert afm.client.pid_held() == []
 
 
 def test_a_refused_advice_names_the_field_and_sets_nothing(afm: FTAFM) -> None:

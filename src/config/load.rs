@@ -77,6 +77,16 @@ pub fn overlay_str(
     overlay_toml: &str,
     origin: &str,
 ) -> Result<Settings, ConfigError> {
+    overlay_str_written(base, overlay_toml, origin).map(|(settings, _)| settings)
+}
+
+/// [`overlay_str`], and the paths of the nodes the text writes: what a `set` of the same
+/// values would name.
+pub fn overlay_str_written(
+    base: Settings,
+    overlay_toml: &str,
+    origin: &str,
+) -> Result<(Settings, Vec<String>), ConfigError> {
     let table: toml::Table =
         overlay_toml
             .parse()
@@ -87,9 +97,9 @@ pub fn overlay_str(
     let mut settings = base;
     let mut written = Vec::new();
     apply_table(&mut settings, "", &table, origin, &mut written)?;
-    let written: Vec<&str> = written.iter().map(String::as_str).collect();
+    let paths: Vec<&str> = written.iter().map(String::as_str).collect();
     settings
-        .derive_linked(&written)
+        .derive_linked(&paths)
         .map_err(|error| ConfigError::Invalid {
             origin: origin.to_owned(),
             error,
@@ -98,7 +108,7 @@ pub fn overlay_str(
         origin: origin.to_owned(),
         error,
     })?;
-    Ok(settings)
+    Ok((settings, written))
 }
 
 /// Walks one TOML table whose node path is `prefix` (`""` at the top level).

@@ -681,6 +681,28 @@ impl PidTarget {
         matches!(self, Self::Drive2Frequency | Self::Drive2Amplitude)
     }
 
+    /// The node that holds its value while no unit moves it: a write of that node takes
+    /// the output back from a unit that stopped on it.
+    pub fn node(self) -> &'static str {
+        match self {
+            Self::SurfaceDistance => "/surface/distance",
+            Self::DriveFrequency => "/drive/frequency",
+            Self::DriveAmplitude => "/drive/free_amplitude",
+            Self::Drive2Frequency => "/drive2/frequency",
+            Self::Drive2Amplitude => "/drive2/free_amplitude",
+        }
+    }
+
+    /// The outputs whose nodes a change writes, bit `PidTarget as usize` each: those of
+    /// `paths` ([`node`](Self::node)), or all of them for a whole load (`None`). A write
+    /// counts whether or not it changes the value.
+    pub fn written(paths: Option<&[String]>) -> u64 {
+        Self::ALL
+            .iter()
+            .filter(|t| paths.is_none_or(|p| p.iter().any(|p| p == t.node())))
+            .fold(0, |mask, t| mask | 1 << *t as u64)
+    }
+
     /// The oscillator whose frequency it moves, if it moves one.
     pub fn frequency_of(self) -> Option<Oscillator> {
         match self {

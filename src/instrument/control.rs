@@ -275,7 +275,10 @@ impl Control {
         };
         let (epoch, t) = match writer.pipeline.as_mut() {
             Some(p) => {
-                let epoch = p.apply(&next).map_err(|e| pipeline_error(e, what))?;
+                let written = crate::config::PidTarget::written(committed_paths);
+                let epoch = p
+                    .apply_writing(&next, written)
+                    .map_err(|e| pipeline_error(e, what))?;
                 let t = p
                     .effective_index(epoch, EFFECT_WAIT)
                     .map(|index| index as f64 / next.synth.sample_rate);

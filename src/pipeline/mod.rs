@@ -521,6 +521,20 @@ impl Pipeline {
     /// epoch it published, for [`effective_index`](Self::effective_index). On error nothing
     /// changes.
     pub fn apply(&mut self, settings: &Settings) -> Result<u64, PipelineError> {
+        self.apply_writing(settings, 0)
+    }
+
+    /// [`apply`](Self::apply) for a change that wrote the nodes of the outputs `written`
+    /// ([`PidTarget::written`](crate::config::PidTarget::written)): an output a stopped
+    /// unit holds goes back to its node even where the node's value is unchanged.
+    pub fn apply_writing(
+        &mut self,
+        settings: &Settings,
+        written: u64,
+    ) -> Result<u64, PipelineError> {
+        // Only what a unit holds needs the synthesiser (the mask is the one it published
+        // with the plan in force).
+        let release = written & self.counters.pids.held_mask();
         let old = &self.settings;
         if settings.synth.sample_rate != old.synth.sample_rate {
             return Err(PipelineError::Restart("/synth/sample_rate"));
@@ -549,7 +563,8 @@ impl Pipeline {
             || settings.feedback != old.feedback
             || settings.inclusions != old.inclusions
             || settings.pids != old.pids
-            || settings.source != old.source;
+            || settings.source != old.source
+            || release != 0;
         // A drive change can move demodulators in or out of band, which the bank must follow.
         let dsp_changed = settings.demods != old.demods
             || settings.demods_out_of_band() != old.demods_out_of_band()
@@ -587,6 +602,7 @@ impl Pipeline {
         }
         if let Some(mut plan) = synth {
             plan.epoch = epoch;
+            plan.release = release;
             if let Some(tables) = plan.scan.as_ref().and_then(|s| s.tables.clone()) {
                 self.tap_tables = Some(tables);
             }

@@ -134,6 +134,11 @@ impl PidBoard {
         self.streaming.store(on, Ordering::Relaxed);
     }
 
+    /// The outputs the loops hold, bit `PidTarget as usize` each.
+    pub fn held_mask(&self) -> u64 {
+        self.held.load(Ordering::Relaxed)
+    }
+
     /// Records which outputs the loops hold ([`crate::synth::PidRuntime::held_outputs`]).
     /// For the synthesiser thread: lock-free, allocation-free.
     #[inline]
@@ -144,7 +149,7 @@ impl PidBoard {
     /// The outputs a loop holds away from their nodes: one running on it, or one that
     /// ran and left it where it put it.
     pub fn held(&self) -> Vec<PidTarget> {
-        let mask = self.held.load(Ordering::Relaxed);
+        let mask = self.held_mask();
         PidTarget::ALL
             .iter()
             .copied()

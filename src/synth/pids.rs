@@ -412,9 +412,10 @@ impl PidRuntime {
     /// drive ([`release_drive`](Self::release_drive), then [`SynthState::retarget`]). A
     /// unit that starts takes the plan's controller and starts from the output's present
     /// value (bumpless); one that keeps running takes the new gains, limits and set-point
-    /// and keeps its integrator; one that stops holds its output. A new `/surface/distance`
-    /// (`/drive/frequency`, `/drive/free_amplitude`) takes over the surface (the drive's
-    /// frequency, its amplitude) from the loops that no longer run. Allocation-free.
+    /// and keeps its integrator; one that stops holds its output. A new or written
+    /// `/surface/distance` (`/drive/frequency`, `/drive/free_amplitude`, …; `new.release`)
+    /// takes over the surface (the drive's frequency, its amplitude) from the loops that no
+    /// longer run. Allocation-free.
     pub fn retarget(
         &mut self,
         old: &SynthPlan,
@@ -433,26 +434,36 @@ impl PidRuntime {
                 u.enabled && u.output == target && plan.as_ref().is_some_and(|p| p.output == target)
             })
         };
-        if new.pids.surface_distance != old.pids.surface_distance
-            && !continuing(PidTarget::SurfaceDistance)
-        {
+        // A node that changed, or was written, takes its output back.
+        let released = |changed: bool, target: PidTarget| {
+            (changed || new.release & 1 << target as u64 != 0) && !continuing(target)
+        };
+        if released(
+            new.pids.surface_distance != old.pids.surface_distance,
+            PidTarget::SurfaceDistance,
+        ) {
             self.distance = new.pids.surface_distance;
             self.held = false;
         }
-        if new.drive.word != old.drive.word && !continuing(PidTarget::DriveFrequency) {
+        if released(new.drive.word != old.drive.word, PidTarget::DriveFrequency) {
             self.word_held = None;
         }
-        if new.pids.free_amplitude != old.pids.free_amplitude
-            && !continuing(PidTarget::DriveAmplitude)
-        {
+        if released(
+            new.pids.free_amplitude != old.pids.free_amplitude,
+            PidTarget::DriveAmplitude,
+        ) {
             self.base_held = None;
         }
-        if new.frequency_word2 != old.frequency_word2 && !continuing(PidTarget::Drive2Frequency) {
+        if released(
+            new.frequency_word2 != old.frequency_word2,
+            PidTarget::Drive2Frequency,
+        ) {
             self.word2_held = None;
         }
-        if new.pids.free_amplitude2 != old.pids.free_amplitude2
-            && !continuing(PidTarget::Drive2Amplitude)
-        {
+        if released(
+            new.pids.free_amplitude2 != old.pids.free_amplitude2,
+            PidTarget::Drive2Amplitude,
+        ) {
             self.base2_held = None;
         }
         for (unit, plan) in self.units.iter_mut().zip(&new.pids.units) {

@@ -129,6 +129,12 @@ pub struct SynthPlan {
     /// plan): the synthesiser takes it up once that epoch is published, with the block it
     /// stamps with it.
     pub epoch: u64,
+    /// The outputs whose nodes the change that made this plan wrote, bit `PidTarget as
+    /// usize` each (set by the pipeline, [`PidTarget::written`]): a unit that no longer
+    /// runs on one gives it back to its node even where the node's value is unchanged.
+    ///
+    /// [`PidTarget::written`]: crate::config::PidTarget::written
+    pub release: u64,
 }
 
 /// Per-mode constants as structure of arrays, zero past the plan's modes.
@@ -388,6 +394,7 @@ impl SynthPlan {
             force_window,
             source: settings.source.kind,
             epoch: 0,
+            release: 0,
         })
     }
 

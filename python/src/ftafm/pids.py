@@ -273,8 +273,8 @@ def from_status(message: Mapping[str, Any]) -> list[PidStatus]:
 
 def held_from_status(message: Mapping[str, Any]) -> list[str]:
     """The outputs a PID unit holds away from their nodes in one ``status`` message
-    (``pid_held``: one runs on it, or one ran and left it there until the node is set
-    again), e.g. ``["drive_frequency"]`` or ``["drive2_frequency"]``; ``[]`` from a daemon
+    (``pid_held``: one runs on it, or one ran and left it there until the node is
+    written), e.g. ``["drive_frequency"]`` or ``["drive2_frequency"]``; ``[]`` from a daemon
     without them."""
     return [str(o) for o in message.get("pid_held", [])]
 
