@@ -37,6 +37,8 @@ fn options(file: &Path) -> Options {
         sample_rate: None,
         reference_channel: None,
         drive_frequency: None,
+        reference2_channel: None,
+        drive2_frequency: None,
         invols: None,
         metres: false,
         out: None,
@@ -274,6 +276,92 @@ fn a_wav_written_by_another_library_gives_each_tones_amplitude_and_phase() {
                 assert!((v.phase() - phase).abs() < 2e-3, "{v:?}");
             }
         }
+    }
+    std::fs::remove_dir_all(&d).ok();
+}
+
+/// Two excitations recorded beside the signal (a bimodal experiment): channel 1 holds the
+/// first, channel 2 the second at an unrelated frequency and phase. With
+/// `--reference2-channel` (looked for near `/drive2/frequency`) the demodulators on `drive2`
+/// read the signal's tone at f2 against it: its amplitude and its phase less the
+/// excitation's; with `--drive2-frequency` alone the signal's own tone is the reference
+/// (phase 0). Bad values are refused by name.
+#[test]
+fn a_second_excitation_channel_is_the_reference_of_the_demodulators_on_drive2() {
+    let d = dir("drive2");
+    let file = d.join("bimodal.wav");
+    let (fs, f1, f2, psi) = (1_000_000u32, 10_123.4, 63_456.7, -2.1);
+    let spec = hound::WavSpec {
+        channels: 3,
+        sample_rate: fs,
+        bits_per_sample: 16,
+        sample_format: hound::SampleFormat::Int,
+    };
+    let mut w = hound::WavWriter::create(&file, spec).unwrap();
+    for n in 0..(0.1 * f64::from(fs)) as usize {
+        let t = n as f64 / f64::from(fs);
+        let (a, b) = (TAU * f1 * t, TAU * f2 * t + psi);
+        let sig = 0.5 * (a + 0.3).cos() + 0.2 * (b + 0.7).cos();
+        for v in [sig, 0.8 * a.cos(), 0.6 * b.cos()] {
+            w.write_sample((v * 32767.0).round() as i16).unwrap();
+        }
+    }
+    w.finalize().unwrap();
+    let mut s = default_settings();
+    s.inversion.enable = false;
+    s.dsp.threads = 1;
+    s.drive2.frequency = 63e3;
+    s.demods[1].harmonic = 1;
+    s.demods[1].oscillator = ftafm::config::Oscillator::Drive2;
+    let mut opts = options(&file);
+    opts.invols = Some(1.0);
+    opts.reference_channel = Some(1);
+    opts.reference2_channel = Some(2);
+    let check = |frames: &[DemodFrame], second: (f64, f64)| {
+        assert!(frames.len() >= 90, "{} frames", frames.len());
+        for frame in &frames[20..] {
+            for v in frame.values() {
+                let (r, phase) = match (v.index, v.harmonic) {
+                    (1, _) => second,
+                    (_, 1) => (0.5, 0.3),
+                    _ => continue,
+                };
+                assert!((v.r() - r).abs() < 2e-4, "{v:?}");
+                assert!((v.phase() - phase).abs() < 2e-3, "{v:?}");
+            }
+        }
+    };
+    let (summary, frames, _) = analysed(&s, &opts);
+    let r2 = summary.reference2.clone().unwrap();
+    let fit = r2.fit.unwrap();
+    assert_eq!(r2.source, "channel 2");
+    assert!((fit.frequency - f2).abs() < 1e-3, "{fit:?}");
+    assert!((fit.amplitude - 0.6).abs() < 1e-3, "{fit:?}");
+    check(&frames, (0.2, 0.7));
+    // The signal's own tone near --drive2-frequency.
+    opts.reference2_channel = None;
+    opts.drive2_frequency = Some(63e3);
+    let (summary, frames, _) = analysed(&s, &opts);
+    assert_eq!(summary.reference2.unwrap().source, "signal");
+    check(&frames, (0.2, 0.0));
+    // Refusals, naming the flag.
+    for (channel, f, says) in [
+        (
+            Some(0),
+            None,
+            "--reference2-channel must differ from --signal-channel",
+        ),
+        (Some(3), None, "--reference2-channel 3"),
+        (
+            None,
+            Some(6e5),
+            "--drive2-frequency must be finite, > 0 and below half",
+        ),
+    ] {
+        opts.reference2_channel = channel;
+        opts.drive2_frequency = f;
+        let e = analyse::analyse_with(&s, &opts, None).unwrap_err();
+        assert!(e.contains(says), "{e}");
     }
     std::fs::remove_dir_all(&d).ok();
 }

@@ -62,6 +62,33 @@ def test_an_array_with_its_excitation_channel_gives_each_tones_amplitude_and_pha
         assert f["spectrum"]["frequency"].attrs["units"] == "Hz"
 
 
+def test_a_second_excitation_channel_is_drive2s_reference(tmp_path) -> None:
+    # Demodulator 1 on drive2 at harmonic 1; the second excitation on channel 2 at an
+    # unrelated frequency and phase, the signal's tone at it 0.7 rad on.
+    config = tmp_path / "drive2.toml"
+    config.write_text(
+        "[inversion]\nenable = false\n[drive2]\nfrequency = 63e3\n"
+        '[demods.1]\nharmonic = 1\noscillator = "drive2"\n'
+    )
+    n = np.arange(int(0.1 * FS))
+    theta, theta2 = 2 * np.pi * F * n / FS, 2 * np.pi * 63_456.7 * n / FS - 2.1
+    signal = 0.5 * np.cos(theta + 0.3) + 0.2 * np.cos(theta2 + 0.7)
+    data = np.stack([signal, 0.8 * np.cos(theta), 0.6 * np.cos(theta2)], axis=1)
+    result = analyse(
+        data, FS, units="m", reference_channel=1, reference2_channel=2, config=config
+    )
+    assert result.summary["reference2"]["source"] == "channel 2"
+    assert abs(result.summary["reference2"]["frequency"] - 63_456.7) < 1e-3
+    settled = result.demods[20:]
+    np.testing.assert_allclose(settled["r"][:, 1], 0.2, rtol=1e-4)
+    np.testing.assert_allclose(settled["phase"][:, 1], 0.7, atol=1e-3)
+    np.testing.assert_allclose(settled["phase"][:, 0], 0.3, atol=1e-3)
+    with pytest.raises(AnalysisError, match="--reference2-channel must differ"):
+        analyse(
+            data, FS, units="m", reference_channel=1, reference2_channel=0, config=config
+        )
+
+
 def test_an_hdf5_dataset_is_streamed_to_the_binary(no_inversion, tmp_path) -> None:
     path = tmp_path / "in.h5"
     with h5py.File(path, "w") as f:

@@ -34,6 +34,12 @@ pub struct Options {
     pub reference_channel: Option<usize>,
     /// The drive frequency (Hz), refined from the signal.
     pub drive_frequency: Option<f64>,
+    /// The channel holding the second excitation, whose phase is the reference of the
+    /// demodulators on `drive2` (it may be the first excitation's channel, both summed).
+    pub reference2_channel: Option<usize>,
+    /// The second excitation's frequency (Hz), refined from the signal (or, with
+    /// `reference2_channel`, where to look for it).
+    pub drive2_frequency: Option<f64>,
     /// InvOLS (m/V): metres per unit of the file's values.
     pub invols: Option<f64>,
     /// The file's values are metres already.
@@ -147,6 +153,10 @@ pub struct Summary {
     pub metres_per_unit: f64,
     pub scale: String,
     pub reference: ReferenceReport,
+    /// The reference of the demodulators on `drive2`, where one was measured
+    /// (`--reference2-channel`, `--drive2-frequency`); without it they read
+    /// `/drive2/frequency` from phase 0 at the first sample.
+    pub reference2: Option<ReferenceReport>,
     /// Demodulator frames and spectra written.
     pub demod_frames: u64,
     pub spectra: u64,
@@ -415,6 +425,7 @@ pub fn open(opts: &Options) -> Result<Opened, String> {
     for (what, ch) in [
         ("--signal-channel", Some(opts.signal_channel)),
         ("--reference-channel", opts.reference_channel),
+        ("--reference2-channel", opts.reference2_channel),
     ] {
         if let Some(ch) = ch
             && ch >= src.channels
@@ -428,6 +439,18 @@ pub fn open(opts: &Options) -> Result<Opened, String> {
     }
     if opts.reference_channel == Some(opts.signal_channel) {
         return Err("--reference-channel must differ from --signal-channel".to_owned());
+    }
+    if opts.reference2_channel == Some(opts.signal_channel) {
+        return Err("--reference2-channel must differ from --signal-channel".to_owned());
+    }
+    if let Some(f) = opts.drive2_frequency
+        && !(f.is_finite() && f > 0.0 && f < fs / 2.0)
+    {
+        return Err(format!(
+            "--drive2-frequency must be finite, > 0 and below half the sample rate ({} Hz), \
+             got {f}",
+            fs / 2.0
+        ));
     }
     let (scale, scale_text) = match (opts.metres, opts.invols, &sidecar) {
         (true, Some(_), _) => {
@@ -516,9 +539,13 @@ pub fn analyse_with(
         data.iter().skip(ch).step_by(chans).copied().collect()
     };
     // Checked before the reference is measured from them (a NaN would make it NaN).
-    for ch in [Some(opts.signal_channel), opts.reference_channel]
-        .into_iter()
-        .flatten()
+    for ch in [
+        Some(opts.signal_channel),
+        opts.reference_channel,
+        opts.reference2_channel,
+    ]
+    .into_iter()
+    .flatten()
     {
         if let Some(bad) = first
             .iter()
@@ -571,13 +598,50 @@ pub fn analyse_with(
             reference::phase_word(reference.phase),
         ),
     };
+    // The second excitation's, as the first's: from its channel (near --drive2-frequency,
+    // else near /drive2/frequency), or the signal's tone near --drive2-frequency.
+    let reference2 = if let Some(ch) = opts.reference2_channel {
+        let near = opts.drive2_frequency.unwrap_or(settings.drive2.frequency);
+        let fit = reference::fit(&column(&first, ch), fs, Some(near))
+            .map_err(|e| format!("{name}: reference2 channel {ch}: {e}"))?;
+        Some(ReferenceReport {
+            source: format!("channel {ch}"),
+            frequency: fit.frequency,
+            phase: fit.phase,
+            fit: Some(fit),
+        })
+    } else if let Some(f) = opts.drive2_frequency {
+        let fit = reference::fit(&column(&first, opts.signal_channel), fs, Some(f))
+            .map_err(|e| format!("{name}: the signal's tone near {f} Hz: {e}"))?;
+        Some(ReferenceReport {
+            source: "signal".to_owned(),
+            frequency: fit.frequency,
+            phase: fit.phase,
+            fit: Some(fit),
+        })
+    } else {
+        None
+    };
     let mut settings = settings.clone();
     settings.synth.sample_rate = fs;
     settings.drive.frequency = reference.frequency;
     settings.drive.follow_f1 = false;
     settings.scope.enable = false;
-    // Demodulators on /drive2 read /drive2/frequency from phase 0 at the recording's first
-    // sample: a recording carries the drive's reference alone.
+    // Without a measured reference, demodulators on /drive2 read /drive2/frequency from
+    // phase 0 at the recording's first sample.
+    let (word2, phase2) = match &reference2 {
+        Some(r) => {
+            settings.drive2.frequency = r.frequency;
+            (
+                frequency_word(r.frequency, fs).map_err(|e| e.to_string())?,
+                reference::phase_word(r.phase),
+            )
+        }
+        None => (
+            frequency_word(settings.drive2.frequency, fs).map_err(|e| e.to_string())?,
+            0,
+        ),
+    };
     let mut plan = DspPlan::new(&settings).map_err(|e| format!("the lock-in bank: {e}"))?;
     let threads = dsp_threads(&settings).min(plan.shards());
     let mut team =
@@ -707,6 +771,7 @@ pub fn analyse_with(
                 ));
             }
             let phase = phase0.wrapping_add(word.wrapping_mul(*index));
+            plan.align_drive2(phase2.wrapping_add(word2.wrapping_mul(*index)), word2);
             plan.process_block(&mut team, phase, word, &signal, &mut sink);
             *index += signal.len() as u64;
             if let Some(bar) = &bar {
@@ -773,6 +838,7 @@ pub fn analyse_with(
         metres_per_unit: scale,
         scale: scale_text,
         reference,
+        reference2,
         demod_frames: sink.frames,
         spectra: sink.spectra,
         bin_width: sink.bin_width,

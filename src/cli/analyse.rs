@@ -55,6 +55,8 @@ impl RecordingArgs {
             sample_rate: self.sample_rate,
             reference_channel: None,
             drive_frequency: None,
+            reference2_channel: None,
+            drive2_frequency: None,
             invols: self.invols,
             metres,
             out: None,
@@ -77,6 +79,14 @@ pub struct AnalyseArgs {
     /// --reference-channel, where to look for the excitation).
     #[arg(long, value_name = "HZ")]
     pub drive_frequency: Option<f64>,
+    /// The channel holding the second excitation: its phase is the reference of the
+    /// demodulators on drive2 (it may be --reference-channel's, both excitations summed).
+    #[arg(long, value_name = "N")]
+    pub reference2_channel: Option<usize>,
+    /// The second excitation's frequency (Hz), refined from the signal's tone near it (or,
+    /// with --reference2-channel, where to look for the excitation).
+    #[arg(long, value_name = "HZ")]
+    pub drive2_frequency: Option<f64>,
     /// Directory for demods.npy, spectrum.npy, force.npy and summary.json (created).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
@@ -95,6 +105,8 @@ pub fn command(args: AnalyseArgs) -> Result<ExitCode, ExitCode> {
     let opts = Options {
         reference_channel: args.reference_channel,
         drive_frequency: args.drive_frequency,
+        reference2_channel: args.reference2_channel,
+        drive2_frequency: args.drive2_frequency,
         out: args.out,
         progress: std::io::IsTerminal::is_terminal(&std::io::stderr()),
         ..args.recording.options().map_err(usage)?
@@ -122,19 +134,25 @@ fn text(s: &Summary) -> String {
         s.channels
     );
     let _ = writeln!(t, "scale: {}", s.scale);
-    let _ = write!(
-        t,
-        "reference: {} at {:.6} Hz, phase {:.6} rad at sample 0",
-        s.reference.source, s.reference.frequency, s.reference.phase
-    );
-    if let Some(f) = &s.reference.fit {
+    for (name, r) in [
+        ("reference", Some(&s.reference)),
+        ("reference2", s.reference2.as_ref()),
+    ] {
+        let Some(r) = r else { continue };
         let _ = write!(
             t,
-            " (fit on {} samples, amplitude {:.4e}, phase residual {:.2e} rad)",
-            f.samples, f.amplitude, f.phase_residual
+            "{name}: {} at {:.6} Hz, phase {:.6} rad at sample 0",
+            r.source, r.frequency, r.phase
         );
+        if let Some(f) = &r.fit {
+            let _ = write!(
+                t,
+                " (fit on {} samples, amplitude {:.4e}, phase residual {:.2e} rad)",
+                f.samples, f.amplitude, f.phase_residual
+            );
+        }
+        let _ = writeln!(t);
     }
-    let _ = writeln!(t);
     let _ = writeln!(
         t,
         "lock-in: {} demodulator frames, {} spectra on {} thread(s)",

@@ -133,6 +133,8 @@ def analyse(
     units: str | None = None,
     drive_frequency: float | None = None,
     reference_channel: int | None = None,
+    drive2_frequency: float | None = None,
+    reference2_channel: int | None = None,
     signal_channel: int = 0,
     preset: Sequence[str] = (),
     config: str | os.PathLike[str] | None = None,
@@ -146,7 +148,8 @@ def analyse(
     binary's standard input). ``sample_rate`` (Hz) is needed unless the file has one (a
     WAV, or a ``record-signal`` file). The scale to metres: ``invols`` (m/V) or
     ``units="m"``. The reference: ``reference_channel`` (a channel holding the
-    excitation) or ``drive_frequency`` (Hz, refined from the signal). ``preset`` and
+    excitation) or ``drive_frequency`` (Hz, refined from the signal); the demodulators on
+    ``drive2``'s: ``reference2_channel`` or ``drive2_frequency`` alike. ``preset`` and
     ``config`` give the lever and the lock-in bank, as for every ``ftafm`` command.
     Raises :class:`AnalysisError` with the binary's message when it refuses the input.
     """
@@ -185,6 +188,8 @@ def analyse(
             ("--units", units),
             ("--drive-frequency", drive_frequency),
             ("--reference-channel", reference_channel),
+            ("--drive2-frequency", drive2_frequency),
+            ("--reference2-channel", reference2_channel),
         ]:
             if value is not None:
                 args += [flag, repr(value) if isinstance(value, float) else str(value)]
