@@ -858,10 +858,10 @@ async fn mean_h1(ws: &mut common::Ws, from: f64, frames: usize) -> (f64, f64) {
     (x / n as f64, y / n as f64)
 }
 
-/// A stopped PLL holds the drive where it locked, away from `/drive/frequency`. A write of
-/// the node takes the drive back even with the value it already has: a `set`, or a
-/// `load_settings` whose text holds it (one that does not hold it leaves the drive held).
-/// Back at the node, harmonic 1 reads the lever's analytic steady state there.
+/// A stopped PLL holds the drive where it locked, away from `/drive/frequency`, through
+/// writes of other nodes. A write of the node takes the drive back even with the value it
+/// already has, as does a `load_settings` (whole settings, as a preset): back at the node,
+/// harmonic 1 reads the lever's analytic steady state there.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_write_of_the_node_takes_the_drive_back_from_a_stopped_pll() {
     use serde_json::json;
@@ -915,16 +915,17 @@ async fn a_write_of_the_node_takes_the_drive_back_from_a_stopped_pll() {
     let (x, y) = mean_h1(&mut ws, t + 0.1, 10).await;
     let off = (y.atan2(x).rem_euclid(2.0 * PI) - PI).abs();
     assert!(off < 0.01, "held at the lock: phase − π = {off}");
-    // A load that does not hold the node leaves the drive held.
-    let text = format!(
-        "[drive]\nfree_amplitude = {:e}\n",
-        settings.drive.free_amplitude
-    );
-    let (held, _) = held_after(&mut ws, json!({"op": "load_settings", "toml": text})).await;
+    // A write of another node leaves the drive held.
+    let amplitude = settings.drive.free_amplitude;
+    let (held, _) = held_after(
+        &mut ws,
+        json!({"op": "set", "path": "/drive/free_amplitude", "value": amplitude}),
+    )
+    .await;
     assert_eq!(
         held,
         json!(["drive_frequency"]),
-        "after a load without /drive/frequency"
+        "after a set of another node"
     );
     // A set of its present value takes it back.
     let (held, t) = held_after(
@@ -954,8 +955,8 @@ async fn a_write_of_the_node_takes_the_drive_back_from_a_stopped_pll() {
     )
     .await;
     assert_eq!(held, json!(["drive_frequency"]));
-    let text = format!("[drive]\nfrequency = {node:e}\n");
+    let text = format!("[drive]\nfree_amplitude = {amplitude:e}\n");
     let (held, _) = held_after(&mut ws, json!({"op": "load_settings", "toml": text})).await;
-    assert_eq!(held, json!([]), "after a load of the present value");
+    assert_eq!(held, json!([]), "after a load");
     daemon.shutdown().await;
 }

@@ -77,16 +77,6 @@ pub fn overlay_str(
     overlay_toml: &str,
     origin: &str,
 ) -> Result<Settings, ConfigError> {
-    overlay_str_written(base, overlay_toml, origin).map(|(settings, _)| settings)
-}
-
-/// [`overlay_str`], and the paths of the nodes the text writes: what a `set` of the same
-/// values would name.
-pub fn overlay_str_written(
-    base: Settings,
-    overlay_toml: &str,
-    origin: &str,
-) -> Result<(Settings, Vec<String>), ConfigError> {
     let table: toml::Table =
         overlay_toml
             .parse()
@@ -97,9 +87,9 @@ pub fn overlay_str_written(
     let mut settings = base;
     let mut written = Vec::new();
     apply_table(&mut settings, "", &table, origin, &mut written)?;
-    let paths: Vec<&str> = written.iter().map(String::as_str).collect();
+    let written: Vec<&str> = written.iter().map(String::as_str).collect();
     settings
-        .derive_linked(&paths)
+        .derive_linked(&written)
         .map_err(|error| ConfigError::Invalid {
             origin: origin.to_owned(),
             error,
@@ -108,7 +98,7 @@ pub fn overlay_str_written(
         origin: origin.to_owned(),
         error,
     })?;
-    Ok((settings, written))
+    Ok(settings)
 }
 
 /// Walks one TOML table whose node path is `prefix` (`""` at the top level).

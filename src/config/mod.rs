@@ -53,9 +53,7 @@ pub use limits::{
     MIN_INVERSION_POINTS, MIN_PIXEL_PERIODS, MIN_RATE, MIN_SCAN_PIXELS, MIN_SCOPE_LENGTH,
     MIN_SPECTRUM_SIZE,
 };
-pub use load::{
-    DEFAULT_TOML, default_settings, load, load_str, overlay_str, overlay_str_written, settings_toml,
-};
+pub use load::{DEFAULT_TOML, default_settings, load, load_str, overlay_str, settings_toml};
 pub use nodes::NodeInfo;
 pub use presets::{PRESETS, Preset, PresetKind, load_with_presets, preset};
 pub use range::{Bound, Range};

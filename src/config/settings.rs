@@ -694,8 +694,8 @@ impl PidTarget {
     }
 
     /// The outputs whose nodes a change writes, bit `PidTarget as usize` each: those of
-    /// `paths` ([`node`](Self::node)), or all of them for a whole load (`None`). A write
-    /// counts whether or not it changes the value.
+    /// `paths` ([`node`](Self::node)), or all of them for a load of settings or a preset
+    /// (`None`: possibly any node). A write counts whether or not it changes the value.
     pub fn written(paths: Option<&[String]>) -> u64 {
         Self::ALL
             .iter()

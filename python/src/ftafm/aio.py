@@ -367,7 +367,8 @@ class Instrument:
         ``"drive2_frequency"``, ``"drive2_amplitude"``): one runs on it, or one ran and left
         it where it put it; a write of the node (``/surface/distance``,
         ``/drive/frequency``, ``/drive/free_amplitude``, ``/drive2/frequency``,
-        ``/drive2/free_amplitude``), even of its present value, takes it back, and ``/drive2/enable`` false lets go of
+        ``/drive2/free_amplitude``), even of its present value, or a load of settings
+        takes it back, and ``/drive2/enable`` false lets go of
         the second excitation's."""
         return pids.held_from_status(await self.next("status", timeout=timeout))
 

@@ -40,8 +40,7 @@ impl LoadSettings {
             .control
             .change("settings".to_owned(), move |c| {
                 let s = &c.settings;
-                let (next, written) =
-                    crate::config::overlay_str_written((**s).clone(), &toml, "settings")?;
+                let next = crate::config::overlay_str((**s).clone(), &toml, "settings")?;
                 if next.synth.sample_rate != s.synth.sample_rate {
                     return Err(ChangeError::ReadOnly(format!(
                         "/synth/sample_rate is read-only at runtime: these settings have {} \
@@ -50,8 +49,7 @@ impl LoadSettings {
                         next.synth.sample_rate, s.synth.sample_rate
                     )));
                 }
-                // The nodes the text holds, as a `set` of them would name them.
-                Ok((next, Some(written), ()))
+                Ok((next, None, ()))
             })
             .await?;
         Ok(reply(json!({

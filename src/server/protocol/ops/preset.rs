@@ -43,8 +43,7 @@ impl Preset {
             .change(origin.clone(), move |c| {
                 let base = (*c.settings).clone();
                 let running = base.synth.sample_rate;
-                let (mut next, written) =
-                    crate::config::overlay_str_written(base, preset.toml, &origin)?;
+                let mut next = crate::config::overlay_str(base, preset.toml, &origin)?;
                 // The sample rate is fixed while running: a lever preset's stays for the
                 // next start, and the reply's and status's warnings name it if the
                 // harmonics need it.
@@ -54,8 +53,7 @@ impl Preset {
                         origin: origin.clone(),
                         error,
                     })?;
-                // The nodes the preset holds, as a `set` of them would name them.
-                Ok((next, Some(written), ()))
+                Ok((next, None, ()))
             })
             .await?;
         Ok(reply(json!({
