@@ -327,13 +327,7 @@ async fn the_daemon_reports_the_lock_and_its_lock_in_follows_the_drive() {
         if frame["t"].as_f64().unwrap() < after {
             continue;
         }
-        let h1 = frame["demods"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|d| d["harmonic"] == 1)
-            .unwrap()
-            .clone();
+        let h1 = harmonic_1(&frame);
         phases.push(h1["phase"].as_f64().unwrap());
     }
     // Distance from π on the circle.
@@ -835,6 +829,17 @@ fn a_pll_reports_the_loss_of_its_lock_and_locks_again() {
     assert!(!other.is_empty() && other.iter().all(|r| r.locked.is_none()));
 }
 
+/// Harmonic 1's reading in a `demods` frame.
+fn harmonic_1(frame: &serde_json::Value) -> serde_json::Value {
+    frame["demods"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|d| d["harmonic"] == 1)
+        .unwrap()
+        .clone()
+}
+
 /// The mean of harmonic 1's x + iy over `frames` `demods` frames from simulated time
 /// `from` (s) on.
 async fn mean_h1(ws: &mut common::Ws, from: f64, frames: usize) -> (f64, f64) {
@@ -844,13 +849,7 @@ async fn mean_h1(ws: &mut common::Ws, from: f64, frames: usize) -> (f64, f64) {
         if frame["t"].as_f64().unwrap() < from {
             continue;
         }
-        let h1 = frame["demods"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|d| d["harmonic"] == 1)
-            .unwrap()
-            .clone();
+        let h1 = harmonic_1(&frame);
         x += h1["x"].as_f64().unwrap();
         y += h1["y"].as_f64().unwrap();
         n += 1;

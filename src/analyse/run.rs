@@ -88,6 +88,18 @@ pub struct ReferenceReport {
     pub fit: Option<Fit>,
 }
 
+impl ReferenceReport {
+    /// The reference a fit measured, from `source`.
+    fn fitted(source: String, fit: Fit) -> Self {
+        Self {
+            source,
+            frequency: fit.frequency,
+            phase: fit.phase,
+            fit: Some(fit),
+        }
+    }
+}
+
 /// Mean and spread of one force quantity over the estimates.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct Spread {
@@ -570,21 +582,11 @@ pub fn analyse_with(
     } else if let Some(ch) = opts.reference_channel {
         let fit = reference::fit(&column(&first, ch), fs, opts.drive_frequency)
             .map_err(|e| format!("{name}: reference channel {ch}: {e}"))?;
-        ReferenceReport {
-            source: format!("channel {ch}"),
-            frequency: fit.frequency,
-            phase: fit.phase,
-            fit: Some(fit),
-        }
+        ReferenceReport::fitted(format!("channel {ch}"), fit)
     } else if let Some(f) = opts.drive_frequency {
         let fit = reference::fit(&column(&first, opts.signal_channel), fs, Some(f))
             .map_err(|e| format!("{name}: the signal's fundamental near {f} Hz: {e}"))?;
-        ReferenceReport {
-            source: "signal".to_owned(),
-            frequency: fit.frequency,
-            phase: fit.phase,
-            fit: Some(fit),
-        }
+        ReferenceReport::fitted("signal".to_owned(), fit)
     } else {
         return Err(format!(
             "{name}: give the reference: --reference-channel N (a channel holding the \
@@ -604,21 +606,11 @@ pub fn analyse_with(
         let near = opts.drive2_frequency.unwrap_or(settings.drive2.frequency);
         let fit = reference::fit(&column(&first, ch), fs, Some(near))
             .map_err(|e| format!("{name}: reference2 channel {ch}: {e}"))?;
-        Some(ReferenceReport {
-            source: format!("channel {ch}"),
-            frequency: fit.frequency,
-            phase: fit.phase,
-            fit: Some(fit),
-        })
+        Some(ReferenceReport::fitted(format!("channel {ch}"), fit))
     } else if let Some(f) = opts.drive2_frequency {
         let fit = reference::fit(&column(&first, opts.signal_channel), fs, Some(f))
             .map_err(|e| format!("{name}: the signal's tone near {f} Hz: {e}"))?;
-        Some(ReferenceReport {
-            source: "signal".to_owned(),
-            frequency: fit.frequency,
-            phase: fit.phase,
-            fit: Some(fit),
-        })
+        Some(ReferenceReport::fitted("signal".to_owned(), fit))
     } else {
         None
     };
