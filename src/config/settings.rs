@@ -681,6 +681,11 @@ impl PidTarget {
         matches!(self, Self::Drive2Frequency | Self::Drive2Amplitude)
     }
 
+    /// Its bit in a mask of outputs (`pid_held`'s, [`written`](Self::written)'s).
+    pub fn bit(self) -> u64 {
+        1 << self as u64
+    }
+
     /// The node that holds its value while no unit moves it: a write of that node takes
     /// the output back from a unit that stopped on it.
     pub fn node(self) -> &'static str {
@@ -693,14 +698,14 @@ impl PidTarget {
         }
     }
 
-    /// The outputs whose nodes a change writes, bit `PidTarget as usize` each: those of
+    /// The outputs whose nodes a change writes, [`bit`](Self::bit) each: those of
     /// `paths` ([`node`](Self::node)), or all of them for a load of settings or a preset
     /// (`None`: possibly any node). A write counts whether or not it changes the value.
     pub fn written(paths: Option<&[String]>) -> u64 {
         Self::ALL
             .iter()
             .filter(|t| paths.is_none_or(|p| p.iter().any(|p| p == t.node())))
-            .fold(0, |mask, t| mask | 1 << *t as u64)
+            .fold(0, |mask, t| mask | t.bit())
     }
 
     /// The oscillator whose frequency it moves, if it moves one.

@@ -36,7 +36,7 @@ struct Slot {
 #[derive(Debug, Default)]
 pub struct PidBoard {
     slots: [Slot; PID_COUNT],
-    /// The outputs a loop holds away from their nodes, bit `PidTarget as usize` each.
+    /// The outputs a loop holds away from their nodes, [`PidTarget::bit`] each.
     held: AtomicU64,
     /// Whether the `pids` stream has subscribers: the synthesiser then queues every update.
     streaming: AtomicBool,
@@ -134,7 +134,7 @@ impl PidBoard {
         self.streaming.store(on, Ordering::Relaxed);
     }
 
-    /// The outputs the loops hold, bit `PidTarget as usize` each.
+    /// The outputs the loops hold, [`PidTarget::bit`] each.
     pub fn held_mask(&self) -> u64 {
         self.held.load(Ordering::Relaxed)
     }
@@ -153,7 +153,7 @@ impl PidBoard {
         PidTarget::ALL
             .iter()
             .copied()
-            .filter(|t| mask & (1 << *t as u64) != 0)
+            .filter(|t| mask & t.bit() != 0)
             .collect()
     }
 

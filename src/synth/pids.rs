@@ -319,10 +319,9 @@ impl PidRuntime {
         std::array::from_fn(|i| self.units[i].sums)
     }
 
-    /// The outputs the loops hold away from the plan's nodes, bit `PidTarget as usize`
-    /// each.
+    /// The outputs the loops hold away from the plan's nodes, [`PidTarget::bit`] each.
     pub fn held_outputs(&self) -> u64 {
-        let bit = |on: bool, target: PidTarget| u64::from(on) << target as u64;
+        let bit = |on: bool, target: PidTarget| if on { target.bit() } else { 0 };
         bit(self.held, PidTarget::SurfaceDistance)
             | bit(self.word_held.is_some(), PidTarget::DriveFrequency)
             | bit(self.base_held.is_some(), PidTarget::DriveAmplitude)
@@ -436,7 +435,7 @@ impl PidRuntime {
         };
         // A node that changed, or was written, takes its output back.
         let released = |changed: bool, target: PidTarget| {
-            (changed || new.release & 1 << target as u64 != 0) && !continuing(target)
+            (changed || new.release & target.bit() != 0) && !continuing(target)
         };
         if released(
             new.pids.surface_distance != old.pids.surface_distance,

@@ -129,10 +129,11 @@ pub struct SynthPlan {
     /// plan): the synthesiser takes it up once that epoch is published, with the block it
     /// stamps with it.
     pub epoch: u64,
-    /// The outputs whose nodes the change that made this plan wrote, bit `PidTarget as
-    /// usize` each (set by the pipeline, [`PidTarget::written`]): a unit that no longer
-    /// runs on one gives it back to its node even where the node's value is unchanged.
+    /// The outputs whose nodes the change that made this plan wrote, [`PidTarget::bit`]
+    /// each (set by the pipeline, [`PidTarget::written`]): a unit that no longer runs on
+    /// one gives it back to its node even where the node's value is unchanged.
     ///
+    /// [`PidTarget::bit`]: crate::config::PidTarget::bit
     /// [`PidTarget::written`]: crate::config::PidTarget::written
     pub release: u64,
 }
